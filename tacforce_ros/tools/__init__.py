@@ -1,0 +1,1 @@
+"""tacforce_ros.tools"""

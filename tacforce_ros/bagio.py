@@ -1,0 +1,305 @@
+"""rosbag2 calibration bags without ROS: topic layout, typestore, message builders, reader and
+a crash-tolerant writer.
+
+Layout (docs/CONTRACTS.md): the same topics whether the sync_recorder node or the simulator's
+sim_record tool wrote the bag, so training cannot tell lab data from simulated data.
+
+The writer splits the bag into files (standard rosbag2 multi-file bag) and rewrites
+metadata.yaml atomically each time a split closes, so a recorder killed with SIGKILL leaves a bag
+that rosbags and `ros2 bag` read up to the last closed split.
+"""
+from __future__ import annotations
+
+import json
+import shutil
+import time
+from collections.abc import Iterator, Sequence
+from functools import lru_cache
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from rosbags.rosbag2 import Reader, StoragePlugin, Writer
+from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+from ruamel.yaml import YAML
+
+from tacforce_ros.paths import share_dir
+
+TOPIC_TACTILE = '/tactile/raw'
+TOPIC_WRENCH = '/ft_sensor/wrench'
+TOPIC_JOINTS = '/joint_states'
+TOPIC_SAMPLE = '/calibration/sample'
+TOPIC_SESSION = '/session/metadata'
+TOPIC_SIM_CONTACT = '/sim/contact_force'
+
+TOPIC_TYPES = {
+    TOPIC_TACTILE: 'tacforce_msgs/msg/TactileHand',
+    TOPIC_WRENCH: 'geometry_msgs/msg/WrenchStamped',
+    TOPIC_JOINTS: 'sensor_msgs/msg/JointState',
+    TOPIC_SAMPLE: 'tacforce_msgs/msg/CalibrationSample',
+    TOPIC_SESSION: 'std_msgs/msg/String',
+    TOPIC_SIM_CONTACT: 'geometry_msgs/msg/WrenchStamped',
+}
+
+METADATA_KEYS = ('array', 'plate', 'hand_side', 'operator_notes', 'source', 'scene', 'seed',
+                 'started')
+CUSTOM_DATA_PREFIX = 'tacforce.'
+_SPLIT_SUFFIX = '.partial'
+
+
+class BagError(RuntimeError):
+    """A bag that is missing, unreadable or not a calibration bag."""
+
+
+def msg_dir() -> Path:
+    """Folder with tacforce_msgs' .msg files: the source tree, else the installed share."""
+    source = share_dir() / 'msg'
+    if source.is_dir():
+        return source
+    from ament_index_python.packages import get_package_share_directory
+    return Path(get_package_share_directory('tacforce_msgs')) / 'msg'
+
+
+@lru_cache(maxsize=1)
+def typestore():
+    """ROS 2 Kilted typestore with tacforce_msgs registered from the .msg text."""
+    store = get_typestore(Stores.ROS2_KILTED)
+    types = {}
+    for path in sorted(msg_dir().glob('*.msg')):
+        types.update(get_types_from_msg(path.read_text(), f'tacforce_msgs/msg/{path.stem}'))
+    store.register(types)
+    return store
+
+
+# --- message builders (rosbags dataclasses) -------------------------------------------------
+
+def _stamp(stamp_ns: int):
+    sec, nanosec = divmod(int(stamp_ns), 1_000_000_000)
+    return typestore().types['builtin_interfaces/msg/Time'](sec=sec, nanosec=nanosec)
+
+
+def header(stamp_ns: int, frame_id: str):
+    return typestore().types['std_msgs/msg/Header'](stamp=_stamp(stamp_ns), frame_id=frame_id)
+
+
+def tactile_array(stamp_ns: int, name: str, frame_id: str, counts: np.ndarray,
+                  temperatures: np.ndarray | None):
+    """counts (n, 3) uint16 for one array; temperatures (n,) kelvin or None."""
+    counts = np.asarray(counts, dtype=np.uint16)
+    temps = (np.zeros(0, np.float32) if temperatures is None
+             else np.asarray(temperatures, dtype=np.float32))
+    return typestore().types['tacforce_msgs/msg/TactileArray'](
+        header=header(stamp_ns, frame_id), name=name,
+        x=np.ascontiguousarray(counts[:, 0]), y=np.ascontiguousarray(counts[:, 1]),
+        z=np.ascontiguousarray(counts[:, 2]), temperature=temps)
+
+
+def tactile_hand(stamp_ns: int, hand, counts: np.ndarray, temperatures: np.ndarray | None,
+                 server_time: float, server_sequence: int):
+    """Whole-hand frame from XELA's flat (368, 3) counts, split by the hand description."""
+    per_array = hand.split(np.asarray(counts))
+    per_temp = (hand.split(np.asarray(temperatures)[:, None]) if temperatures is not None
+                else [None] * len(hand.arrays))
+    arrays = [tactile_array(stamp_ns, a.name, a.frame_id, c,
+                            None if t is None else t[:, 0])
+              for a, c, t in zip(hand.arrays, per_array, per_temp)]
+    return typestore().types['tacforce_msgs/msg/TactileHand'](
+        header=header(stamp_ns, hand.base_frame), server_time=float(server_time),
+        server_sequence=int(server_sequence) & 0xFFFFFFFF, arrays=arrays)
+
+
+def wrench_stamped(stamp_ns: int, frame_id: str, wrench: Sequence[float]):
+    types = typestore().types
+    vec = types['geometry_msgs/msg/Vector3']
+    w = [float(v) for v in wrench]
+    return types['geometry_msgs/msg/WrenchStamped'](
+        header=header(stamp_ns, frame_id),
+        wrench=types['geometry_msgs/msg/Wrench'](force=vec(x=w[0], y=w[1], z=w[2]),
+                                                 torque=vec(x=w[3], y=w[4], z=w[5])))
+
+
+def joint_state(stamp_ns: int, names: Sequence[str], position: np.ndarray,
+                velocity: np.ndarray | None = None, effort: np.ndarray | None = None):
+    empty = np.zeros(0, np.float64)
+    return typestore().types['sensor_msgs/msg/JointState'](
+        header=header(stamp_ns, ''), name=list(names),
+        position=np.asarray(position, np.float64),
+        velocity=empty if velocity is None else np.asarray(velocity, np.float64),
+        effort=empty if effort is None else np.asarray(effort, np.float64))
+
+
+def calibration_sample(stamp_ns: int, tactile, wrench, joints):
+    return typestore().types['tacforce_msgs/msg/CalibrationSample'](
+        header=header(stamp_ns, tactile.header.frame_id), tactile=tactile, wrench=wrench,
+        joints=joints)
+
+
+def session_message(metadata: dict[str, Any]):
+    return typestore().types['std_msgs/msg/String'](data=json.dumps(metadata, sort_keys=True))
+
+
+def session_metadata(**fields: Any) -> dict[str, Any]:
+    """Session metadata with every key of the contract present (unknown keys refused)."""
+    unknown = set(fields) - set(METADATA_KEYS)
+    if unknown:
+        raise ValueError(f'unknown session metadata keys {sorted(unknown)}; '
+                         f'expected {list(METADATA_KEYS)}')
+    meta = {key: fields.get(key, '') for key in METADATA_KEYS}
+    meta['started'] = meta['started'] or time.strftime('%Y-%m-%dT%H:%M:%S%z')
+    return meta
+
+
+# --- writer ------------------------------------------------------------------------------------
+
+class CalibrationBagWriter:
+    """rosbag2 (mcap) writer that closes a split every `split_seconds` of wall time.
+
+    Each split is written by rosbags into a hidden folder, then moved into the bag and listed in
+    a merged metadata.yaml (atomic rename). Use as a context manager; `close()` ends the bag.
+    """
+
+    def __init__(self, path: str | Path, metadata: dict[str, Any], *,
+                 split_seconds: float = 2.0, topics: dict[str, str] | None = None,
+                 storage: StoragePlugin = StoragePlugin.MCAP) -> None:
+        self.path = Path(path)
+        if self.path.exists():
+            raise BagError(f'{self.path} exists already; refusing to overwrite a bag')
+        self.path.mkdir(parents=True)
+        self.metadata = dict(metadata)
+        self.split_seconds = float(split_seconds)
+        self.topics = dict(TOPIC_TYPES if topics is None else topics)
+        self.storage = storage
+        self._splits: list[dict[str, Any]] = []
+        self._writer: Writer | None = None
+        self._connections: dict[str, Any] = {}
+        self._split_started = 0.0
+        self._open_split()
+        self.write(TOPIC_SESSION, time.time_ns(), session_message(self.metadata))
+
+    def _split_dir(self, index: int) -> Path:
+        return self.path / f'.{self.path.name}_{index}{_SPLIT_SUFFIX}'
+
+    def _open_split(self) -> None:
+        writer = Writer(self._split_dir(len(self._splits)), version=9,
+                        storage_plugin=self.storage)
+        for key, value in self.metadata.items():
+            writer.set_custom_data(CUSTOM_DATA_PREFIX + key, str(value))
+        writer.open()
+        store = typestore()
+        self._connections = {topic: writer.add_connection(topic, msgtype, typestore=store)
+                             for topic, msgtype in self.topics.items()}
+        self._writer = writer
+        self._split_started = time.monotonic()
+
+    def _close_split(self) -> None:
+        writer, self._writer = self._writer, None
+        if writer is None:
+            return
+        writer.close()
+        index = len(self._splits)
+        split_dir = self._split_dir(index)
+        info = _load_metadata(split_dir)
+        if info['message_count']:
+            (source,) = info['relative_file_paths']
+            name = f'{self.path.name}_{index}{Path(source).suffix}'
+            (split_dir / source).replace(self.path / name)
+            info['relative_file_paths'] = [name]
+            info['files'][0]['path'] = name
+            self._splits.append(info)
+            self._write_merged_metadata()
+        shutil.rmtree(split_dir)
+
+    def _write_merged_metadata(self) -> None:
+        if not self._splits:
+            return
+        merged = _merge_metadata(self._splits)
+        tmp = self.path / 'metadata.yaml.tmp'
+        yaml = YAML(typ='safe')
+        yaml.default_flow_style = False
+        with tmp.open('w', encoding='utf8') as stream:
+            yaml.dump({'rosbag2_bagfile_information': merged}, stream)
+        tmp.replace(self.path / 'metadata.yaml')
+
+    def write(self, topic: str, stamp_ns: int, msg) -> None:
+        """Serialise and write one message; closes the split when it is old enough."""
+        if self._writer is None:
+            raise BagError(f'bag {self.path} is closed')
+        connection = self._connections.get(topic)
+        if connection is None:
+            raise BagError(f'topic {topic} is not part of this bag ({sorted(self.topics)})')
+        data = typestore().serialize_cdr(msg, connection.msgtype)
+        self._writer.write(connection, int(stamp_ns), data)
+        if time.monotonic() - self._split_started >= self.split_seconds:
+            self.flush()
+
+    def flush(self) -> None:
+        """Close the current split (it becomes readable) and open the next one."""
+        self._close_split()
+        self._open_split()
+
+    def close(self) -> None:
+        self._close_split()
+
+    def __enter__(self) -> CalibrationBagWriter:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def _load_metadata(bag_dir: Path) -> dict[str, Any]:
+    with (bag_dir / 'metadata.yaml').open(encoding='utf8') as stream:
+        return YAML(typ='safe').load(stream)['rosbag2_bagfile_information']
+
+
+def _merge_metadata(splits: list[dict[str, Any]]) -> dict[str, Any]:
+    """One rosbag2 metadata record for several single-file splits of the same topics."""
+    starts = [s['starting_time']['nanoseconds_since_epoch'] for s in splits]
+    ends = [st + s['duration']['nanoseconds'] for st, s in zip(starts, splits)]
+    counts: dict[str, int] = {}
+    topic_meta: dict[str, Any] = {}
+    for split in splits:
+        for entry in split['topics_with_message_count']:
+            name = entry['topic_metadata']['name']
+            topic_meta.setdefault(name, entry['topic_metadata'])
+            counts[name] = counts.get(name, 0) + entry['message_count']
+    merged = dict(splits[0])
+    merged.update({
+        'relative_file_paths': [p for s in splits for p in s['relative_file_paths']],
+        'files': [f for s in splits for f in s['files']],
+        'starting_time': {'nanoseconds_since_epoch': min(starts)},
+        'duration': {'nanoseconds': max(ends) - min(starts)},
+        'message_count': sum(s['message_count'] for s in splits),
+        'topics_with_message_count': [
+            {'topic_metadata': topic_meta[name], 'message_count': counts[name]}
+            for name in topic_meta],
+    })
+    return merged
+
+
+# --- reader ------------------------------------------------------------------------------------
+
+def read_session_metadata(path: str | Path) -> dict[str, Any]:
+    """Session metadata of a calibration bag (from the bag's custom_data)."""
+    path = Path(path)
+    if not (path / 'metadata.yaml').is_file():
+        raise BagError(f'{path} is not a rosbag2 folder (no metadata.yaml)')
+    custom = _load_metadata(path).get('custom_data') or {}
+    meta = {key[len(CUSTOM_DATA_PREFIX):]: value for key, value in custom.items()
+            if key.startswith(CUSTOM_DATA_PREFIX)}
+    if not meta:
+        raise BagError(f'{path} has no tacforce session metadata; not a calibration bag')
+    return meta
+
+
+def read_messages(path: str | Path, topics: Sequence[str] | None = None
+                  ) -> Iterator[tuple[str, int, Any]]:
+    """Yield (topic, log time ns, deserialised message) in time order."""
+    path = Path(path)
+    if not (path / 'metadata.yaml').is_file():
+        raise BagError(f'{path} is not a rosbag2 folder (no metadata.yaml)')
+    store = typestore()
+    with Reader(path) as reader:
+        connections = [c for c in reader.connections if topics is None or c.topic in topics]
+        for connection, stamp, raw in reader.messages(connections=connections):
+            yield connection.topic, stamp, store.deserialize_cdr(raw, connection.msgtype)

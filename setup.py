@@ -45,7 +45,6 @@ setup(
     maintainer_email='maintainers@tacforce.dev',
     description='Tactile force estimation and fingertip force control for XELA uSkin on Allegro.',
     license='Apache-2.0',
-    tests_require=['pytest'],
     entry_points={
         'console_scripts': [f'{n} = {PACKAGE}.nodes.{n}:main' for n in NODES]
         + [f'{exe} = {PACKAGE}.tools.{mod}:main' for exe, mod in TOOLS.items()],

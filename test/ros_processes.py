@@ -1,0 +1,53 @@
+"""Start installed executables and helper scripts as real processes for ROS 2 tests."""
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import sysconfig
+from pathlib import Path
+
+VENV = Path(sys.prefix)
+EXECUTABLES = VENV / 'lib' / 'tacforce_ros'
+
+
+def ros_env(domain_id: int) -> dict[str, str]:
+    """Environment of a child on its own DDS domain, discovery limited to this host."""
+    env = dict(os.environ)
+    env['ROS_DOMAIN_ID'] = str(domain_id)
+    env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+    env['PYTHONUNBUFFERED'] = '1'
+    return env
+
+
+def unique_domain_id(offset: int = 0) -> int:
+    """A DDS domain for this test process (0..101 are valid for Fast DDS on one host)."""
+    return 1 + (os.getpid() + offset) % 100
+
+
+def executable(name: str) -> Path:
+    path = EXECUTABLES / name
+    if not path.is_file():
+        raise FileNotFoundError(f'{path} is not installed; run ./run.sh setup')
+    return path
+
+
+def start(args: list[str], domain_id: int, **kwargs) -> subprocess.Popen:
+    return subprocess.Popen([str(a) for a in args], env=ros_env(domain_id),
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, **kwargs)
+
+
+def stop(proc: subprocess.Popen, timeout: float = 10.0) -> str:
+    """SIGINT, then kill if needed; returns what the process printed."""
+    if proc.poll() is None:
+        proc.send_signal(2)
+        try:
+            proc.wait(timeout=timeout)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait(timeout=timeout)
+    return proc.stdout.read() if proc.stdout else ''
+
+
+PYTHON = sys.executable
+PURELIB = sysconfig.get_paths()['purelib']

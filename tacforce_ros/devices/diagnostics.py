@@ -1,0 +1,89 @@
+"""Link-health counters shared by every device driver (and the emulators' request side)."""
+from __future__ import annotations
+
+import dataclasses
+import math
+import threading
+import time
+from dataclasses import dataclass
+
+
+@dataclass
+class LinkDiagnostics:
+    """Counters of one device link; a driver mutates them, readers take :meth:`snapshot` copies.
+
+    ``dropped`` counts every input discarded for any reason; ``malformed`` is the subset that
+    could not be decoded (bad JSON, wrong length, wrong DLC, wrong taxel count). ``gaps`` counts
+    samples missing according to the device's sequence numbers (or incomplete CAN cycles), and
+    ``reordered`` inputs that arrived older than one already delivered (they are dropped).
+    """
+
+    received: int = 0
+    delivered: int = 0
+    dropped: int = 0
+    malformed: int = 0
+    gaps: int = 0
+    reordered: int = 0
+    reconnects: int = 0
+    status_warnings: int = 0
+    status_errors: int = 0
+    last_seen: float = math.nan      # time.monotonic() of the last input, NaN before the first
+    last_error: str = ''
+    _lock: threading.Lock = dataclasses.field(default_factory=threading.Lock, repr=False,
+                                              compare=False)
+
+    def note_received(self, now: float | None = None) -> None:
+        with self._lock:
+            self.received += 1
+            self.last_seen = time.monotonic() if now is None else now
+
+    def note_malformed(self, reason: str) -> None:
+        """Count one undecodable input as malformed and dropped, remembering why."""
+        with self._lock:
+            self.malformed += 1
+            self.dropped += 1
+            self.last_error = reason
+
+    def add(self, **increments: int) -> None:
+        """Increment named counters atomically, e.g. ``add(gaps=3, dropped=1)``."""
+        with self._lock:
+            for name, value in increments.items():
+                setattr(self, name, getattr(self, name) + value)
+
+    def age(self, now: float | None = None) -> float:
+        """Seconds since the last input (monotonic clock); ``inf`` if nothing arrived yet."""
+        if math.isnan(self.last_seen):
+            return math.inf
+        return (time.monotonic() if now is None else now) - self.last_seen
+
+    def snapshot(self) -> LinkDiagnostics:
+        """A consistent copy, safe to read while the driver keeps counting."""
+        with self._lock:
+            return dataclasses.replace(self)
+
+    def as_dict(self) -> dict[str, float | int | str]:
+        """Counters plus the current age, e.g. for a diagnostic_msgs KeyValue list or JSON."""
+        snap = self.snapshot()
+        out = {f.name: getattr(snap, f.name) for f in dataclasses.fields(snap)
+               if not f.name.startswith('_')}
+        out['age_s'] = snap.age()
+        return out
+
+
+def sequence_delta(new: int, last: int, bits: int = 32) -> int:
+    """Signed difference ``new - last`` of wrapping unsigned counters (2**bits - 1 -> 0 is +1)."""
+    half = 1 << (bits - 1)
+    return ((new - last + half) % (1 << bits)) - half
+
+
+@dataclass(frozen=True)
+class ArrivalStamp:
+    """When the host received an input: ``monotonic`` for latency/age, ``wall`` (Unix s) for
+    message headers."""
+
+    monotonic: float
+    wall: float
+
+    @classmethod
+    def now(cls) -> ArrivalStamp:
+        return cls(time.monotonic(), time.time())

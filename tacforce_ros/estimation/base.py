@@ -20,6 +20,9 @@ class ForceModel(ABC):
     """Per-array force model; subclasses take explicit keyword hyper-parameters."""
 
     kind: ClassVar[str]     # 'M1' | 'M2' | 'M3' | 'M3-lambda' | 'M4' | 'M5'
+    # True for models whose fit() also takes `groups` (plate label per sample), e.g. M3-lambda
+    # selecting its damping by cross-validation nested inside the training plates.
+    needs_groups: ClassVar[bool] = False
 
     def __init__(self, array: TaxelArray, **hyper) -> None:
         self.array = array

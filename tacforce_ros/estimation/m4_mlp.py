@@ -189,7 +189,8 @@ class MLPModel(ForceModel):
 
     def fit(self, X: np.ndarray, F: np.ndarray) -> MLPModel:
         X = check_inputs(X, self.array.n_taxels, F)
-        module = fit_torch_regressor(self._build, X.reshape(len(X), -1), F, self.training)
+        module = fit_torch_regressor(self._build, X.reshape(len(X), 3 * self.array.n_taxels), F,
+                                     self.training)
         self._state = checked_state(module_state(module), self._state_shapes(), self.kind)
         return self
 
@@ -201,7 +202,7 @@ class MLPModel(ForceModel):
     def predict(self, X: np.ndarray) -> np.ndarray:
         X = check_inputs(X, self.array.n_taxels)
         s = self._fitted_state()
-        x = X.reshape(len(X), -1).astype(np.float32)
+        x = X.reshape(len(X), 3 * self.array.n_taxels).astype(np.float32)
         out = mlp_forward(x, s['hidden_weight_'].T, s['hidden_bias_'],
                           s['output_weight_'].T, s['output_bias_'])
         return out.astype(np.float64)

@@ -1,0 +1,169 @@
+"""A minimal socketcand server (raw mode) on 127.0.0.1: a CAN bus other processes reach with
+python-can's ``socketcand`` interface.
+
+Protocol as python-can 4.6's client speaks it (read from its source): the server greets with
+``< hi >``; ``< open CHANNEL >`` and ``< rawmode >`` are each answered by a separate ``< ok >``;
+frames to clients are ``< frame ID SEC.USEC HEXDATA >`` (data unspaced), frames from clients are
+``< send ID LEN b b ... >`` (hex bytes). No RTR frames exist on this transport.
+"""
+from __future__ import annotations
+
+import socket
+import threading
+import time
+from collections.abc import Callable
+
+import can
+
+from tacforce_ros.devices.diagnostics import LinkDiagnostics
+from tacforce_ros.sim.emulators.base import LOOPBACK, require_loopback
+
+# A client joins the bus once it sent its first frame, or after this grace time: frames sent
+# earlier could share one TCP read with the final '< ok >', which python-can's handshake rejects.
+JOIN_GRACE_S = 0.2
+
+
+def format_frame(message: can.Message) -> bytes:
+    """``< frame 080 12.345678 0102... >`` for one received frame."""
+    width = 8 if message.is_extended_id else 3
+    stamp = message.timestamp or time.time()
+    return (f'< frame {message.arbitration_id:0{width}X} {stamp:.6f} '
+            f'{bytes(message.data).hex().upper()} >').encode('ascii')
+
+
+def parse_send(command: str) -> can.Message:
+    """Parse ``send ID LEN b ...`` (without the angle brackets); ValueError if inconsistent."""
+    fields = command.split()
+    if len(fields) < 3 or fields[0] != 'send':
+        raise ValueError(f'not a send command: {command!r}')
+    length = int(fields[2], 16)
+    data = bytes(int(b, 16) for b in fields[3:])
+    if len(data) != length:
+        raise ValueError(f'send with length {length} carries {len(data)} bytes')
+    return can.Message(arbitration_id=int(fields[1], 16), data=data, dlc=length,
+                       is_extended_id=len(fields[1]) > 3, timestamp=time.time())
+
+
+class _Client:
+    def __init__(self, sock: socket.socket) -> None:
+        self.sock = sock
+        self.lock = threading.Lock()
+        self.joined_at = float('inf')     # monotonic time from which it receives bus frames
+        self.rawmode_at: float | None = None
+
+    def write(self, payload: bytes) -> bool:
+        try:
+            with self.lock:
+                self.sock.sendall(payload)
+            return True
+        except OSError:
+            return False
+
+
+class SocketcandServer:
+    """One CAN channel served over TCP. Frames a client sends go to ``on_frame`` (the device)
+    and to the other clients, as on a shared bus; :meth:`broadcast` puts device frames on it."""
+
+    def __init__(self, on_frame: Callable[[can.Message], None], host: str = LOOPBACK,
+                 port: int = 0, channel: str = 'can0') -> None:
+        self.on_frame = on_frame
+        self.channel = channel
+        self.diagnostics = LinkDiagnostics()
+        self._listener = socket.create_server((require_loopback(host), port))
+        self._listener.settimeout(0.1)
+        self._clients: list[_Client] = []
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._threads = [threading.Thread(target=self._accept, daemon=True)]
+        self._threads[0].start()
+
+    @property
+    def address(self) -> tuple[str, int]:
+        return self._listener.getsockname()
+
+    def broadcast(self, messages: list[can.Message], exclude: _Client | None = None) -> None:
+        """Deliver frames to every joined client in one write each."""
+        payload = b''.join(format_frame(m) for m in messages)
+        now = time.monotonic()
+        with self._lock:
+            clients = [c for c in self._clients if c is not exclude and c.joined_at <= now]
+        for client in clients:
+            if not client.write(payload):
+                self._drop(client)
+
+    def _drop(self, client: _Client) -> None:
+        with self._lock:
+            if client in self._clients:
+                self._clients.remove(client)
+        client.sock.close()
+
+    def _accept(self) -> None:
+        while not self._stop.is_set():
+            try:
+                sock, _ = self._listener.accept()
+            except (TimeoutError, socket.timeout):
+                continue
+            except OSError:
+                return
+            sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            thread = threading.Thread(target=self._serve, args=(_Client(sock),), daemon=True)
+            self._threads.append(thread)
+            thread.start()
+
+    def _serve(self, client: _Client) -> None:
+        client.sock.settimeout(0.1)
+        with self._lock:
+            self._clients.append(client)
+        client.write(b'< hi >')
+        buffer = ''
+        try:
+            while not self._stop.is_set():
+                try:
+                    chunk = client.sock.recv(4096)
+                except (TimeoutError, socket.timeout):
+                    if (client.rawmode_at is not None
+                            and time.monotonic() - client.rawmode_at >= JOIN_GRACE_S):
+                        client.joined_at = min(client.joined_at, time.monotonic())
+                    continue
+                if not chunk:
+                    return
+                buffer += chunk.decode('ascii', errors='replace')
+                while (end := buffer.find('>')) != -1:
+                    start = buffer.find('<')
+                    command = buffer[start + 1:end].strip() if 0 <= start < end else ''
+                    buffer = buffer[end + 1:]
+                    self._handle(client, command)
+        except OSError:
+            return
+        finally:
+            self._drop(client)
+
+    def _handle(self, client: _Client, command: str) -> None:
+        if command.startswith('open '):
+            known = command[5:].strip() == self.channel
+            client.write(b'< ok >' if known else b'< error unknown channel >')
+        elif command == 'rawmode':
+            client.rawmode_at = time.monotonic()
+            client.write(b'< ok >')
+        elif command.startswith('send'):
+            self.diagnostics.note_received()
+            try:
+                message = parse_send(command)
+            except ValueError as error:
+                self.diagnostics.note_malformed(str(error))
+                return
+            client.joined_at = min(client.joined_at, time.monotonic())
+            self.broadcast([message], exclude=client)
+            self.on_frame(message)
+        else:
+            self.diagnostics.note_malformed(f'unsupported socketcand command {command!r}')
+
+    def close(self) -> None:
+        self._stop.set()
+        self._listener.close()
+        for thread in self._threads:
+            thread.join(timeout=2.0)
+        with self._lock:
+            clients, self._clients = self._clients, []
+        for client in clients:
+            client.sock.close()

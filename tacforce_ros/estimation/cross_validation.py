@@ -1,0 +1,58 @@
+"""Leave-one-plate-out cross-validation (paper Sec. IV-A, V-A): train on 4 plates, test on the 5th."""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from tacforce_ros.estimation.metrics import ErrorStats, average_folds, error_stats
+from tacforce_ros.estimation.training import fit_bundle
+
+if TYPE_CHECKING:
+    from tacforce_ros.hand.description import TaxelArray
+
+
+@dataclass
+class Fold:
+    test_plate: str
+    stats: ErrorStats
+    train_seconds: float
+    hyperparameters: dict[str, Any]     # as fitted (e.g. the damping M3-lambda selected)
+
+
+@dataclass
+class CrossValidation:
+    kind: str
+    folds: list[Fold] = field(default_factory=list)
+    n_parameters: int = 0
+
+    def summary(self) -> dict[str, Any]:
+        return {**average_folds([f.stats for f in self.folds]),
+                'train_seconds': float(np.mean([f.train_seconds for f in self.folds])),
+                'n_parameters': self.n_parameters,
+                'per_fold': [{'test_plate': f.test_plate, **f.stats.as_dict(),
+                              'train_seconds': f.train_seconds,
+                              'hyperparameters': f.hyperparameters} for f in self.folds]}
+
+
+def cross_validate(array: TaxelArray, kind: str, hyper: dict[str, Any], X: np.ndarray,
+                   F: np.ndarray, plates: np.ndarray) -> CrossValidation:
+    """X counts and F newtons with offsets removed; one fold per distinct plate."""
+    plates = np.asarray(plates)
+    labels = list(dict.fromkeys(plates.tolist()))
+    if len(labels) < 2:
+        raise ValueError(f'cross-validation needs >= 2 plates, got {labels}')
+    result = CrossValidation(kind=kind)
+    for plate in labels:
+        test = plates == plate
+        started = time.perf_counter()
+        bundle = fit_bundle(array, kind, hyper, X[~test], F[~test], plates[~test])
+        seconds = time.perf_counter() - started
+        pred = bundle.predict(X[test])
+        result.folds.append(Fold(test_plate=str(plate), stats=error_stats(F[test], pred),
+                                 train_seconds=seconds,
+                                 hyperparameters=bundle.model.hyperparameters()))
+        result.n_parameters = bundle.model.n_parameters()
+    return result

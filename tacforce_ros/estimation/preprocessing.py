@@ -1,0 +1,198 @@
+"""Signal processing of calibration recordings (paper Sec. IV-A, steps 1-5), one function per step.
+
+(1) zero-phase low-pass, (2) resampling onto the tactile time base, (3) projection of the measured
+force into the array frame {S0}, (4) offsets from static no-contact segments, (5) standardisation.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.signal import butter, sosfiltfilt
+
+SAMPLE_RATE_HZ = 100.0      # XELA uSkin's maximum frame rate, the recording rate of the paper
+CUTOFF_HZ = 10.0            # paper Sec. IV-A
+
+
+class StaticSegmentError(ValueError):
+    """No static (no-contact) segment found, so offsets cannot be estimated."""
+
+
+# --- (1) low-pass -------------------------------------------------------------------------------
+
+def lowpass(signal: np.ndarray, fs: float = SAMPLE_RATE_HZ, cutoff: float = CUTOFF_HZ,
+            order: int = 4) -> np.ndarray:
+    """Zero-phase Butterworth low-pass along axis 0 (forward-backward, so no delay)."""
+    signal = np.asarray(signal, dtype=np.float64)
+    if not 0.0 < cutoff < fs / 2.0:
+        raise ValueError(f'cut-off {cutoff} Hz must lie in (0, {fs / 2.0}) Hz for fs = {fs} Hz')
+    if not np.all(np.isfinite(signal)):
+        raise ValueError('low-pass input contains NaN or Inf')
+    sos = butter(order, cutoff, btype='low', fs=fs, output='sos')
+    # sosfiltfilt pads each end with padlen samples (its default, reproduced here to check it).
+    trailing_zeros = min(int((sos[:, 2] == 0).sum()), int((sos[:, 5] == 0).sum()))
+    padlen = 3 * (2 * len(sos) + 1 - trailing_zeros)
+    if signal.shape[0] <= padlen:
+        raise ValueError(f'low-pass needs more than {padlen} samples '
+                         f'({padlen / fs:.2f} s at {fs} Hz), got {signal.shape[0]}')
+    return sosfiltfilt(sos, signal, axis=0)
+
+
+# --- (2) resampling ------------------------------------------------------------------------------
+
+def common_span(*times: np.ndarray) -> tuple[float, float]:
+    """Interval covered by every stream (start, stop); refuses streams that do not overlap."""
+    start = max(float(np.min(t)) for t in times)
+    stop = min(float(np.max(t)) for t in times)
+    if not stop > start:
+        raise ValueError(f'streams do not overlap in time (latest start {start:.3f} s, '
+                         f'earliest end {stop:.3f} s)')
+    return start, stop
+
+
+def resample(base_time: np.ndarray, time: np.ndarray, values: np.ndarray) -> np.ndarray:
+    """Linear interpolation of `values` (M, ...) stamped `time` (M,) onto `base_time` (N,).
+
+    The base must lie inside [time[0], time[-1]] (crop it with common_span first): extrapolating
+    a force or a joint angle would invent data.
+    """
+    base_time = np.asarray(base_time, dtype=np.float64)
+    time = np.asarray(time, dtype=np.float64)
+    values = np.asarray(values, dtype=np.float64)
+    if time.ndim != 1 or values.shape[0] != time.shape[0]:
+        raise ValueError(f'time {time.shape} and values {values.shape} lengths differ')
+    if time.size < 2 or np.any(np.diff(time) <= 0.0):
+        raise ValueError('source time stamps must be at least 2 and strictly increasing')
+    if base_time.size and (base_time[0] < time[0] or base_time[-1] > time[-1]):
+        raise ValueError(f'base time [{base_time[0]:.3f}, {base_time[-1]:.3f}] s leaves the '
+                         f'source span [{time[0]:.3f}, {time[-1]:.3f}] s; crop with common_span')
+    flat = values.reshape(values.shape[0], -1)
+    out = np.column_stack([np.interp(base_time, time, column) for column in flat.T])
+    return out.reshape((base_time.shape[0],) + values.shape[1:])
+
+
+# --- (3) projection ------------------------------------------------------------------------------
+
+def project_force(force: np.ndarray, rotations: np.ndarray, atol: float = 1e-6) -> np.ndarray:
+    """f^0 = R^0_F(t) f^F: force (N, 3) in {F} -> {S0} with rotations (N, 3, 3)."""
+    force = np.asarray(force, dtype=np.float64)
+    rotations = np.asarray(rotations, dtype=np.float64)
+    if force.ndim != 2 or force.shape[1] != 3 or rotations.shape != (force.shape[0], 3, 3):
+        raise ValueError(f'need force (N, 3) and rotations (N, 3, 3), got {force.shape} and '
+                         f'{rotations.shape}')
+    gram_error = np.abs(np.einsum('nji,njk->nik', rotations, rotations) - np.eye(3)).max(
+        initial=0.0)
+    if not gram_error <= atol or not np.all(np.linalg.det(rotations) > 0.0):
+        raise ValueError(f'rotations are not proper rotation matrices (max |R^T R - I| = '
+                         f'{gram_error:.2e})')
+    return np.einsum('nij,nj->ni', rotations, force)
+
+
+# --- (4) offsets ---------------------------------------------------------------------------------
+
+def static_mask(force: np.ndarray, taxels: np.ndarray, fs: float = SAMPLE_RATE_HZ,
+                force_threshold: float = 0.3, activity_threshold: float = 15.0,
+                min_duration: float = 0.5) -> np.ndarray:
+    """Samples inside static no-contact segments: (N,) bool.
+
+    Static = force magnitude below `force_threshold` [N] AND tactile activity below
+    `activity_threshold` [counts, rms over channels of the deviation from the rest reading],
+    held for at least `min_duration` [s]. The rest reading is the median over low-force samples,
+    so a press with a still-zero force reading (F/T lag) does not count as rest.
+    """
+    force = np.asarray(force, dtype=np.float64)
+    taxels = np.asarray(taxels, dtype=np.float64).reshape(force.shape[0], -1)
+    low_force = np.linalg.norm(force, axis=1) < force_threshold
+    if not low_force.any():
+        return low_force
+    rest = np.median(taxels[low_force], axis=0)
+    activity = np.sqrt(np.mean((taxels - rest) ** 2, axis=1))
+    candidate = low_force & (activity < activity_threshold)
+    min_len = max(1, int(round(min_duration * fs)))
+    mask = np.zeros_like(candidate)
+    for start, stop in _runs(candidate):
+        if stop - start >= min_len:
+            mask[start:stop] = True
+    return mask
+
+
+def _runs(flags: np.ndarray) -> list[tuple[int, int]]:
+    """[start, stop) index pairs of the True runs of a 1-D bool array."""
+    edges = np.diff(np.concatenate(([0], flags.astype(np.int8), [0])))
+    return list(zip(np.flatnonzero(edges == 1).tolist(), np.flatnonzero(edges == -1).tolist()))
+
+
+@dataclass(frozen=True)
+class Offsets:
+    taxels: np.ndarray      # (n, 3) counts
+    force: np.ndarray       # (3,) N
+    n_static: int           # samples they were averaged over
+
+
+def static_offsets(force: np.ndarray, taxels: np.ndarray, **static_kw) -> Offsets:
+    """Mean taxel and force reading over the static segments of one recording session."""
+    mask = static_mask(force, taxels, **static_kw)
+    if not mask.any():
+        raise StaticSegmentError(
+            'no static no-contact segment found (force and tactile activity both low for long '
+            'enough); record a rest period or relax force_threshold/activity_threshold/'
+            'min_duration')
+    taxels = np.asarray(taxels, dtype=np.float64)
+    return Offsets(taxels=taxels[mask].mean(axis=0),
+                   force=np.asarray(force, dtype=np.float64)[mask].mean(axis=0),
+                   n_static=int(mask.sum()))
+
+
+def remove_offsets(force: np.ndarray, taxels: np.ndarray, sessions: np.ndarray,
+                   **static_kw) -> tuple[np.ndarray, np.ndarray, dict[int, Offsets]]:
+    """Subtract each session's own static offsets (baselines drift between sessions)."""
+    force = np.array(force, dtype=np.float64)
+    taxels = np.array(taxels, dtype=np.float64)
+    offsets = {}
+    for session in np.unique(sessions):
+        rows = sessions == session
+        try:
+            off = static_offsets(force[rows], taxels[rows], **static_kw)
+        except StaticSegmentError as exc:
+            raise StaticSegmentError(f'session {session}: {exc}') from None
+        force[rows] -= off.force
+        taxels[rows] -= off.taxels
+        offsets[int(session)] = off
+    return force, taxels, offsets
+
+
+# --- (5) standardisation -------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class Standardiser:
+    """Per-channel (x - mean) / std; channels with std <= floor are flagged dead and use std = 1.
+
+    A dead channel (constant in training) then maps to 0 during training instead of inf/NaN,
+    and a reading that comes alive later shows up as a large standardised value (OOD score).
+    """
+
+    mean: np.ndarray
+    std: np.ndarray
+    dead: np.ndarray
+
+    @classmethod
+    def fit(cls, data: np.ndarray, floor: float) -> Standardiser:
+        data = np.asarray(data, dtype=np.float64)
+        if data.shape[0] < 1 or not np.all(np.isfinite(data)):
+            raise ValueError('standardisation needs at least one sample and finite data')
+        mean = data.mean(axis=0)
+        std = data.std(axis=0)
+        dead = ~(std > floor)
+        return cls(mean=mean, std=np.where(dead, 1.0, std), dead=dead)
+
+    def transform(self, data: np.ndarray) -> np.ndarray:
+        return (np.asarray(data, dtype=np.float64) - self.mean) / self.std
+
+    def inverse(self, data: np.ndarray) -> np.ndarray:
+        return np.asarray(data, dtype=np.float64) * self.std + self.mean
+
+
+# Floors: a taxel channel varying by less than one ADC count carries no information; a force
+# axis varying by less than 1 mN is below any F/T sensor's resolution.
+TAXEL_STD_FLOOR = 1.0
+FORCE_STD_FLOOR = 1e-3

@@ -1,0 +1,78 @@
+"""Effects: small, independently switchable pieces of realism, run as one pipeline.
+
+Each effect is a dataclass of its parameters (defaults are the plausible magnitudes, with their
+source) and defines hooks named `on_<stage>` that mutate the step state in place. The pipeline
+collects, once at load, the hooks each stage needs; a stage with no enabled effect is an empty
+tuple, so an effect that a scene does not name costs nothing on the step path.
+
+Stages, in the order a step runs them:
+  model        closed loop only, once at build: edits the simulated hand/world (MjSpec)
+  response     once at reset: per-taxel response parameters
+  rotations    taxel frames {S_i} in {S0} under load
+  local_force  per-taxel force in its own frame
+  counts       whole-hand float counts and temperatures (368 taxels)
+  wrench       the F/T wrench in {F}
+  torque       closed loop: joint torques between command and the simulated actuators
+  delivery     what each stream delivers (latency, drop-outs)
+"""
+from __future__ import annotations
+
+import zlib
+from dataclasses import dataclass
+from typing import Any, ClassVar
+
+import numpy as np
+
+STAGES = ('model', 'response', 'rotations', 'local_force', 'counts', 'wrench', 'torque',
+          'delivery')
+
+
+@dataclass
+class Effect:
+    """Base of all effects. Subclasses set `name` and define some `on_<stage>(state)` hooks."""
+    name: ClassVar[str] = ''
+
+    def reset(self, rng: np.random.Generator, ctx: Any) -> None:
+        """Draw per-run randomness and size buffers; ctx is the simulator's EffectContext."""
+
+
+class Pipeline:
+    """The enabled effects of a scene, with their hooks grouped per stage."""
+
+    def __init__(self, effects: list[Effect]) -> None:
+        self.effects = list(effects)
+        self.hooks: dict[str, tuple] = {
+            stage: tuple(getattr(e, f'on_{stage}') for e in self.effects
+                         if hasattr(e, f'on_{stage}'))
+            for stage in STAGES}
+
+    @classmethod
+    def from_scene(cls, effects: dict[str, dict[str, Any]]) -> Pipeline:
+        return cls([EFFECTS[name](**params) for name, params in effects.items()])
+
+    def reset(self, seed: int, ctx: Any) -> None:
+        # One independent stream per effect (keyed by its name), so switching one effect on
+        # does not change the random draws of any other.
+        for effect in self.effects:
+            effect.reset(np.random.default_rng([seed, zlib.crc32(effect.name.encode())]), ctx)
+
+    def run(self, stage: str, state: Any) -> None:
+        for hook in self.hooks[stage]:
+            hook(state)
+
+    def __contains__(self, name: str) -> bool:
+        return any(e.name == name for e in self.effects)
+
+
+def _registry() -> dict[str, type[Effect]]:
+    from tacforce_ros.sim.effects import (actuator_limits, contact_offset, crosstalk,
+                                          deformation, ft_noise, hysteresis, joint_friction,
+                                          kinematic_mismatch, taxel_noise, taxel_variation,
+                                          temperature_drift, torque_gain_error, transport)
+    modules = (taxel_variation, deformation, hysteresis, taxel_noise, temperature_drift,
+               crosstalk, ft_noise, actuator_limits, torque_gain_error, joint_friction,
+               kinematic_mismatch, contact_offset, transport)
+    return {m.EFFECT.name: m.EFFECT for m in modules}
+
+
+EFFECTS: dict[str, type[Effect]] = _registry()

@@ -1,0 +1,39 @@
+"""Allegro actuators: firmware torque clamps and thermal throttling above 0.35 N m."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from tacforce_ros.sim.effects import Effect
+
+# Firmware per-joint clamps, N m (PROTOCOLS.md section 2): fingers j0..j3, thumb j12..j15.
+FINGER_CLAMP = (0.3125, 0.5625, 0.375, 0.2375)
+THUMB_CLAMP = (0.4375, 0.3375, 0.225, 0.225)
+
+
+@dataclass
+class ActuatorLimits(Effect):
+    name = 'actuator_limits'
+    # The paper saw actuators overheat and throttle when driven above 0.35 N m (section IV-C).
+    # First-order heating towards (tau / threshold)^2; throttled while the state is above 1, with
+    # hysteresis down to `recover`. Time constant and throttled share are our estimates.
+    threshold: float = 0.35        # N m
+    time_constant: float = 10.0    # s
+    throttled_scale: float = 0.5
+    recover: float = 0.8
+
+    def reset(self, rng: np.random.Generator, ctx) -> None:
+        self._clamp = np.array(FINGER_CLAMP * 3 + THUMB_CLAMP)
+        self._alpha = ctx.dt / self.time_constant
+        self.heat = np.zeros(16)
+        self.throttled = np.zeros(16, bool)
+
+    def on_torque(self, state) -> None:
+        tau = np.clip(state.torque, -self._clamp, self._clamp)
+        self.heat += self._alpha * ((tau / self.threshold) ** 2 - self.heat)
+        self.throttled = (self.heat > 1.0) | (self.throttled & (self.heat > self.recover))
+        state.torque = np.where(self.throttled, self.throttled_scale * tau, tau)
+
+
+EFFECT = ActuatorLimits

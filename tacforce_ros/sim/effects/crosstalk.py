@@ -1,0 +1,33 @@
+"""Magnetic crosstalk: the loaded array's magnets shift the fields read by neighbouring arrays."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from tacforce_ros.sim.effects import Effect
+
+
+@dataclass
+class Crosstalk(Effect):
+    name = 'crosstalk'
+    # Share of the loaded array's mean count change seen by an adjacent array's taxels; our
+    # estimate (the paper raises inter-array interference as an open issue, section II).
+    coupling: float = 0.03
+
+    def reset(self, rng: np.random.Generator, ctx) -> None:
+        self._source = ctx.rows
+        names = ctx.array.neighbours
+        self._targets = (np.concatenate([ctx.hand.array(n).flat_indices for n in names])
+                         if names else np.zeros(0, np.int64))
+        # Taxels nearer the shared edge couple more; without a cross-array geometry a fixed
+        # random weight per taxel stands in for that distance.
+        self._weights = self.coupling * rng.uniform(0.2, 1.0, (len(self._targets), 1))
+        self._ctx = ctx   # rest counts are final only after the response stage
+
+    def on_counts(self, state) -> None:
+        change = (state.counts[self._source] - self._ctx.idle_counts[self._source]).mean(axis=0)
+        state.counts[self._targets] += self._weights * change
+
+
+EFFECT = Crosstalk

@@ -1,0 +1,201 @@
+"""Scenes: what a simulation run contains, loaded from YAML under config/scenes/.
+
+A scene file may name another with `extends: <stem>`; the two are deep-merged (the child wins,
+and `null` deletes an inherited key, e.g. `effects: {noise: null}` switches one effect off).
+Files whose stem starts with `_` hold shared defaults and are not scenes on their own.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from tacforce_ros.paths import config_dir
+
+KINDS = ('calibration', 'closed_loop')
+PLATE_SHAPES = ('sphere', 'cylinder', 'plane')
+
+
+class SceneError(ValueError):
+    """A scene file that is missing or malformed; the message names the offending field."""
+
+
+@dataclass(frozen=True)
+class Plate:
+    """A 3D-printed push-plate indenter, described by its contact surface near the contact."""
+    name: str
+    shape: str          # sphere | cylinder (axis in the contact plane) | plane
+    radius: float       # m; curvature radius (ignored for plane)
+
+
+@dataclass(frozen=True)
+class SoftObject:
+    """A compliant object between fingertip and F/T sensor (closed-loop scenes)."""
+    name: str
+    stiffness: float    # N/m, through the object's thickness
+    damping: float      # N s/m
+    mass: float         # kg
+    thickness: float    # m
+
+
+@dataclass(frozen=True)
+class Scene:
+    name: str
+    kind: str                       # 'calibration' | 'closed_loop'
+    array: str                      # contacted taxel array, e.g. index_tip
+    plate: Plate
+    duration: float                 # s
+    tactile_rate: float             # Hz (uSkin: 100)
+    physics_rate: float             # Hz; calibration scenes: = tactile_rate
+    seed: int
+    effects: dict[str, dict[str, Any]]   # enabled effects, in YAML order, with their parameters
+    operator: dict[str, Any] = field(default_factory=dict)   # calibration: operator model
+    finger: dict[str, Any] = field(default_factory=dict)     # closed loop: pose, tip geometry
+    soft_object: SoftObject | None = None
+    path: Path | None = None
+
+    @property
+    def dt(self) -> float:
+        return 1.0 / self.physics_rate
+
+
+def scenes_dir() -> Path:
+    return config_dir() / 'scenes'
+
+
+def list_scenes() -> list[str]:
+    return sorted(p.stem for p in scenes_dir().glob('*.yaml') if not p.stem.startswith('_'))
+
+
+def _deep_merge(base: dict, child: dict) -> dict:
+    merged = dict(base)
+    for key, value in child.items():
+        if value is None:
+            merged.pop(key, None)
+        elif isinstance(value, dict) and isinstance(merged.get(key), dict):
+            merged[key] = _deep_merge(merged[key], value)
+        else:
+            merged[key] = value
+    return merged
+
+
+def _resolve_path(name_or_path: str | Path) -> Path:
+    path = Path(name_or_path)
+    if path.suffix in ('.yaml', '.yml'):
+        return path
+    return scenes_dir() / f'{name_or_path}.yaml'
+
+
+def _load_raw(path: Path, chain: tuple[Path, ...] = ()) -> dict:
+    if path in chain:
+        raise SceneError(f'{path}: field "extends" forms a cycle ({" -> ".join(map(str, chain))})')
+    if not path.is_file():
+        known = ', '.join(list_scenes()) if scenes_dir().is_dir() else 'none'
+        raise SceneError(f'scene file {path} not found (known scenes: {known})')
+    try:
+        raw = yaml.safe_load(path.read_text(encoding='utf8')) or {}
+    except yaml.YAMLError as exc:
+        raise SceneError(f'{path}: not valid YAML: {exc}') from exc
+    if not isinstance(raw, dict):
+        raise SceneError(f'{path}: top level must be a mapping')
+    parent = raw.pop('extends', None)
+    if parent is None:
+        return raw
+    if not isinstance(parent, str):
+        raise SceneError(f'{path}: field "extends" must be a scene file stem')
+    parent_path = path.parent / f'{parent}.yaml'
+    return _deep_merge(_load_raw(parent_path, chain + (path,)), raw)
+
+
+def _get(raw: dict, key: str, kind: type, where: str) -> Any:
+    if key not in raw:
+        raise SceneError(f'{where}: missing field "{key}"')
+    value = raw[key]
+    if kind is float and isinstance(value, int) and not isinstance(value, bool):
+        value = float(value)
+    if not isinstance(value, kind) or isinstance(value, bool) and kind is not bool:
+        raise SceneError(f'{where}: field "{key}" must be {kind.__name__}, got {value!r}')
+    return value
+
+
+def _positive(raw: dict, key: str, where: str) -> float:
+    value = _get(raw, key, float, where)
+    if not value > 0.0:
+        raise SceneError(f'{where}: field "{key}" must be > 0, got {value}')
+    return value
+
+
+def _plate(raw: dict, where: str) -> Plate:
+    name = _get(raw, 'plate', str, where)
+    library = _get(raw, 'plates', dict, where)
+    if name not in library:
+        raise SceneError(f'{where}: field "plate" is {name!r}, not one of {sorted(library)}')
+    spec = library[name]
+    shape = _get(spec, 'shape', str, f'{where}: plates.{name}')
+    if shape not in PLATE_SHAPES:
+        raise SceneError(f'{where}: field "plates.{name}.shape" must be one of {PLATE_SHAPES}')
+    radius = _positive(spec, 'radius', f'{where}: plates.{name}') if shape != 'plane' else 0.0
+    return Plate(name=name, shape=shape, radius=radius)
+
+
+def _soft_object(raw: dict, where: str) -> SoftObject | None:
+    name = raw.get('object')
+    if name is None:
+        return None
+    library = _get(raw, 'objects', dict, where)
+    if name not in library:
+        raise SceneError(f'{where}: field "object" is {name!r}, not one of {sorted(library)}')
+    spec, sub = library[name], f'{where}: objects.{name}'
+    return SoftObject(name=name, stiffness=_positive(spec, 'stiffness', sub),
+                      damping=_get(spec, 'damping', float, sub), mass=_positive(spec, 'mass', sub),
+                      thickness=_positive(spec, 'thickness', sub))
+
+
+def _effects(raw: dict, where: str) -> dict[str, dict[str, Any]]:
+    from tacforce_ros.sim.effects import EFFECTS   # the registry validates names and parameters
+    effects = raw.get('effects') or {}
+    if not isinstance(effects, dict):
+        raise SceneError(f'{where}: field "effects" must be a mapping name -> parameters')
+    result = {}
+    for name, params in effects.items():
+        if name not in EFFECTS:
+            raise SceneError(f'{where}: field "effects.{name}": unknown effect '
+                             f'(known: {sorted(EFFECTS)})')
+        params = {} if params is True else params
+        if params is False:
+            continue
+        if not isinstance(params, dict):
+            raise SceneError(f'{where}: field "effects.{name}" must be a mapping of parameters')
+        try:
+            EFFECTS[name](**params)
+        except TypeError as exc:
+            raise SceneError(f'{where}: field "effects.{name}": {exc}') from exc
+        result[name] = dict(params)
+    return result
+
+
+def load_scene(name_or_path: str | Path) -> Scene:
+    """Load a scene by file stem under config/scenes/ or by path to a YAML file."""
+    path = _resolve_path(name_or_path)
+    raw = _load_raw(path)
+    where = str(path)
+    kind = _get(raw, 'kind', str, where)
+    if kind not in KINDS:
+        raise SceneError(f'{where}: field "kind" must be one of {KINDS}, got {kind!r}')
+    tactile_rate = _positive(raw, 'tactile_rate', where)
+    physics_rate = (_positive(raw, 'physics_rate', where) if kind == 'closed_loop'
+                    else tactile_rate)
+    if kind == 'closed_loop' and abs(physics_rate / tactile_rate
+                                     - round(physics_rate / tactile_rate)) > 1e-9:
+        raise SceneError(f'{where}: field "physics_rate" must be a multiple of tactile_rate')
+    seed = _get(raw, 'seed', int, where)
+    return Scene(
+        name=path.stem, kind=kind, array=_get(raw, 'array', str, where),
+        plate=_plate(raw, where), duration=_positive(raw, 'duration', where),
+        tactile_rate=tactile_rate, physics_rate=physics_rate, seed=seed,
+        effects=_effects(raw, where),
+        operator=_get(raw, 'operator', dict, where) if kind == 'calibration' else {},
+        finger=_get(raw, 'finger', dict, where) if kind == 'closed_loop' else {},
+        soft_object=_soft_object(raw, where), path=path)

@@ -1,0 +1,85 @@
+"""The sensor chain shared by both simulators: contact -> uSkin counts, wrench -> RDT counts."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from tacforce_ros.hand.description import HandDescription, TaxelArray
+from tacforce_ros.sim.contact import PressureModel
+from tacforce_ros.sim.effects import Pipeline
+from tacforce_ros.sim.sample import StepState
+from tacforce_ros.sim.scene import Plate
+from tacforce_ros.sim.taxel_response import (ResponseParams, counts_from_loads, taxel_loads,
+                                             to_uint16)
+
+# Temperature the readings settle at after the paper's 30 min warm-up (section IV-A): our
+# estimate of a powered hand's skin temperature.
+WARM_TEMPERATURE = 305.15   # K
+# Net F/T defaults (PROTOCOLS.md section 3): counts per N and per N m.
+COUNTS_PER_FORCE = 1e6
+COUNTS_PER_TORQUE = 1e6
+
+
+@dataclass
+class EffectContext:
+    """What effects may look at when they reset (and, by reference, later)."""
+    hand: HandDescription
+    array: TaxelArray
+    rows: np.ndarray              # (n,) the array's taxels in XELA flat order
+    array_of_taxel: np.ndarray    # (368,) array index of each flat taxel
+    n_taxels: int
+    dt: float                     # s between tactile frames
+    params: ResponseParams
+    idle_counts: np.ndarray | None = None   # (368, 3) float counts with no load
+
+
+class TactileSensor:
+    """Whole-hand uSkin readout with one array in contact with a plate."""
+
+    def __init__(self, hand: HandDescription, array_name: str, plate: Plate,
+                 pipeline: Pipeline, frame_dt: float) -> None:
+        self.hand = hand
+        self.array = hand.array(array_name)
+        self.pipeline = pipeline
+        self.pressure = PressureModel(self.array.positions, plate)
+        array_of = np.empty(hand.n_taxels, np.int64)
+        for index, array in enumerate(hand.arrays):
+            array_of[array.flat_indices] = index
+        self.ctx = EffectContext(hand=hand, array=self.array, rows=self.array.flat_indices,
+                                 array_of_taxel=array_of, n_taxels=hand.n_taxels, dt=frame_dt,
+                                 params=ResponseParams.nominal(hand.n_taxels))
+
+    def reset(self, seed: int) -> None:
+        ctx = self.ctx
+        ctx.params = ResponseParams.nominal(ctx.n_taxels)
+        self.pipeline.reset(seed, ctx)
+        self.pipeline.run('response', ctx)
+        ctx.idle_counts = counts_from_loads(np.zeros((ctx.n_taxels, 3)), ctx.params,
+                                            slice(None))
+        self._warm = np.full(ctx.n_taxels, WARM_TEMPERATURE)
+
+    def measure(self, state: StepState) -> None:
+        """Fill state.counts / temperatures / counts_out from state.contact."""
+        contact, run = state.contact, self.pipeline.run
+        weights = self.pressure.weights(contact)
+        state.depth = self.pressure.depth
+        state.rotations = self.array.rotations
+        run('rotations', state)
+        # Force on each taxel, expressed in its own frame: R_i^T (w_i f).
+        state.local_force = np.einsum('nji,j->ni', state.rotations, contact.force) * weights[:, None]
+        run('local_force', state)
+        counts = self.ctx.idle_counts.copy()
+        counts[self.ctx.rows] = counts_from_loads(taxel_loads(state.local_force), self.ctx.params,
+                                                  self.ctx.rows)
+        state.counts = counts
+        state.temperatures = self._warm
+        run('counts', state)
+        state.counts_out = to_uint16(state.counts)
+
+
+def ft_counts(wrench: np.ndarray) -> np.ndarray:
+    """(6,) N, N m -> RDT int32 counts at the Net F/T default resolution."""
+    scale = np.array([COUNTS_PER_FORCE] * 3 + [COUNTS_PER_TORQUE] * 3)
+    limit = np.iinfo(np.int32)
+    return np.clip(np.rint(np.asarray(wrench) * scale), limit.min, limit.max).astype(np.int32)

@@ -4,8 +4,8 @@ Architecture. The paper describes "an input layer of size 3n with ReLU, a hidden
 with ReLU and a linear output layer of size 3" and counts p = 48n + 69. We read the input layer as
 the 3n-vector itself, with no activation on it: a ReLU on standardised inputs would discard every
 below-mean reading (half of the signal) and has no parameters, so it cannot be what p counts. The
-network is therefore Linear(3n, 16) -> ReLU -> Linear(16, 3) with p = 48n + 67 (16 x 3n + 16 + 3 x 16
-+ 3); no layout with one 16-wide hidden layer gives the paper's extra 2.
+network is therefore Linear(3n, 16) -> ReLU -> Linear(16, 3) with p = 48n + 67
+(16 x 3n + 16 + 3 x 16 + 3); no layout with one 16-wide hidden layer gives the paper's extra 2.
 
 Training (paper Sec. IV-A): Adam, batch 256, lr 2.5e-4, 40 epochs, MSE, all hyper-parameters.
 Torch is imported inside fit only (importing it takes ~1.5 s), so loading a model file and the
@@ -120,14 +120,15 @@ def load_module_state(module: torch.nn.Module, arrays: Mapping[str, np.ndarray])
     state = module.state_dict()
     for key in state:
         if not key.endswith(_SKIPPED_TORCH_STATE):
-            state[key] = torch.as_tensor(np.asarray(arrays[state_name(key)]), dtype=state[key].dtype)
+            value = np.asarray(arrays[state_name(key)])
+            state[key] = torch.as_tensor(value, dtype=state[key].dtype)
     module.load_state_dict(state)
     return module.eval()
 
 
 def checked_state(arrays: Mapping[str, np.ndarray],
                   shapes: Mapping[str, tuple[int, ...]], kind: str) -> dict[str, np.ndarray]:
-    """Arrays converted to STATE_DTYPE after checking names, shapes and finiteness against shapes."""
+    """The arrays as STATE_DTYPE, after checking their names, shapes and finiteness."""
     missing, extra = sorted(set(shapes) - set(arrays)), sorted(set(arrays) - set(shapes))
     if missing or extra:
         raise ValueError(f'{kind} state arrays do not match the model: missing {missing}, '

@@ -88,6 +88,7 @@ class CNNModel(ForceModel):
         h3, w3 = (d - MIN_GRID + 1 for d in self.grid.shape)
         self.final_map = (h3, w3)        # spatial size after the last convolution
         self._state: dict[str, np.ndarray] | None = None
+        self._inference: list[np.ndarray] | None = None     # folded weights, set with the state
 
     def _state_shapes(self) -> dict[str, tuple[int, ...]]:
         (c1, c2, c3), (k1, k2, k3) = self.channels, KERNELS
@@ -123,7 +124,14 @@ class CNNModel(ForceModel):
         X = check_inputs(X, self.array.n_taxels, F)
         nchw = self.images(X).transpose(0, 3, 1, 2)
         module = fit_torch_regressor(self._build, np.ascontiguousarray(nchw), F, self.training)
-        self._state = checked_state(module_state(module), self._state_shapes(), self.kind)
+        return self._set_state(module_state(module))
+
+    def _set_state(self, arrays: dict[str, np.ndarray]) -> CNNModel:
+        state = checked_state(arrays, self._state_shapes(), self.kind)
+        if np.any(state['norm_running_var_'] < 0.0):
+            raise ValueError(f'{self.kind} state array norm_running_var_ has negative variances')
+        self._state = state
+        self._inference = self._fold()
         return self
 
     def _fitted_state(self) -> dict[str, np.ndarray]:
@@ -137,6 +145,11 @@ class CNNModel(ForceModel):
         Order: conv1 (w, b), conv2 (w, b), conv3 (w, b), dense (w, b), output (w, b); conv
         weights (C*kh*kw, O), biases (O,), dense rows in channels-last (h, w, C) order.
         """
+        self._fitted_state()        # raises if not fitted
+        return self._inference
+
+    def _fold(self) -> list[np.ndarray]:
+        """Compute inference_weights() from the torch-layout state (folding in float64)."""
         s = {name: value.astype(np.float64) for name, value in self._fitted_state().items()}
         scale = s['norm_weight_'] / np.sqrt(s['norm_running_var_'] + BN_EPS)
         shift = s['norm_bias_'] - scale * s['norm_running_mean_']
@@ -166,7 +179,7 @@ class CNNModel(ForceModel):
         return load_module_state(self._build(torch), self._fitted_state())
 
     def n_parameters(self) -> int:
-        """Learned scalars; BatchNorm running statistics are estimated, not learned (paper: 2479)."""
+        """Learned scalars; BatchNorm running statistics are estimated, not learned."""
         shapes = self._state_shapes()
         del shapes['norm_running_mean_'], shapes['norm_running_var_']
         return sum(int(np.prod(shape)) for shape in shapes.values())
@@ -180,9 +193,7 @@ class CNNModel(ForceModel):
     @classmethod
     def from_state(cls, array: TaxelArray, hyper: dict,
                    arrays: dict[str, np.ndarray]) -> CNNModel:
-        model = cls(array, **hyper)
-        model._state = checked_state(arrays, model._state_shapes(), cls.kind)
-        return model
+        return cls(array, **hyper)._set_state(arrays)
 
     @classmethod
     def compile_batch(cls, models: Sequence[ForceModel]) -> Callable[[np.ndarray], np.ndarray]:
@@ -220,7 +231,7 @@ class CNNModel(ForceModel):
 
 
 def _cnn_forward(images: np.ndarray, weights: Sequence[np.ndarray]) -> np.ndarray:
-    """Folded CNN on images (G, M, H, W, 3) with weights stacked per model (G, ...); -> (G, M, 3)."""
+    """Folded CNN: images (G, M, H, W, 3), weights stacked per model (G, ...) -> (G, M, 3)."""
     w1, b1, w2, b2, w3, b3, wd, bd, wo, bo = weights
     x = relu(conv_valid(images, w1, b1[:, None], KERNELS[0]))
     x = relu(conv_valid(x, w2, b2[:, None], KERNELS[1]))

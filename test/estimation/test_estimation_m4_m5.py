@@ -1,4 +1,4 @@
-"""M4 (MLP) and M5 (CNN): training, determinism, numpy vs torch, batching, persistence, bad input."""
+"""M4 (MLP) and M5 (CNN): training, determinism, numpy vs torch, batching, files, bad input."""
 import json
 import subprocess
 import sys
@@ -13,6 +13,7 @@ from hypothesis import strategies as st
 from tacforce_ros.estimation.base import ModelNotFittedError
 from tacforce_ros.estimation.m4_mlp import MLPModel
 from tacforce_ros.estimation.m5_cnn import CNNModel
+from tacforce_ros.hand.description import load_hand
 
 # Fast training settings for tests (the paper's lr 2.5e-4 for 40 epochs needs far more data).
 FAST = dict(epochs=12, batch_size=64, learning_rate=1e-2)
@@ -20,7 +21,7 @@ FAST = dict(epochs=12, batch_size=64, learning_rate=1e-2)
 
 @dataclass(frozen=True)
 class FakeArray:
-    """The TaxelArray fields the models read."""
+    """The TaxelArray fields the models read, for grids the hand does not have."""
 
     name: str
     n_taxels: int
@@ -34,16 +35,13 @@ def grid_array(name: str, mask: np.ndarray) -> FakeArray:
     return FakeArray(name, int(mask.sum()), grid)
 
 
-# The hand's three layouts (config/hand/allegro_right_uskin.yaml): fingertip 6x6 without corners.
-TIP_ROWS = (2, 4, 6, 6, 6, 6)
-TIP = grid_array('tip', np.array([[abs(c - 2.5) < w / 2 for c in range(6)] for w in TIP_ROWS]))
-PHALANX = grid_array('phalanx', np.ones((4, 4), bool))
-PALM = grid_array('palm', np.ones((4, 6), bool))
+HAND = load_hand()
+TIP, PHALANX, PALM = (HAND.array(name) for name in ('index_tip', 'index_middle', 'palm_center'))
 ARRAYS = {16: PHALANX, 24: PALM, 30: TIP}
 MODELS = {'M4': MLPModel, 'M5': CNNModel}
 
 
-def contact_dataset(array: FakeArray, n_samples: int, seed: int):
+def contact_dataset(array, n_samples: int, seed: int):
     """Seeded synthetic presses: force F (N, 3) at a random spot on the grid, taxel readings X.
 
     Each taxel reads the saturating response tanh(1.5 F) weighted by a Gaussian footprint around
@@ -64,7 +62,8 @@ def contact_dataset(array: FakeArray, n_samples: int, seed: int):
 def random_state(model, seed: int) -> dict:
     """Plausible weights of the right shapes (BatchNorm variances positive)."""
     rng = np.random.default_rng(seed)
-    arrays = {name: 0.4 * rng.standard_normal(shape) for name, shape in model._state_shapes().items()}
+    shapes = model._state_shapes()
+    arrays = {name: 0.4 * rng.standard_normal(shape) for name, shape in shapes.items()}
     if 'norm_running_var_' in arrays:
         arrays['norm_running_var_'] = rng.uniform(0.3, 2.0, arrays['norm_running_var_'].shape)
     return arrays
@@ -86,7 +85,8 @@ def torch_forward(model, X: np.ndarray) -> np.ndarray:
 def fitted():
     """Each kind fitted on the fingertip layout, with held-out data for scoring."""
     X, F = contact_dataset(TIP, 1500, seed=0)
-    models = {kind: cls(TIP, seed=3, **FAST).fit(X[:1000], F[:1000]) for kind, cls in MODELS.items()}
+    models = {kind: cls(TIP, seed=3, **FAST).fit(X[:1000], F[:1000])
+              for kind, cls in MODELS.items()}
     return models, X[1000:], F[1000:]
 
 
@@ -165,6 +165,16 @@ def test_compile_batch_equals_predict_for_mixed_taxel_counts(kind):
 
 
 @pytest.mark.parametrize('kind', MODELS)
+def test_compile_batch_covers_the_whole_hand(kind):
+    cls = MODELS[kind]
+    models = [with_random_state(cls, a, seed=i) for i, a in enumerate(HAND.arrays)]
+    X = np.random.default_rng(8).standard_normal((len(models), 30, 3))
+    expected = np.concatenate([m.predict(X[i:i + 1, :m.array.n_taxels])
+                               for i, m in enumerate(models)])
+    np.testing.assert_allclose(cls.compile_batch(models)(X), expected, rtol=1e-5, atol=1e-5)
+
+
+@pytest.mark.parametrize('kind', MODELS)
 def test_raw_count_extremes_stay_finite(fitted, kind):
     model = fitted[0][kind]
     # XELA counts are 16 bit; a quiet taxel sits near 3e4 counts with a spread of tens of counts.
@@ -235,7 +245,8 @@ def test_inference_does_not_import_torch():
         'import sys, types, numpy as np\n'
         'from tacforce_ros.estimation.m4_mlp import MLPModel\n'
         'from tacforce_ros.estimation.m5_cnn import CNNModel\n'
-        'tip = types.SimpleNamespace(name="tip", n_taxels=36, grid_index=np.arange(36).reshape(6, 6))\n'
+        'grid = np.arange(36).reshape(6, 6)\n'
+        'tip = types.SimpleNamespace(name="tip", n_taxels=36, grid_index=grid)\n'
         'for cls in (MLPModel, CNNModel):\n'
         '    shapes = cls(tip)._state_shapes()\n'
         '    m = cls.from_state(tip, {}, {k: np.ones(v) for k, v in shapes.items()})\n'
@@ -262,6 +273,10 @@ def test_bad_input_is_refused_with_a_reason():
         MLPModel.compile_batch([with_random_state(CNNModel, TIP, seed=0)])
     with pytest.raises(ValueError, match='shape'):
         MLPModel.compile_batch([with_random_state(MLPModel, TIP, seed=0)])(np.zeros((2, 30, 3)))
+    arrays = random_state(CNNModel(TIP), seed=0)
+    arrays['norm_running_var_'][2] = -1.0
+    with pytest.raises(ValueError, match='negative variances'):
+        CNNModel.from_state(TIP, {}, arrays)
     broken = FakeArray('broken', 16, np.arange(16).reshape(4, 4) % 15)   # taxel 15 missing
     with pytest.raises(ValueError, match='exactly once'):
         CNNModel(broken)

@@ -1,0 +1,287 @@
+"""Fingertip force controller of one finger (paper Sec. IV-C, Eq. full-controller), pure numpy.
+
+    tau = J^T R (f_d + K_i * integral(e_f)) + tau_g - K_d qdot - K_p (q - q_d),  e_f = f_d - f_hat
+
+Sign convention. Every force here is the force the fingertip applies to the environment (what the
+F/T sensor under the plate reads and what the estimator is trained against), expressed in
+`force_frame` ({F} in the paper). With that convention the integral correction must be ADDED:
+the paper prints ``f_d - K_i * integral(e_f)``, which with e_f = f_d - f_hat and a shared sign
+convention for f_d and f_hat would be positive feedback; the closed-loop test in
+test/control/ checks the sign used here removes a constant plant error.
+
+Around the law, in this order per tick:
+1. Watchdog. `f_hat_age` and `q_age` come from the caller. A stale or non-finite estimate ramps the
+   force terms (J^T f_d and the integral) to zero within `ramp_time` and blends the position
+   target to the joint angles latched at the moment it went stale: the finger ends in a pure
+   position hold (gravity + PD on where it is), so it neither keeps pushing an unmonitored force
+   nor falls. Stale joints make the PD meaningless, so then the WHOLE torque ramps to zero.
+   The integral is frozen while ramping and reset once the force terms reach zero; when the
+   streams come back, the gains ramp in again at the same rate (no torque step).
+2. Integral with a rate limiter (each axis of e_f clipped to `integral_rate_limit` N before
+   integrating, so one bad estimate moves the integral by at most that many N s per second),
+   clamped to +/- `integral_limit`, and conditional integration: while saturated, a step that
+   would push the binding joint further into saturation is not taken (anti-windup).
+3. Saturation: one common factor s = min(1, min_j limit_j / |tau_j|) with
+   limit_j = min(torque_cap, firmware clamp of joint j). All four joints are scaled by s, so the
+   firmware's per-joint clamps never act on their own and the direction of tau is kept.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field, fields
+from pathlib import Path
+from typing import Any, Mapping, Protocol
+
+import numpy as np
+import yaml
+
+FINGERS = ('index', 'middle', 'ring', 'thumb')
+
+# Allegro V4 firmware per-joint torque clamps (Nm), PROTOCOLS.md section 2, from
+# simlabrobotics/allegro_hand_ros_v4 and Wonik's allegro_hand_ros2 v4_spec.hpp.
+FIRMWARE_TORQUE_LIMITS = {
+    'index': (0.3125, 0.5625, 0.375, 0.2375),
+    'middle': (0.3125, 0.5625, 0.375, 0.2375),
+    'ring': (0.3125, 0.5625, 0.375, 0.2375),
+    'thumb': (0.4375, 0.3375, 0.225, 0.225),
+}
+
+MODE_OPEN_LOOP = 'open_loop'
+MODE_CLOSED_LOOP = 'closed_loop'
+MODE_SAFE = 'safe'      # watchdog ramp-down in progress (or whole torque off: joints stale)
+MODE_HOLD = 'hold'      # force terms off, position hold at the latched joint angles
+
+
+class Kinematics(Protocol):
+    """What the controller needs from tacforce_ros.hand.kinematics.HandKinematics."""
+
+    def finger_joints(self, finger: str) -> slice: ...
+    def fingertip_jacobian(self, q16: np.ndarray, finger: str) -> np.ndarray: ...
+    def gravity_torques(self, q16: np.ndarray) -> np.ndarray: ...
+    def rotation_between(self, q16: np.ndarray, from_frame: str, to_frame: str) -> np.ndarray: ...
+
+
+class ControllerConfigError(ValueError):
+    """A controller configuration that cannot be used; the message names the field."""
+
+
+@dataclass(frozen=True)
+class ForceControllerConfig:
+    """Gains and limits of one finger's controller (SI units; vectors are per axis / per joint)."""
+
+    finger: str = 'index'
+    base_frame: str = 'hand_root'
+    force_frame: str = 'ft_sensor'          # frame of f_d and of the integral ({F} in the paper)
+    estimate_frame: str = ''                # frame of f_hat, e.g. uskin_index_tip; '' = force_frame
+    k_i: tuple[float, ...] = (2.0, 2.0, 2.0)            # 1/s, diagonal; all zero = open loop
+    k_p: tuple[float, ...] = (0.5, 0.5, 0.5, 0.5)       # Nm/rad, diagonal
+    k_d: tuple[float, ...] = (0.02, 0.02, 0.02, 0.02)   # Nm s/rad, diagonal
+    q_d: tuple[float, ...] = (0.0, 0.6, 0.6, 0.6)       # rad, finger's position target
+    torque_cap: float = 0.35                # Nm, paper: above it the actuators throttle
+    integral_rate_limit: float = 1.0        # N: |e_f| per axis clipped to this before integrating
+    integral_limit: float = 2.0             # N s per axis
+    estimate_timeout: float = 0.05          # s, older force estimates are stale
+    joints_timeout: float = 0.02            # s, older joint states are stale
+    ramp_time: float = 0.05                 # s, fresh -> safe (target: safe within 0.1 s)
+
+    def __post_init__(self) -> None:
+        if self.finger not in FINGERS:
+            raise ControllerConfigError(f'finger: {self.finger!r} is not one of {FINGERS}')
+        for name, size in (('k_i', 3), ('k_p', 4), ('k_d', 4), ('q_d', 4)):
+            values = np.asarray(getattr(self, name), dtype=np.float64)
+            if values.shape != (size,) or not np.all(np.isfinite(values)):
+                raise ControllerConfigError(f'{name}: expected {size} finite numbers, '
+                                            f'got {getattr(self, name)!r}')
+            if name != 'q_d' and np.any(values < 0):
+                raise ControllerConfigError(f'{name}: gains must be >= 0, got {list(values)}')
+            object.__setattr__(self, name, tuple(float(v) for v in values))
+        for name in ('torque_cap', 'integral_rate_limit', 'integral_limit', 'estimate_timeout',
+                     'joints_timeout', 'ramp_time'):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and np.isfinite(value) and value > 0):
+                raise ControllerConfigError(f'{name}: {value!r} must be a positive number')
+            object.__setattr__(self, name, float(value))
+
+    @property
+    def joint_torque_limits(self) -> np.ndarray:
+        """Per-joint limit actually applied: the controller cap within the firmware clamps."""
+        return np.minimum(self.torque_cap, np.asarray(FIRMWARE_TORQUE_LIMITS[self.finger]))
+
+    @classmethod
+    def from_mapping(cls, values: Mapping[str, Any]) -> ForceControllerConfig:
+        """From a flat mapping (ROS parameters or YAML); unknown keys are refused."""
+        known = {f.name for f in fields(cls)}
+        unknown = set(values) - known
+        if unknown:
+            raise ControllerConfigError(f'unknown controller parameters {sorted(unknown)}; '
+                                        f'expected some of {sorted(known)}')
+        return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in values.items()})
+
+    @classmethod
+    def from_yaml(cls, path: str | Path, section: str = 'force_controller'
+                  ) -> ForceControllerConfig:
+        """From a ROS 2 parameter file: the `<section>` group under any node's ros__parameters."""
+        doc = yaml.safe_load(Path(path).read_text()) or {}
+        for node_params in doc.values():
+            params = (node_params or {}).get('ros__parameters', {})
+            if section in params:
+                return cls.from_mapping(params[section])
+        raise ControllerConfigError(f'{path}: no "{section}" group under ros__parameters')
+
+
+@dataclass
+class ControllerState:
+    """What one tick did; mirrors tacforce_msgs/msg/ControllerState (forces in force_frame)."""
+
+    t: float
+    mode: str
+    desired_force: np.ndarray
+    estimated_force: np.ndarray
+    integral_error: np.ndarray
+    tau_cmd: np.ndarray
+    tau_unsaturated: np.ndarray
+    saturation_scale: float
+    estimate_fresh: bool
+    joints_fresh: bool
+    force_gain: float            # 1 normal, ramps to 0 when a stream goes stale
+    hold_gain: float             # 1 normal, ramps to 0 only when the joints go stale
+
+
+@dataclass
+class _Memory:
+    t: float | None = None
+    integral: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    force_gain: float = 1.0
+    hold_gain: float = 1.0
+    q_hold: np.ndarray | None = None
+
+
+def saturation_scale(tau: np.ndarray, limits: np.ndarray) -> float:
+    """Largest common factor in (0, 1] that brings every |tau_j| within limits_j."""
+    over = np.abs(tau) / limits
+    worst = float(np.max(over)) if over.size else 0.0
+    return 1.0 if worst <= 1.0 else 1.0 / worst
+
+
+class ForceController:
+    """Eq. full-controller for one finger with rate-limited, anti-windup integral and watchdog.
+
+    `update()` is called once per control tick with time from the caller (sim time works) and
+    returns the finger's 4 joint torques (write them to `kinematics.finger_joints(finger)`).
+    """
+
+    def __init__(self, config: ForceControllerConfig, kinematics: Kinematics) -> None:
+        self.config = config
+        self.kinematics = kinematics
+        self.joints = kinematics.finger_joints(config.finger)
+        self._k_i = np.asarray(config.k_i)
+        self._k_p = np.asarray(config.k_p)
+        self._k_d = np.asarray(config.k_d)
+        self._q_d = np.asarray(config.q_d)
+        self._limits = config.joint_torque_limits
+        self._mem = _Memory()
+
+    @property
+    def open_loop(self) -> bool:
+        return not np.any(self._k_i)
+
+    def set_position_target(self, q_d: np.ndarray) -> None:
+        """Finger joint target q_d (4,), chosen so the fingertip stays in contact."""
+        q_d = np.asarray(q_d, dtype=np.float64)
+        if q_d.shape != (4,) or not np.all(np.isfinite(q_d)):
+            raise ValueError(f'q_d must be 4 finite joint angles, got {q_d!r}')
+        self._q_d = q_d
+
+    def reset(self) -> None:
+        """Forget time, integral and watchdog state (e.g. after the sim clock jumped back)."""
+        self._mem = _Memory()
+
+    def update(self, t: float, q: np.ndarray, qdot: np.ndarray, f_hat: np.ndarray,
+               f_hat_age: float, q_age: float, f_d: np.ndarray
+               ) -> tuple[np.ndarray, ControllerState]:
+        """One tick. q, qdot: all 16 joints (rad, rad/s); f_d: (3,) N in force_frame;
+        f_hat in estimate_frame; ages in s (inf for a missing or invalid estimate).
+        Returns (tau (4,) Nm, state); state forces are in force_frame."""
+        cfg, mem = self.config, self._mem
+        q = np.asarray(q, dtype=np.float64)
+        qdot = np.asarray(qdot, dtype=np.float64)
+        f_d = np.asarray(f_d, dtype=np.float64)
+        f_hat = np.asarray(f_hat, dtype=np.float64)
+        if q.shape != (16,) or qdot.shape != (16,):
+            raise ValueError(f'q and qdot must hold all 16 joints, got {q.shape}, {qdot.shape}')
+        if f_d.shape != (3,) or not np.all(np.isfinite(f_d)):
+            raise ValueError(f'f_d must be 3 finite numbers, got {f_d!r}')
+
+        # A clock that went back (sim reset) or the first tick: no time has passed.
+        if mem.t is not None and t < mem.t:
+            self.reset()
+            mem = self._mem
+        elapsed = 0.0 if mem.t is None else t - mem.t
+        mem.t = t
+
+        joints_fresh = bool(q_age <= cfg.joints_timeout and np.all(np.isfinite(q))
+                            and np.all(np.isfinite(qdot)))
+        estimate_fresh = bool(f_hat.shape == (3,) and f_hat_age <= cfg.estimate_timeout
+                              and np.all(np.isfinite(f_hat)))
+        step = elapsed / cfg.ramp_time
+        # Open loop does not use the estimate, so only closed loop depends on its freshness.
+        force_target = 1.0 if joints_fresh and (estimate_fresh or self.open_loop) else 0.0
+        mem.force_gain = float(np.clip(force_target, mem.force_gain - step, mem.force_gain + step))
+        hold_target = 1.0 if joints_fresh else 0.0
+        mem.hold_gain = float(np.clip(hold_target, mem.hold_gain - step, mem.hold_gain + step))
+
+        qf, qdf = q[self.joints], qdot[self.joints]
+        if force_target == 0.0 and mem.q_hold is None:
+            mem.q_hold = qf.copy()
+        if mem.force_gain == 0.0:
+            mem.integral = np.zeros(3)          # fully safe: forget the old correction
+        if mem.force_gain == 1.0:
+            mem.q_hold = None
+        q_target = (self._q_d if mem.q_hold is None
+                    else mem.force_gain * self._q_d + (1.0 - mem.force_gain) * mem.q_hold)
+
+        jacobian = np.asarray(self.kinematics.fingertip_jacobian(q, cfg.finger), np.float64)
+        rotation = np.asarray(
+            self.kinematics.rotation_between(q, cfg.force_frame, cfg.base_frame), np.float64)
+        if estimate_fresh and cfg.estimate_frame and cfg.estimate_frame != cfg.force_frame:
+            f_hat = np.asarray(self.kinematics.rotation_between(
+                q, cfg.estimate_frame, cfg.force_frame), np.float64) @ f_hat
+        hold = (np.asarray(self.kinematics.gravity_torques(q), np.float64)[self.joints]
+                - self._k_d * qdf - self._k_p * (qf - q_target))
+
+        def torque(integral: np.ndarray) -> np.ndarray:
+            f_cmd = f_d + self._k_i * integral
+            return mem.force_gain * (jacobian.T @ (rotation @ f_cmd)) + mem.hold_gain * hold
+
+        tau_raw = torque(mem.integral)
+        error = f_d - f_hat if estimate_fresh else np.zeros(3)
+        # A long gap between ticks must not integrate as one big step.
+        dt = min(elapsed, cfg.estimate_timeout)
+        if force_target == 1.0 and dt > 0.0 and not self.open_loop:
+            rate = np.clip(error, -cfg.integral_rate_limit, cfg.integral_rate_limit)
+            candidate = np.clip(mem.integral + dt * rate, -cfg.integral_limit, cfg.integral_limit)
+            tau_candidate = torque(candidate)
+            ratio_before = np.abs(tau_raw) / self._limits
+            ratio_after = np.abs(tau_candidate) / self._limits
+            binding = int(np.argmax(ratio_before))
+            deepens = (ratio_before[binding] > 1.0
+                       and ratio_after[binding] > ratio_before[binding])
+            if not deepens:
+                mem.integral, tau_raw = candidate, tau_candidate
+
+        scale = saturation_scale(tau_raw, self._limits)
+        tau = scale * tau_raw
+        if force_target == 1.0 and mem.force_gain == 1.0:
+            mode = MODE_OPEN_LOOP if self.open_loop else MODE_CLOSED_LOOP
+        elif joints_fresh and mem.force_gain == 0.0:
+            mode = MODE_HOLD
+        elif force_target == 1.0:
+            mode = MODE_OPEN_LOOP if self.open_loop else MODE_CLOSED_LOOP   # ramping back in
+        else:
+            mode = MODE_SAFE
+        state = ControllerState(
+            t=float(t), mode=mode, desired_force=f_d.copy(),
+            estimated_force=f_hat.copy() if f_hat.shape == (3,) else np.full(3, np.nan),
+            integral_error=mem.integral.copy(), tau_cmd=tau.copy(), tau_unsaturated=tau_raw,
+            saturation_scale=scale, estimate_fresh=estimate_fresh, joints_fresh=joints_fresh,
+            force_gain=mem.force_gain, hold_gain=mem.hold_gain)
+        return tau, state

@@ -227,7 +227,7 @@ def _array(raw: Any, layouts: dict[str, _Layout], where: str) -> TaxelArray:
     _check_rotations(layout.rotations, f'{where}.rotations (module {module})')
     return TaxelArray(
         name=name,
-        module_code=str(_require(raw, 'module_code', str, f'{where}.module_code')),
+        module_code=_require(raw, 'module_code', str, f'{where}.module_code'),
         kind=layout.kind,
         finger=finger,
         parent_link=_require(raw, 'parent_link', str, f'{where}.parent_link'),

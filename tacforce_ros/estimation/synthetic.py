@@ -21,7 +21,7 @@ if TYPE_CHECKING:
 PLATES = ('button', 'flat', 'fillet', 'convex', 'edge')   # paper Fig. 2d, spherical held out
 # Contact spread [m] per plate, by position in the plate list (indenter sharpness stand-in).
 _SPREADS = (0.003, 0.009, 0.005, 0.006, 0.004)
-_SATURATION_N = 6.0                         # taxel response saturates around this local force
+_SATURATION_N = 2.0                         # taxel response saturates around this local force
 _GAIN_COUNTS_PER_N = np.array([250.0, 250.0, 600.0])    # shear x, y; normal z (taxel frame)
 _NOISE_COUNTS = 3.0
 _FT_NOISE_N = 0.02
@@ -74,9 +74,14 @@ def _presses(array: TaxelArray, rng: np.random.Generator, n: int
 
 def _response(array: TaxelArray, force: np.ndarray, contact: np.ndarray, spread: float,
               taxel_gain: np.ndarray, coupling: np.ndarray) -> np.ndarray:
-    """Counts change (n_samples, n_taxels, 3): share of the force near each taxel, saturated."""
+    """Counts change (n_samples, n_taxels, 3): each taxel's share of the force, saturated.
+
+    The shares sum to one (the pressure under the indenter integrates to the force), so plates
+    differ in how concentrated the load is, which saturation turns into a plate-dependent response.
+    """
     distance2 = ((array.positions[None] - contact[:, None]) ** 2).sum(axis=-1)
-    share = np.exp(-distance2 / (2.0 * spread ** 2))
+    weight = np.exp(-distance2 / (2.0 * spread ** 2))
+    share = weight / weight.sum(axis=1, keepdims=True)
     local = np.einsum('tji,sj->sti', array.rotations, force) * share[..., None]   # R_i^T f
     saturated = _SATURATION_N * np.tanh(local / _SATURATION_N)
     return np.einsum('ij,stj->sti', coupling, saturated) * taxel_gain

@@ -1,0 +1,111 @@
+"""Calibration bag (rosbag2, docs/CONTRACTS.md) -> CalibrationDataset: pipeline steps 1-3.
+
+Tactile frames of the pressed array, the F/T wrench and the joint states are low-passed on their
+own time bases, resampled onto the tactile stamps, and the force is projected into the array frame
+with R^0_F(t) from the kinematics. Malformed tactile frames (wrong taxel count) are counted and
+dropped.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from tacforce_ros.estimation.dataset import CalibrationDataset, DatasetError
+from tacforce_ros.estimation.preprocessing import common_span, lowpass, project_force, resample
+
+if TYPE_CHECKING:
+    from tacforce_ros.hand.description import HandDescription
+    from tacforce_ros.hand.kinematics import HandKinematics
+
+
+@dataclass
+class BagStreams:
+    """Raw streams of one bag for one array; times in s from the header stamps."""
+
+    tactile_time: list[float]
+    tactile: list[np.ndarray]
+    wrench_time: list[float]
+    force: list[np.ndarray]
+    joint_time: list[float]
+    joints: list[np.ndarray]
+    dropped: int = 0
+
+
+def _seconds(stamp) -> float:
+    return stamp.sec + stamp.nanosec * 1e-9
+
+
+def read_streams(path: str | Path, array_name: str, n_taxels: int,
+                 joint_names: list[str]) -> BagStreams:
+    from tacforce_ros import bagio
+
+    streams = BagStreams([], [], [], [], [], [])
+    topics = [bagio.TOPIC_TACTILE, bagio.TOPIC_WRENCH, bagio.TOPIC_JOINTS]
+    for topic, _, msg in bagio.read_messages(path, topics):
+        if topic == bagio.TOPIC_TACTILE:
+            entry = next((a for a in msg.arrays if a.name == array_name), None)
+            if entry is None or not len(entry.x) == len(entry.y) == len(entry.z) == n_taxels:
+                streams.dropped += 1
+                continue
+            streams.tactile_time.append(_seconds(msg.header.stamp))
+            streams.tactile.append(np.stack([entry.x, entry.y, entry.z], axis=1))
+        elif topic == bagio.TOPIC_WRENCH:
+            f = msg.wrench.force
+            streams.wrench_time.append(_seconds(msg.header.stamp))
+            streams.force.append(np.array([f.x, f.y, f.z]))
+        else:
+            order = {name: i for i, name in enumerate(msg.name)}
+            if not set(joint_names) <= set(order):
+                streams.dropped += 1
+                continue
+            streams.joint_time.append(_seconds(msg.header.stamp))
+            streams.joints.append(np.array([msg.position[order[n]] for n in joint_names]))
+    return streams
+
+
+def _rate(time: np.ndarray) -> float:
+    return 1.0 / float(np.median(np.diff(time)))
+
+
+def _increasing(time: list[float], values: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """Sorted by stamp, duplicate stamps dropped (interpolation needs strictly increasing)."""
+    time_arr = np.asarray(time, dtype=np.float64)
+    order = np.argsort(time_arr, kind='stable')
+    time_arr = time_arr[order]
+    keep = np.concatenate(([True], np.diff(time_arr) > 0.0))
+    return time_arr[keep], np.asarray(values, dtype=np.float64)[order][keep]
+
+
+def dataset_from_bag(path: str | Path, hand: HandDescription,
+                     kinematics: HandKinematics) -> tuple[CalibrationDataset, int]:
+    """One calibration bag -> (dataset of its pressed array, messages dropped as malformed)."""
+    from tacforce_ros.bagio import read_session_metadata
+
+    meta = read_session_metadata(path)
+    array = hand.array(meta.get('array', ''))
+    streams = read_streams(path, array.name, array.n_taxels, list(kinematics.joint_names))
+    for name, samples in (('tactile', streams.tactile), ('wrench', streams.force),
+                          ('joint', streams.joints)):
+        if len(samples) < 2:
+            raise DatasetError(f'{path}: only {len(samples)} {name} messages for {array.name}')
+    t_tac, tactile = _increasing(streams.tactile_time, streams.tactile)
+    t_ft, force = _increasing(streams.wrench_time, streams.force)
+    t_q, joints = _increasing(streams.joint_time, streams.joints)
+    tactile = lowpass(tactile, fs=_rate(t_tac))
+    force = lowpass(force, fs=_rate(t_ft))
+    start, stop = common_span(t_tac, t_ft, t_q)
+    inside = (t_tac >= start) & (t_tac <= stop)
+    base = t_tac[inside]
+    force = resample(base, t_ft, force)
+    joints = resample(base, t_q, joints)
+    rotations = np.stack([kinematics.rotation_between(q, hand.ft_frame, array.frame_id)
+                          for q in joints])
+    n = base.size
+    dataset = CalibrationDataset(
+        array=array.name, X=tactile[inside], F=project_force(force, rotations),
+        plates=np.full(n, str(meta.get('plate', ''))), sessions=np.zeros(n, dtype=np.int64),
+        time=base - base[0], source=str(meta.get('source', 'lab')))
+    return dataset, streams.dropped

@@ -1,0 +1,176 @@
+"""train: calibration bags or processed datasets -> one model file per array and kind + report.
+
+Inputs are rosbag2 calibration bags (folders, docs/CONTRACTS.md) and/or processed dataset .npz
+files (estimation/dataset.py). Per array: offsets from static segments per session, optional
+leave-one-plate-out cross-validation (metrics go into the model's provenance), then a final fit on
+all plates.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+import time
+from collections import defaultdict
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from tacforce_ros.estimation.cross_validation import cross_validate
+from tacforce_ros.estimation.dataset import CalibrationDataset, DatasetError, concatenate
+from tacforce_ros.estimation.m3_lambda import DEFAULT_GRID
+from tacforce_ros.estimation.model_io import save_model
+from tacforce_ros.estimation.preprocessing import StaticSegmentError
+from tacforce_ros.estimation.registry import MODEL_KINDS
+from tacforce_ros.estimation.training import fit_bundle
+
+RANDOM_KINDS = ('M4', 'M5')     # trained from a random initialisation: they take a seed
+
+
+def code_version() -> str:
+    """git describe of the source tree, else the package version."""
+    root = Path(__file__).resolve().parents[2]
+    try:
+        out = subprocess.run(['git', 'describe', '--always', '--dirty'], cwd=root,
+                             capture_output=True, text=True, timeout=5, check=True)
+        return out.stdout.strip()
+    except (OSError, subprocess.SubprocessError):
+        from importlib.metadata import PackageNotFoundError, version
+        try:
+            return version('tacforce_ros')
+        except PackageNotFoundError:
+            return 'unknown'
+
+
+def model_hyper(kind: str, seed: int, lambda_cv: bool, lam: float) -> dict:
+    if kind in RANDOM_KINDS:
+        return {'seed': seed}
+    if kind == 'M3-lambda':
+        return {'lam': lam, 'lambda_grid': list(DEFAULT_GRID) if lambda_cv else None}
+    return {}
+
+
+def load_inputs(paths: list[Path]) -> tuple[dict[str, list[CalibrationDataset]], int]:
+    """Datasets by array name, from bags and .npz files; also the malformed messages dropped."""
+    by_array: dict[str, list[CalibrationDataset]] = defaultdict(list)
+    dropped = 0
+    bags = [p for p in paths if p.is_dir()]
+    if bags:
+        from tacforce_ros.estimation.bag_dataset import dataset_from_bag
+        from tacforce_ros.hand.description import load_hand
+        from tacforce_ros.hand.kinematics import HandKinematics
+        hand = load_hand()
+        kinematics = HandKinematics(hand.urdf_path)
+        for bag in tqdm(bags, desc='bags', unit='bag'):
+            dataset, n_dropped = dataset_from_bag(bag, hand, kinematics)
+            by_array[dataset.array].append(dataset)
+            dropped += n_dropped
+    for path in paths:
+        if not path.is_dir():
+            dataset = CalibrationDataset.load(path)
+            by_array[dataset.array].append(dataset)
+    return by_array, dropped
+
+
+def markdown_report(report: dict) -> str:
+    lines = ['# Training report', '', f"code {report['code_version']}, {report['date']}, "
+             f"seed {report['seed']}", '',
+             '| array | kind | plates | samples | e_r [%] | e_hat [N] | MAE x/y/z [N] | file |',
+             '|---|---|---|---|---|---|---|---|']
+    for entry in report['models']:
+        cv = entry['cross_validation']
+        if cv:
+            e_r = '-' if cv['e_r_mean'] is None else \
+                f"{100 * cv['e_r_mean']:.1f} ± {100 * cv['e_r_std']:.1f}"
+            e_hat = f"{cv['e_hat_mean']:.3f} ± {cv['e_hat_std']:.3f}"
+            axes = ' / '.join(f'{v:.3f}' for v in cv['mae_axis'])
+        else:
+            e_r = e_hat = axes = 'not run'
+        lines.append(f"| {entry['array']} | {entry['kind']} | {', '.join(entry['plates'])} | "
+                     f"{entry['samples']} | {e_r} | {e_hat} | {axes} | {entry['file']} |")
+    return '\n'.join(lines) + '\n'
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog='train', description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument('inputs', nargs='+', type=Path,
+                        help='calibration bag folders and/or processed dataset .npz files')
+    parser.add_argument('--out', type=Path, required=True, help='folder for model files + report')
+    parser.add_argument('--kinds', nargs='+', default=['M3-lambda'], choices=sorted(MODEL_KINDS),
+                        help='model kinds to train (default: M3-lambda)')
+    parser.add_argument('--arrays', nargs='+', help='only these arrays (default: all found)')
+    parser.add_argument('--lam', type=float, default=33.0, help='M3-lambda damping (paper: 33)')
+    parser.add_argument('--lambda-cv', action='store_true',
+                        help='choose the M3-lambda damping by CV nested in the training plates')
+    parser.add_argument('--no-cv', action='store_true', help='skip leave-one-plate-out CV')
+    parser.add_argument('--seed', type=int, default=0, help='seed of the random models (M4, M5)')
+    parser.add_argument('--save-dataset', action='store_true',
+                        help='also write the processed dataset of each array (<out>/<array>.npz)')
+    args = parser.parse_args(argv)
+
+    missing = [str(p) for p in args.inputs if not p.exists()]
+    if missing:
+        parser.error(f'inputs not found: {missing}')
+    try:
+        by_array, dropped = load_inputs(args.inputs)
+    except (DatasetError, ValueError, RuntimeError) as exc:
+        print(f'train: {exc}', file=sys.stderr)
+        return 2
+    if dropped:
+        print(f'train: dropped {dropped} malformed messages', file=sys.stderr)
+    names = sorted(by_array) if not args.arrays else args.arrays
+    unknown = sorted(set(names) - set(by_array))
+    if unknown:
+        print(f'train: no data for arrays {unknown}; found {sorted(by_array)}', file=sys.stderr)
+        return 2
+
+    from tacforce_ros.hand.description import load_hand
+    hand = load_hand()
+    version, date = code_version(), time.strftime('%Y-%m-%dT%H:%M:%S%z')
+    report = {'code_version': version, 'date': date, 'seed': args.seed,
+              'inputs': [str(p) for p in args.inputs], 'dropped_messages': dropped, 'models': []}
+    args.out.mkdir(parents=True, exist_ok=True)
+    jobs = [(name, kind) for name in names for kind in args.kinds]
+    prepared = {}
+    for name, kind in tqdm(jobs, desc='models', unit='model'):
+        array = hand.array(name)
+        if name not in prepared:
+            dataset = concatenate(by_array[name])
+            if dataset.n_taxels != array.n_taxels:
+                print(f'train: dataset for {name} has {dataset.n_taxels} taxels, the hand '
+                      f'description {array.n_taxels}', file=sys.stderr)
+                return 2
+            if args.save_dataset:
+                dataset.save(args.out / f'{name}.npz')
+            try:
+                prepared[name] = (dataset, *dataset.without_offsets())
+            except StaticSegmentError as exc:
+                print(f'train: {name}: {exc}', file=sys.stderr)
+                return 2
+        dataset, X, F, x_offset = prepared[name]
+        hyper = model_hyper(kind, args.seed, args.lambda_cv, args.lam)
+        cv = None if args.no_cv else cross_validate(array, kind, hyper, X, F,
+                                                    dataset.plates).summary()
+        provenance = {'dataset': sorted({str(p) for p in args.inputs}),
+                      'source': dataset.source, 'plates': dataset.plate_names(),
+                      'samples': int(X.shape[0]), 'date': date, 'seed': args.seed,
+                      'code_version': version, 'metrics': cv}
+        bundle = fit_bundle(array, kind, hyper, X, F, dataset.plates, x_offset=x_offset,
+                            provenance=provenance)
+        path = save_model(args.out / f"{name}_{kind}.npz", bundle)
+        report['models'].append({'array': name, 'kind': kind, 'file': path.name,
+                                 'plates': provenance['plates'], 'samples': provenance['samples'],
+                                 'hyperparameters': bundle.model.hyperparameters(),
+                                 'n_parameters': bundle.model.n_parameters(),
+                                 'cross_validation': cv})
+    (args.out / 'report.json').write_text(json.dumps(report, indent=2))
+    (args.out / 'report.md').write_text(markdown_report(report))
+    print(markdown_report(report))
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

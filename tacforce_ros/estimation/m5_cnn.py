@@ -40,6 +40,7 @@ if TYPE_CHECKING:
 KERNELS = (3, 3, 2)                       # paper: two 3x3 convolutions, then one 2x2
 MIN_GRID = sum(k - 1 for k in KERNELS) + 1  # smallest image the valid convolutions accept: 6
 BN_EPS = 1e-5                             # torch's BatchNorm2d default, needed again to fold it
+PREDICT_CHUNK = 4096                      # samples per numpy pass: bounds the im2col copies (~7 MB)
 
 
 def padded_grid(grid_index: np.ndarray) -> np.ndarray:
@@ -61,7 +62,7 @@ def conv_valid(x: np.ndarray, w: np.ndarray, b: np.ndarray, kernel: int) -> np.n
     """
     windows = sliding_window_view(x, (kernel, kernel), axis=(2, 3))   # (G, M, h, w, C, kh, kw)
     g, m, h, wd = windows.shape[:4]
-    cols = windows.reshape(g, m * h * wd, -1)
+    cols = windows.reshape(g, m * h * wd, w.shape[-2])
     return (cols @ w + b).reshape(g, m, h, wd, -1)
 
 
@@ -169,8 +170,11 @@ class CNNModel(ForceModel):
     def predict(self, X: np.ndarray) -> np.ndarray:
         X = check_inputs(X, self.array.n_taxels)
         stacked = [w[None] for w in self.inference_weights()]   # a group of one model
-        images = self.images(X.astype(np.float32))[None]
-        return _cnn_forward(images, stacked)[0].astype(np.float64)
+        out = np.empty((len(X), 3))
+        for start in range(0, len(X), PREDICT_CHUNK):
+            chunk = X[start:start + PREDICT_CHUNK].astype(np.float32)
+            out[start:start + len(chunk)] = _cnn_forward(self.images(chunk)[None], stacked)[0]
+        return out
 
     def torch_module(self) -> torch.nn.Module:
         """The fitted network as an eval-mode torch module (fine-tuning, export, cross-checks)."""
@@ -213,7 +217,7 @@ class CNNModel(ForceModel):
             cells = np.stack([np.where(cnns[i].grid >= 0, cnns[i].grid, n_max) for i in rows])
             per_model = [cnns[i].inference_weights() for i in rows]
             stacked = [np.stack([w[j] for w in per_model]) for j in range(len(per_model[0]))]
-            compiled.append((np.array(rows)[:, None, None], cells, stacked))
+            compiled.append((np.array(rows), cells, stacked))
         expected = (k, n_max, 3)
 
         def forward(X: np.ndarray) -> np.ndarray:
@@ -223,8 +227,8 @@ class CNNModel(ForceModel):
             padded[:, :n_max] = X
             out = np.empty((k, 3))
             for rows, cells, stacked in compiled:
-                # One image per model: (G, 1, H, W, 3).
-                out[rows[:, 0, 0]] = _cnn_forward(padded[rows, cells][:, None], stacked)[:, 0]
+                images = padded[rows[:, None, None], cells][:, None]     # (G, 1, H, W, 3)
+                out[rows] = _cnn_forward(images, stacked)[:, 0]
             return out
 
         return forward
@@ -237,4 +241,4 @@ def _cnn_forward(images: np.ndarray, weights: Sequence[np.ndarray]) -> np.ndarra
     x = relu(conv_valid(x, w2, b2[:, None], KERNELS[1]))
     x = relu(conv_valid(x, w3, b3[:, None], KERNELS[2]))
     g, m = x.shape[:2]
-    return mlp_forward(x.reshape(g, m, -1), wd, bd[:, None], wo, bo[:, None])
+    return mlp_forward(x.reshape(g, m, wd.shape[-2]), wd, bd[:, None], wo, bo[:, None])

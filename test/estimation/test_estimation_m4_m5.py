@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 
 from tacforce_ros.estimation.base import ModelNotFittedError
 from tacforce_ros.estimation.m4_mlp import MLPModel
-from tacforce_ros.estimation.m5_cnn import CNNModel
+from tacforce_ros.estimation.m5_cnn import PREDICT_CHUNK, CNNModel
 from tacforce_ros.hand.description import load_hand
 
 # Fast training settings for tests (the paper's lr 2.5e-4 for 40 epochs needs far more data).
@@ -110,6 +110,12 @@ def test_numpy_forward_matches_torch_eval_forward(fitted, kind):
     models, X_test, _ = fitted
     ours, reference = models[kind].predict(X_test), torch_forward(models[kind], X_test)
     np.testing.assert_allclose(ours, reference, rtol=1e-5, atol=1e-5)
+
+
+def test_cnn_predict_in_chunks_matches_torch():
+    model = with_random_state(CNNModel, PALM, seed=9)
+    X = np.random.default_rng(9).standard_normal((PREDICT_CHUNK + 3, PALM.n_taxels, 3))
+    np.testing.assert_allclose(model.predict(X), torch_forward(model, X), rtol=1e-5, atol=1e-5)
 
 
 @pytest.mark.parametrize('kind', MODELS)
@@ -261,6 +267,8 @@ def test_bad_input_is_refused_with_a_reason():
     model = MLPModel(TIP)
     with pytest.raises(ModelNotFittedError):
         model.predict(np.zeros((1, 30, 3)))
+    for cls in MODELS.values():     # no samples in, no forces out (and no crash)
+        assert with_random_state(cls, TIP, seed=0).predict(np.zeros((0, 30, 3))).shape == (0, 3)
     with pytest.raises(ValueError, match=r'\(N, 30, 3\)'):
         with_random_state(MLPModel, TIP, seed=0).predict(np.zeros((1, 16, 3)))
     X, F = contact_dataset(TIP, 8, seed=0)

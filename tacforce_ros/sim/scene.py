@@ -105,7 +105,11 @@ def _load_raw(path: Path, chain: tuple[Path, ...] = ()) -> dict:
         return raw
     if not isinstance(parent, str):
         raise SceneError(f'{path}: field "extends" must be a scene file stem')
+    # A parent next to the file wins; else the shared scenes folder (so a scene kept elsewhere
+    # can still extend the project defaults).
     parent_path = path.parent / f'{parent}.yaml'
+    if not parent_path.is_file():
+        parent_path = scenes_dir() / f'{parent}.yaml'
     return _deep_merge(_load_raw(parent_path, chain + (path,)), raw)
 
 

@@ -1,4 +1,7 @@
-"""Elastomer hysteresis: a play (backlash) operator on each taxel's load, per axis."""
+"""Elastomer hysteresis: a play (backlash) operator on each taxel's load, per axis.
+
+The loop's half-width grows with the load (viscoelastic silicone loses a share of the stored
+energy), plus a small constant part for static friction between magnet and chip housing."""
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -11,15 +14,17 @@ from tacforce_ros.sim.effects import Effect
 @dataclass
 class Hysteresis(Effect):
     name = 'hysteresis'
-    # Half-width of the loop: ~2 % of a 3 N per-cell range, our estimate for silicone skins
-    # (the paper neglects hysteresis, section III; this effect tests that assumption).
-    width: float = 0.03   # N
+    # Our estimates for silicone skins (the paper neglects hysteresis, section III; this
+    # effect tests that assumption).
+    relative: float = 0.05   # share of the load
+    width: float = 0.003     # N
 
     def reset(self, rng: np.random.Generator, ctx) -> None:
         self._output = np.zeros((ctx.array.n_taxels, 3))
 
     def on_local_force(self, state) -> None:
-        np.clip(self._output, state.local_force - self.width, state.local_force + self.width,
+        half = self.relative * np.abs(state.local_force) + self.width
+        np.clip(self._output, state.local_force - half, state.local_force + half,
                 out=self._output)
         state.local_force = self._output.copy()
 

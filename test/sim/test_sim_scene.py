@@ -1,0 +1,62 @@
+import textwrap
+
+import pytest
+
+from tacforce_ros.sim import SceneError, list_scenes, load_scene
+from tacforce_ros.sim.effects import EFFECTS
+
+
+def write(tmp_path, text, name='scene.yaml'):
+    path = tmp_path / name
+    path.write_text(textwrap.dedent(text))
+    return path
+
+
+def test_every_shipped_scene_loads():
+    names = list_scenes()
+    plates = {'button', 'flat', 'fillet', 'convex', 'edge', 'spherical'}
+    for array in ('index_tip', 'index_middle'):
+        assert {load_scene(f'calibration_{array}_{p}').plate.name for p in plates} == plates
+    objects = {load_scene(n).soft_object.name for n in names
+               if n.startswith('closed_loop_') and load_scene(n).soft_object}
+    assert objects == {'foam_brick', 'softball', 'abrasive_sponge', 'bleach_cleanser'}
+    assert load_scene('closed_loop_spherical').soft_object is None
+
+
+def test_extends_merges_and_null_removes_an_effect(tmp_path):
+    path = write(tmp_path, '''
+        extends: calibration_index_tip_edge
+        seed: 7
+        effects: {taxel_noise: null, hysteresis: {relative: 0.1}}
+    ''')
+    scene = load_scene(path)
+    parent = load_scene('calibration_index_tip_edge')
+    assert scene.seed == 7 and scene.plate == parent.plate and scene.array == 'index_tip'
+    assert 'taxel_noise' not in scene.effects and 'taxel_noise' in parent.effects
+    assert scene.effects['hysteresis'] == {'relative': 0.1}
+
+
+@pytest.mark.parametrize('body, field', [
+    ('extends: _calibration\narray: index_tip\n', '"plate"'),
+    ('extends: _calibration\narray: index_tip\nplate: banana\n', '"plate"'),
+    ('extends: _calibration\narray: index_tip\nplate: flat\nduration: -1\n', '"duration"'),
+    ('extends: _calibration\narray: index_tip\nplate: flat\nseed: x\n', '"seed"'),
+    ('extends: _calibration\narray: index_tip\nplate: flat\neffects: {warp: {}}\n',
+     '"effects.warp"'),
+    ('extends: _calibration\narray: index_tip\nplate: flat\neffects: {taxel_noise: {sgma: 1}}\n',
+     '"effects.taxel_noise"'),
+    ('extends: _base\nkind: dream\n', '"kind"'),
+    ('extends: scene\n', '"extends"'),
+])
+def test_bad_scene_names_the_field(tmp_path, body, field):
+    with pytest.raises(SceneError, match=field):
+        load_scene(write(tmp_path, body))
+
+
+def test_unknown_scene_lists_the_known_ones():
+    with pytest.raises(SceneError, match='calibration_index_tip_flat'):
+        load_scene('no_such_scene')
+
+
+def test_every_effect_has_a_distinct_registered_name():
+    assert all(cls.name == name for name, cls in EFFECTS.items())

@@ -48,7 +48,7 @@ class RdtError(ValueError):
 
 
 def encode_request(command: int, sample_count: int = 0) -> bytes:
-    """8-byte request, e.g. ``encode_request(CMD_START_REALTIME)`` -> ``12 34 00 02 00 00 00 00``."""
+    """8-byte request; ``encode_request(CMD_START_REALTIME)`` is ``12 34 00 02 00 00 00 00``."""
     return REQUEST.pack(RDT_HEADER, command, sample_count)
 
 

@@ -180,9 +180,24 @@ def test_wrong_request_header_is_ignored_by_the_box():
 
 def test_stale_when_the_box_stops_sending():
     with NetFtEmulator(CountingSource(), rate_hz=500) as emulator:
-        client = client_for(emulator, stale_after=0.05)
+        client = client_for(emulator, stale_after=0.25)
         assert client.wait_for_samples(3, timeout=5)
         assert not client.is_stale()
         emulator.skip(10**9)
         assert wait_until(client.is_stale, 2.0)
         client.close()
+
+
+def test_poll_from_the_callers_own_thread_without_a_background_thread():
+    with NetFtEmulator(CountingSource(), rate_hz=500) as emulator:
+        host, port = emulator.address
+        with NetFtClient(NetFtConfig(host=host, port=port)) as client:
+            samples = []
+            for _ in range(200):
+                samples += client.poll(timeout=0.01)
+                if len(samples) >= 10:
+                    break
+    assert len(samples) >= 10
+    assert client.latest() is samples[-1]
+    assert [s.rdt_sequence for s in samples] == list(range(samples[0].rdt_sequence,
+                                                         samples[0].rdt_sequence + len(samples)))

@@ -166,6 +166,10 @@ def main(argv: list[str] | None = None) -> None:
         done = threading.Event()
         threading.Thread(target=lambda: (sys.stdin.read(), done.set()), daemon=True).start()
         done.wait(args.duration)
+        # Summarise only after the clients hung up: all they sent has then been handled.
+        deadline = time.monotonic() + 2.0
+        while emulator.server.client_count and time.monotonic() < deadline:
+            time.sleep(0.01)
         summary = {'servo_on': emulator.servo_on, 'period_ms': emulator.period_ms,
                    'torque_frames': len(received),
                    'max_torques': np.max(np.abs(received), axis=0).tolist() if received else [],

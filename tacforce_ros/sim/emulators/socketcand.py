@@ -81,6 +81,11 @@ class SocketcandServer:
     def address(self) -> tuple[str, int]:
         return self._listener.getsockname()
 
+    @property
+    def client_count(self) -> int:
+        with self._lock:
+            return len(self._clients)
+
     def broadcast(self, messages: list[can.Message], exclude: _Client | None = None) -> None:
         """Deliver frames to every joined client in one write each."""
         payload = b''.join(format_frame(m) for m in messages)

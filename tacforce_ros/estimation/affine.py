@@ -105,8 +105,10 @@ class LinearInputModel(AffineModel):
             weights[k, :, :model.array.n_taxels] = model.input_weights()
         weights = weights.reshape(len(models), 3, 3 * n_max)
         bias = np.stack([m.intercept_ for m in models])
+        rows = (len(models), 1, 3 * n_max)
 
         def predict_batch(X: np.ndarray) -> np.ndarray:
-            return np.matmul(weights, X.reshape(len(weights), -1, 1))[..., 0] + bias
+            # vecdot: one batched dot per output row; measured faster than matmul at this size.
+            return np.vecdot(weights, X.reshape(rows)) + bias
 
         return predict_batch

@@ -74,6 +74,8 @@ def check_inputs(X: np.ndarray, n_taxels: int, F: np.ndarray | None = None) -> n
     if X.ndim != 3 or X.shape[1:] != (n_taxels, 3):
         raise ValueError(f'X must have shape (N, {n_taxels}, 3), got {X.shape}')
     if F is not None:
+        if X.shape[0] == 0:
+            raise ValueError('cannot fit on zero samples')
         F = np.asarray(F)
         if F.shape != (X.shape[0], 3):
             raise ValueError(f'F must have shape ({X.shape[0]}, 3), got {F.shape}')

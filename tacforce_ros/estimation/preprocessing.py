@@ -92,12 +92,13 @@ def project_force(force: np.ndarray, rotations: np.ndarray, atol: float = 1e-6) 
 
 def static_mask(force: np.ndarray, taxels: np.ndarray, fs: float = SAMPLE_RATE_HZ,
                 force_threshold: float = 0.3, activity_threshold: float = 15.0,
-                min_duration: float = 0.5) -> np.ndarray:
+                min_duration: float = 0.5, margin: float = 0.2) -> np.ndarray:
     """Samples inside static no-contact segments: (N,) bool.
 
     Static = force magnitude below `force_threshold` [N] AND tactile activity below
     `activity_threshold` [counts, rms over channels of the deviation from the rest reading],
-    held for at least `min_duration` [s]. The rest reading is the median over low-force samples,
+    held for at least `min_duration` [s] after dropping `margin` [s] at both ends of each run
+    (the onset and release of a press are below the thresholds but not at rest). The rest reading is the median over low-force samples,
     so a press with a still-zero force reading (F/T lag) does not count as rest.
     """
     force = np.asarray(force, dtype=np.float64)
@@ -109,10 +110,11 @@ def static_mask(force: np.ndarray, taxels: np.ndarray, fs: float = SAMPLE_RATE_H
     activity = np.sqrt(np.mean((taxels - rest) ** 2, axis=1))
     candidate = low_force & (activity < activity_threshold)
     min_len = max(1, int(round(min_duration * fs)))
+    trim = int(round(margin * fs))
     mask = np.zeros_like(candidate)
     for start, stop in _runs(candidate):
-        if stop - start >= min_len:
-            mask[start:stop] = True
+        if stop - start - 2 * trim >= min_len:
+            mask[start + trim:stop - trim] = True
     return mask
 
 

@@ -1,0 +1,174 @@
+"""bench: accuracy against inference cost of M1, M2, M3, M3-lambda, M4, M5 (paper Table I + cost).
+
+Every model goes through the leave-one-plate-out protocol on one array's dataset; then its cost is
+timed: one `predict` on one sample, the compiled batch of one, and a full-hand tick of the runtime
+estimator (18 arrays of that kind, one batched pass). Writes bench.json, bench.md and bench.png.
+
+Full-hand models are fitted on short synthetic recordings of every array: the cost of a tick does
+not depend on the weights' values, only on the shapes.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from tacforce_ros.estimation.cross_validation import cross_validate
+from tacforce_ros.estimation.dataset import CalibrationDataset, DatasetError
+from tacforce_ros.estimation.m3_lambda import DEFAULT_GRID, PAPER_LAMBDA
+from tacforce_ros.estimation.registry import model_class
+from tacforce_ros.estimation.runtime import RuntimeEstimator
+from tacforce_ros.estimation.synthetic import synthetic_dataset
+from tacforce_ros.estimation.training import fit_bundle
+
+
+def configurations(seed: int, epochs: int) -> dict[str, tuple[str, dict]]:
+    """Row label -> (kind, hyper-parameters)."""
+    torch_hyper = {'seed': seed, 'epochs': epochs}
+    return {
+        'M1': ('M1', {}), 'M2': ('M2', {}), 'M3': ('M3', {}),
+        'M3-lambda': ('M3-lambda', {'lam': PAPER_LAMBDA, 'lambda_grid': None}),
+        'M3-lambda-cv': ('M3-lambda', {'lam': PAPER_LAMBDA, 'lambda_grid': list(DEFAULT_GRID)}),
+        'M4': ('M4', dict(torch_hyper)), 'M5': ('M5', dict(torch_hyper)),
+    }
+
+
+def timed_us(call, repeats: int) -> dict[str, float]:
+    """Median and p99 wall time of call() in microseconds, after a short warm-up."""
+    for _ in range(min(50, repeats)):
+        call()
+    samples = np.empty(repeats)
+    for i in range(repeats):
+        start = time.perf_counter_ns()
+        call()
+        samples[i] = time.perf_counter_ns() - start
+    return {'median_us': float(np.median(samples) / 1e3),
+            'p99_us': float(np.percentile(samples, 99) / 1e3)}
+
+
+def hand_estimator(hand, kind: str, hyper: dict, seed: int) -> RuntimeEstimator:
+    bundles = []
+    for array in hand.arrays:
+        data = synthetic_dataset(array, plates=('flat', 'edge'), seconds=8.0, seed=seed)
+        X, F, offset = data.without_offsets()
+        bundles.append(fit_bundle(array, kind, hyper, X, F, data.plates, x_offset=offset))
+    return RuntimeEstimator(hand, bundles)
+
+
+def bench_model(array, hand, label: str, kind: str, hyper: dict, dataset: CalibrationDataset,
+                X: np.ndarray, F: np.ndarray, offset: np.ndarray, repeats: int,
+                seed: int) -> dict:
+    cv = cross_validate(array, kind, hyper, X, F, dataset.plates).summary()
+    bundle = fit_bundle(array, kind, hyper, X, F, dataset.plates, x_offset=offset)
+    one = bundle.x_scaler.transform(X[:1])
+    batch_one = type(bundle.model).compile_batch([bundle.model])
+    estimator = hand_estimator(hand, kind, hyper, seed)
+    frame = np.clip(np.round(hand.merge([b.x_offset for b in estimator.bundles])), 0, 65535
+                    ).astype(np.uint16)
+    return {'label': label, 'kind': kind, 'hyperparameters': hyper, **cv,
+            'predict_one': timed_us(lambda: bundle.model.predict(one), repeats),
+            'batch_one': timed_us(lambda: batch_one(one), repeats),
+            'full_hand_tick': timed_us(lambda: estimator.estimate(frame), repeats)}
+
+
+def table(rows: list[dict], title: str) -> str:
+    lines = [f'## {title}', '',
+             '| model | e_r [%] | e_hat [N] | MAE x / y / z [N] | p | train [s/fold] '
+             '| predict 1 [us] | batch of 1 [us] | full hand [us] median (p99) |',
+             '|---|---|---|---|---|---|---|---|---|']
+    for r in rows:
+        e_r = '-' if r['e_r_mean'] is None else \
+            f"{100 * r['e_r_mean']:.1f} ± {100 * r['e_r_std']:.1f}"
+        lines.append(
+            f"| {r['label']} | {e_r} | {r['e_hat_mean']:.3f} ± {r['e_hat_std']:.3f} | "
+            + ' / '.join(f'{v:.3f}' for v in r['mae_axis'])
+            + f" | {r['n_parameters']} | {r['train_seconds']:.2f} | "
+            f"{r['predict_one']['median_us']:.1f} | {r['batch_one']['median_us']:.1f} | "
+            f"{r['full_hand_tick']['median_us']:.1f} ({r['full_hand_tick']['p99_us']:.1f}) |")
+    return '\n'.join(lines) + '\n'
+
+
+def plot(rows: list[dict], path: Path, title: str) -> None:
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6, 4))
+    for r in rows:
+        ax.errorbar(r['full_hand_tick']['median_us'], r['e_hat_mean'], fmt='o')
+        ax.annotate(r['label'], (r['full_hand_tick']['median_us'], r['e_hat_mean']),
+                    textcoords='offset points', xytext=(4, 4))
+    ax.set_xscale('log')
+    ax.set_xlabel('full-hand tick, 18 arrays [us] (median)')
+    ax.set_ylabel('e_hat, mean absolute error [N]')
+    ax.set_title(title)
+    ax.grid(True, which='both', alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog='bench', description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    source = parser.add_mutually_exclusive_group(required=True)
+    source.add_argument('--dataset', type=Path, help='processed dataset .npz (one array)')
+    source.add_argument('--synthetic', action='store_true',
+                        help='SYNTHETIC data (estimation/synthetic.py), until simulator bags exist')
+    parser.add_argument('--array', default='index_tip', help='array for --synthetic')
+    parser.add_argument('--seconds', type=float, default=60.0,
+                        help='synthetic seconds per plate (default 60)')
+    configs_all = configurations(0, 0)
+    parser.add_argument('--models', nargs='+', default=list(configs_all), choices=list(configs_all))
+    parser.add_argument('--epochs', type=int, default=40, help='M4/M5 epochs (paper: 40)')
+    parser.add_argument('--repeats', type=int, default=2000, help='timed calls per measurement')
+    parser.add_argument('--seed', type=int, default=0)
+    parser.add_argument('--out', type=Path, default=Path('bench_out'))
+    args = parser.parse_args(argv)
+
+    from tacforce_ros.hand.description import load_hand
+    hand = load_hand()
+    try:
+        if args.synthetic:
+            array = hand.array(args.array)
+            dataset = synthetic_dataset(array, seconds=args.seconds, seed=args.seed)
+        else:
+            dataset = CalibrationDataset.load(args.dataset)
+            array = hand.array(dataset.array)
+        X, F, offset = dataset.without_offsets()
+    except (DatasetError, ValueError, KeyError) as exc:
+        print(f'bench: {exc}', file=sys.stderr)
+        return 2
+    configs = configurations(args.seed, args.epochs)
+    rows = []
+    for label in tqdm(args.models, desc='models', unit='model'):
+        kind, hyper = configs[label]
+        try:
+            model_class(kind)
+        except ValueError as exc:
+            print(f'bench: skipping {label}: {exc}', file=sys.stderr)
+            continue
+        rows.append(bench_model(array, hand, label, kind, hyper, dataset, X, F, offset,
+                                args.repeats, args.seed))
+    title = (f"{array.name} ({array.n_taxels} taxels), {dataset.source} data, "
+             f"{len(dataset.plate_names())}-fold leave-one-plate-out")
+    result = {'array': array.name, 'n_taxels': array.n_taxels, 'source': dataset.source,
+              'samples': int(X.shape[0]), 'plates': dataset.plate_names(), 'seed': args.seed,
+              'repeats': args.repeats, 'models': rows}
+    args.out.mkdir(parents=True, exist_ok=True)
+    (args.out / 'bench.json').write_text(json.dumps(result, indent=2))
+    text = table(rows, title)
+    (args.out / 'bench.md').write_text(text)
+    plot(rows, args.out / 'bench.png', title)
+    print(text)
+    print(f"wrote {args.out / 'bench.json'}, bench.md, bench.png")
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

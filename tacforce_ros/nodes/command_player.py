@@ -1,0 +1,91 @@
+"""command_player: plays a force command sequence on /force_controller/desired.
+
+Publishes geometry_msgs/Vector3Stamped at `rate_hz` on the node clock (sim time when
+use_sim_time is true), from start-up (`autostart`) or from a call to ~/start (std_srvs/Trigger;
+a call while playing restarts the sequence). After the last segment it publishes the final value
+once and stops, unless `loop` is true.
+"""
+from __future__ import annotations
+
+import sys
+
+from geometry_msgs.msg import Vector3Stamped
+from std_srvs.srv import Trigger
+
+from tacforce_ros.control.command_sequence import ForceSequence, SequenceError
+from tacforce_ros.nodes.common import (ParameterError, ParamSpec, TacforceNode, publisher_qos,
+                                      run_node)
+
+TOPIC_DESIRED = '/force_controller/desired'
+
+
+class CommandPlayer(TacforceNode):
+    """Plays a force command sequence (config/commands/*.yaml) on /force_controller/desired."""
+
+    NODE_NAME = 'command_player'
+    PARAMETERS = (
+        ParamSpec('sequence', 'paper_70s', 'command sequence: a YAML path or a name in '
+                  'config/commands/'),
+        ParamSpec('rate_hz', 100.0, 'publication rate (Hz)', range=(1.0, 1000.0)),
+        ParamSpec('frame_id', '', 'frame of the published forces; empty = the sequence\'s own'),
+        ParamSpec('loop', False, 'start over at the end of the sequence'),
+        ParamSpec('autostart', True, 'start playing at start-up; else wait for ~/start'),
+    )
+
+    def __init__(self) -> None:
+        super().__init__()
+        try:
+            self.sequence = ForceSequence.load(self.params['sequence'])
+        except SequenceError as exc:
+            raise ParameterError(f'sequence: {exc}') from None
+        self.frame_id = self.params['frame_id'] or self.sequence.frame_id
+        self.publisher = self.create_publisher(Vector3Stamped, TOPIC_DESIRED,
+                                               publisher_qos(TOPIC_DESIRED))
+        self.create_service(Trigger, '~/start', self._on_start)
+        self._started_ns: int | None = None
+        self.timer = self.create_timer(1.0 / self.params['rate_hz'], self._tick)
+        self.get_logger().info(
+            f'sequence {self.sequence.source}: {self.sequence.duration:.1f} s in '
+            f'{self.frame_id} at {self.params["rate_hz"]:g} Hz, loop={self.params["loop"]}')
+        if self.params['autostart']:
+            self._start()
+
+    def _start(self) -> None:
+        self._started_ns = self.now_ns()
+        self.get_logger().info('playing')
+
+    def _on_start(self, request: Trigger.Request, response: Trigger.Response
+                  ) -> Trigger.Response:
+        restarted = self._started_ns is not None
+        self._start()
+        response.success = True
+        response.message = ('restarted' if restarted else 'started') + \
+            f' {self.sequence.source} ({self.sequence.duration:.1f} s)'
+        return response
+
+    def _tick(self) -> None:
+        if self._started_ns is None:
+            return
+        now = self.get_clock().now()
+        t = (now.nanoseconds - self._started_ns) * 1e-9
+        finished = t >= self.sequence.duration
+        if finished and self.params['loop']:
+            t %= self.sequence.duration
+            finished = False
+        force = self.sequence.force_at(t)
+        msg = Vector3Stamped()
+        msg.header.stamp = now.to_msg()
+        msg.header.frame_id = self.frame_id
+        msg.vector.x, msg.vector.y, msg.vector.z = (float(v) for v in force)
+        self.publisher.publish(msg)
+        if finished:
+            self._started_ns = None
+            self.get_logger().info('sequence finished')
+
+
+def main(args: list[str] | None = None) -> None:
+    sys.exit(run_node(CommandPlayer, args))
+
+
+if __name__ == '__main__':
+    main()

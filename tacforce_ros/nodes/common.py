@@ -1,0 +1,264 @@
+"""What every tacforce_ros node shares: parameter specs, QoS per topic, and the main() helper.
+
+Parameters. A node lists its parameters as a table of `ParamSpec` (name, default, description,
+range or choices, read_only). `TacforceNode` declares them with a full ParameterDescriptor (so
+`ros2 param describe` shows the description and range), checks every value at start-up and
+refuses bad ones with one message naming each parameter, e.g. ``rate_hz: -5.0 is outside
+[1.0, 1000.0]``; `run_node` logs it and exits with EXIT_BAD_PARAMETERS. An integer given for a
+float parameter (``-p rate_hz:=50``) is accepted as that float. Writable (not read_only)
+parameters are checked again when changed at run time.
+
+QoS (one table, `TOPIC_QOS`, decides per topic; `publisher_qos()` / `subscriber_qos()` read it):
+* high-rate sensor streams (/tactile/raw, /ft_sensor/wrench, /joint_states, estimates):
+  publishers RELIABLE keep-last, subscribers best-effort sensor-data QoS, as REP 2003 advises:
+  a reliable publisher matches both kinds of subscriber, and a best-effort subscriber never
+  stalls the publisher nor gets an old sample retransmitted after a newer one;
+* commands and controller state (/force_controller/desired, /force_controller/state,
+  /calibration/sample): reliable both ways, keep-last 10, volatile: a dropped set-point or
+  recorded sample is a real loss, and late joiners must not act on stale commands.
+
+Time. Nodes stamp and time everything with their own clock (`now_ns()`, `create_timer`), which
+follows /clock when `use_sim_time` is true (declared by rclpy itself); never time.time().
+
+Distros. Uses only API present in Humble, Jazzy and Kilted; `SignalHandlerOptions` (Humble+) is
+imported defensively.
+"""
+from __future__ import annotations
+
+import argparse
+import signal
+import sys
+import threading
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import rclpy
+from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
+                                SetParametersResult)
+from rclpy.executors import MultiThreadedExecutor, SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.utilities import remove_ros_args
+from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy,
+                       qos_profile_sensor_data)
+
+EXIT_OK = 0
+EXIT_FAILURE = 1          # an unexpected exception while running
+EXIT_BAD_PARAMETERS = 2   # refused at start-up: the log names each bad parameter
+
+SENSOR_PUBLISHER_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
+                                  reliability=ReliabilityPolicy.RELIABLE,
+                                  durability=DurabilityPolicy.VOLATILE)
+SENSOR_SUBSCRIBER_QOS = qos_profile_sensor_data
+RELIABLE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
+                          reliability=ReliabilityPolicy.RELIABLE,
+                          durability=DurabilityPolicy.VOLATILE)
+
+SENSOR, RELIABLE = 'sensor', 'reliable'
+TOPIC_QOS = {
+    '/tactile/raw': SENSOR,
+    '/ft_sensor/wrench': SENSOR,
+    '/joint_states': SENSOR,
+    '/tactile/estimates': SENSOR,
+    '/calibration/sample': RELIABLE,
+    '/force_controller/desired': RELIABLE,
+    '/force_controller/state': RELIABLE,
+}
+
+
+def _kind(topic: str) -> str:
+    # Per-array estimate topics /tactile/<array>/wrench are sensor streams too.
+    if topic.startswith('/tactile/') and topic.endswith('/wrench'):
+        return SENSOR
+    try:
+        return TOPIC_QOS[topic]
+    except KeyError:
+        raise KeyError(f'no QoS decided for {topic}; add it to TOPIC_QOS in nodes/common.py'
+                       ) from None
+
+
+def publisher_qos(topic: str) -> QoSProfile:
+    return SENSOR_PUBLISHER_QOS if _kind(topic) == SENSOR else RELIABLE_QOS
+
+
+def subscriber_qos(topic: str) -> QoSProfile:
+    return SENSOR_SUBSCRIBER_QOS if _kind(topic) == SENSOR else RELIABLE_QOS
+
+
+class ParameterError(ValueError):
+    """Parameter values a node refuses; the message names every offending parameter."""
+
+
+@dataclass(frozen=True)
+class ParamSpec:
+    """One node parameter. The type is the default's: bool, int, float, str or a list of one."""
+
+    name: str
+    default: Any
+    description: str
+    range: tuple[float, float] | None = None      # inclusive; numbers and number lists
+    choices: tuple[str, ...] | None = None        # strings only
+    read_only: bool = True                        # most of ours are read once at start-up
+
+    def descriptor(self) -> ParameterDescriptor:
+        desc = ParameterDescriptor(name=self.name, description=self.description,
+                                   read_only=self.read_only)
+        if self.range is not None and self._scalar_type() is int:
+            desc.integer_range = [IntegerRange(from_value=int(self.range[0]),
+                                               to_value=int(self.range[1]), step=0)]
+        elif self.range is not None:
+            desc.floating_point_range = [FloatingPointRange(
+                from_value=float(self.range[0]), to_value=float(self.range[1]), step=0.0)]
+        if self.choices:
+            desc.additional_constraints = f'one of {list(self.choices)}'
+        return desc
+
+    def _scalar_type(self) -> type:
+        value = self.default[0] if isinstance(self.default, list) and self.default else self.default
+        return type(value)
+
+    def coerce(self, value: Any) -> Any:
+        """The value as this parameter's type, or ParameterError saying why not."""
+        want = self._scalar_type()
+        items = value if isinstance(value, (list, tuple)) else None
+        if isinstance(self.default, list) != (items is not None):
+            raise ParameterError(f'{self.name}: {value!r} must be '
+                                 f'{"a list" if isinstance(self.default, list) else "a scalar"}')
+        out = []
+        for item in (items if items is not None else [value]):
+            if want is float and isinstance(item, int) and not isinstance(item, bool):
+                item = float(item)
+            if not isinstance(item, want) or (want is int and isinstance(item, bool)):
+                raise ParameterError(f'{self.name}: {value!r} has type {type(item).__name__}, '
+                                     f'expected {want.__name__}')
+            if self.range is not None and not self.range[0] <= item <= self.range[1]:
+                raise ParameterError(f'{self.name}: {item!r} is outside '
+                                     f'[{self.range[0]}, {self.range[1]}]')
+            if self.choices is not None and item not in self.choices:
+                raise ParameterError(f'{self.name}: {item!r} is not one of {list(self.choices)}')
+            out.append(item)
+        return out if items is not None else out[0]
+
+
+class TacforceNode(Node):
+    """Node base: declares and checks `PARAMETERS`, offers `now_ns()` and `on_shutdown()`.
+
+    Subclasses set NODE_NAME and PARAMETERS; after `super().__init__()`, `self.params[name]`
+    holds each checked value.
+    """
+
+    NODE_NAME = 'tacforce_node'
+    PARAMETERS: Sequence[ParamSpec] = ()
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__(self.NODE_NAME, **kwargs)
+        self._specs = {spec.name: spec for spec in self.PARAMETERS}
+        self.params = self._declare_checked()
+        self.add_on_set_parameters_callback(self._check_change)
+
+    def _declare_checked(self) -> dict[str, Any]:
+        # rclpy offers no public read of command-line / file overrides before declaring; this
+        # dict exists unchanged in Humble, Jazzy and Kilted. Checking it first lets us report
+        # our own message, and declare the coerced value (int -> float) instead of failing.
+        overrides = getattr(self, '_parameter_overrides', {})
+        values, problems = {}, []
+        for spec in self.PARAMETERS:
+            given = overrides[spec.name].value if spec.name in overrides else spec.default
+            try:
+                values[spec.name] = spec.coerce(given)
+            except ParameterError as exc:
+                problems.append(str(exc))
+                continue
+            self.declare_parameter(spec.name, values[spec.name], spec.descriptor(),
+                                   ignore_override=True)
+        if problems:
+            raise ParameterError('; '.join(problems))
+        return values
+
+    def _check_change(self, parameters: list[Parameter]) -> SetParametersResult:
+        for param in parameters:
+            spec = self._specs.get(param.name)
+            if spec is None:
+                continue
+            try:
+                self.params[param.name] = spec.coerce(param.value)
+            except ParameterError as exc:
+                return SetParametersResult(successful=False, reason=str(exc))
+        return SetParametersResult(successful=True)
+
+    def now_ns(self) -> int:
+        """Node clock time (sim time when use_sim_time is true), integer nanoseconds."""
+        return self.get_clock().now().nanoseconds
+
+    def on_shutdown(self) -> None:
+        """Leave hardware and files safe; called once by run_node before the node is destroyed."""
+
+
+def _init_without_rclpy_signal_handlers(args: Sequence[str] | None) -> None:
+    try:    # Humble+: let run_node own SIGINT/SIGTERM so on_shutdown always runs first
+        from rclpy.signals import SignalHandlerOptions
+        rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    except (ImportError, TypeError):
+        rclpy.init(args=args)
+
+
+def parse_cli(node_cls: type[TacforceNode], args: Sequence[str]) -> None:
+    """--help for a node: its docstring and parameter table; ROS arguments pass through."""
+    lines = [f'  {s.name} (default {s.default!r}'
+             + (f', range {list(s.range)}' if s.range else '')
+             + (f', one of {list(s.choices)}' if s.choices else '')
+             + (', writable' if not s.read_only else '') + f'): {s.description}'
+             for s in node_cls.PARAMETERS]
+    parser = argparse.ArgumentParser(
+        prog=Path(args[0]).name if args else None, description=node_cls.__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog='parameters (set with --ros-args -p name:=value or --params-file FILE):\n'
+        + '\n'.join(lines))
+    parser.parse_args(remove_ros_args(list(args))[1:])
+
+
+def run_node(node_cls: type[TacforceNode], args: Sequence[str] | None = None, *,
+             threads: int = 1) -> int:
+    """main() of a node: --help, rclpy init, build the node, spin until SIGINT/SIGTERM or
+    rclpy shutdown, then `on_shutdown()`, destroy and shut down. Returns the exit code
+    (EXIT_*; `sys.exit(run_node(MyNode))`).
+
+    threads > 1 spins a MultiThreadedExecutor (needed when a callback waits on another one,
+    e.g. a service handler that waits for a subscription); otherwise single-threaded.
+    """
+    args = list(sys.argv if args is None else args)
+    parse_cli(node_cls, args)
+    _init_without_rclpy_signal_handlers(args)
+    stop = threading.Event()
+    previous = {sig: signal.signal(sig, lambda *_: stop.set())
+                for sig in (signal.SIGINT, signal.SIGTERM)}
+    node = None
+    logger = rclpy.logging.get_logger(node_cls.NODE_NAME)
+    try:
+        try:
+            node = node_cls()
+        except ParameterError as exc:
+            logger.fatal(f'refusing to start: {exc}')
+            return EXIT_BAD_PARAMETERS
+        logger = node.get_logger()
+        executor = (MultiThreadedExecutor(num_threads=threads) if threads > 1
+                    else SingleThreadedExecutor())
+        executor.add_node(node)
+        # Short spin slices: a signal only sets `stop`, which is seen within 0.1 s.
+        while not stop.is_set() and rclpy.ok():
+            executor.spin_once(timeout_sec=0.1)
+        return EXIT_OK
+    except Exception as exc:    # noqa: BLE001 - report, still leave things safe below
+        logger.fatal(f'stopped by an error: {type(exc).__name__}: {exc}')
+        return EXIT_FAILURE
+    finally:
+        if node is not None:
+            try:
+                node.on_shutdown()
+            finally:
+                node.destroy_node()
+        rclpy.try_shutdown()
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)

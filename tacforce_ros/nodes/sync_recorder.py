@@ -1,0 +1,188 @@
+"""sync_recorder: records a calibration session into a rosbag2 (mcap) bag.
+
+Subscribes to /tactile/raw, /ft_sensor/wrench and /joint_states; while recording it writes
+the three raw streams and the synchronised /calibration/sample stream (approximate time,
+`queue_size` and `slop`; the sample carries the selected array's TactileArray), which it also
+publishes. Bag layout and session metadata: docs/CONTRACTS.md. The bag is split every
+`split_seconds` (wall time), so a recorder killed with SIGKILL leaves a bag readable up to the
+last split. Services: ~/start (tacforce_msgs/srv/StartRecording; empty fields take the
+parameters) and ~/stop (std_srvs/Trigger).
+"""
+from __future__ import annotations
+
+import sys
+import time
+from pathlib import Path
+
+from geometry_msgs.msg import WrenchStamped
+from rclpy.clock import Clock, ClockType
+from rclpy.serialization import serialize_message
+from rclpy.time import Time
+from sensor_msgs.msg import JointState
+from std_srvs.srv import Trigger
+from tacforce_msgs.msg import CalibrationSample, TactileHand
+from tacforce_msgs.srv import StartRecording
+
+from tacforce_ros.bagio import (TOPIC_JOINTS, TOPIC_SAMPLE, TOPIC_TACTILE, TOPIC_WRENCH,
+                                BagError, session_metadata)
+from tacforce_ros.hand.description import HandConfigError, load_hand
+from tacforce_ros.nodes.common import (ParameterError, ParamSpec, TacforceNode, publisher_qos,
+                                       run_node, subscriber_qos)
+from tacforce_ros.recording.serialized_bag import SerializedBagWriter
+from tacforce_ros.recording.synchroniser import ApproximateTimeSynchroniser
+
+INPUTS = (TOPIC_TACTILE, TOPIC_WRENCH, TOPIC_JOINTS)   # synchroniser input order
+
+
+class SyncRecorder(TacforceNode):
+    """Records tactile, wrench and joint streams plus synchronised calibration samples."""
+
+    NODE_NAME = 'sync_recorder'
+    PARAMETERS = (
+        ParamSpec('output_dir', 'bags', 'folder that receives one bag folder per session'),
+        ParamSpec('split_seconds', 2.0, 'close a bag split this often (s, wall time): the most '
+                  'a killed recorder can lose', range=(0.1, 3600.0)),
+        ParamSpec('queue_size', 20, 'approximate-time queue per input (messages)',
+                  range=(1, 10000)),
+        ParamSpec('slop', 0.005, 'largest stamp spread inside one sample (s)',
+                  range=(0.0, 1.0)),
+        ParamSpec('array', 'index_tip', 'array pressed on the plate (config/hand names)'),
+        ParamSpec('plate', '', 'push-plate or object (button, flat, fillet, convex, edge, ...)'),
+        ParamSpec('operator_notes', '', 'free text stored in the session metadata'),
+        ParamSpec('source', 'lab', 'where the data comes from', choices=('lab', 'sim')),
+        ParamSpec('hand_config', '', 'hand description YAML; empty = the default hand'),
+        ParamSpec('autostart', False, 'start recording at start-up with the parameters above'),
+    )
+
+    def __init__(self) -> None:
+        super().__init__()
+        try:
+            self.hand = load_hand(self.params['hand_config'] or None)
+        except (HandConfigError, OSError) as exc:
+            raise ParameterError(f'hand_config: {exc}') from None
+        problem = self._array_problem(self.params['array'])
+        if problem:
+            raise ParameterError(problem)
+        self.writer: SerializedBagWriter | None = None
+        self.sync: ApproximateTimeSynchroniser | None = None
+        self._array_name = ''
+        self._counts: dict[str, int] = {}
+        self._missing_array = 0
+        self.sample_publisher = self.create_publisher(CalibrationSample, TOPIC_SAMPLE,
+                                                      publisher_qos(TOPIC_SAMPLE))
+        for index, (topic, msg_type) in enumerate(zip(
+                INPUTS, (TactileHand, WrenchStamped, JointState))):
+            self.create_subscription(msg_type, topic, self._callback(index, topic),
+                                     subscriber_qos(topic))
+        self.create_service(StartRecording, '~/start', self._on_start)
+        self.create_service(Trigger, '~/stop', self._on_stop)
+        # Flushing is about wall time (what a crash can lose), not sim time: a steady timer.
+        self.create_timer(min(0.5, self.params['split_seconds']), self._flush_if_due,
+                          clock=Clock(clock_type=ClockType.STEADY_TIME))
+        if self.params['autostart']:
+            ok, message = self.start(self.params['array'], self.params['plate'],
+                                     self.params['operator_notes'])
+            if not ok:
+                raise ParameterError(message)
+
+    def _array_problem(self, name: str) -> str | None:
+        names = [a.name for a in self.hand.arrays]
+        return None if name in names else f'array: {name!r} is not an array of this hand {names}'
+
+    # --- session ---------------------------------------------------------------------------
+
+    def start(self, array: str, plate: str, notes: str) -> tuple[bool, str]:
+        if self.writer is not None:
+            return False, f'already recording into {self.writer.path}'
+        problem = self._array_problem(array)
+        if problem:
+            return False, problem
+        folder = Path(self.params['output_dir']).expanduser()
+        # Bag names use wall-clock date for people; stamps inside use the node clock.
+        stem = f'{time.strftime("%Y%m%d_%H%M%S")}_{array}' + (f'_{plate}' if plate else '')
+        path, n = folder / stem, 1
+        while path.exists():
+            path, n = folder / f'{stem}_{n}', n + 1
+        meta = session_metadata(array=array, plate=plate, hand_side=self.hand.side,
+                                operator_notes=notes, source=self.params['source'])
+        try:
+            folder.mkdir(parents=True, exist_ok=True)
+            self.writer = SerializedBagWriter(path, meta,
+                                              split_seconds=self.params['split_seconds'])
+        except (OSError, BagError) as exc:
+            return False, f'cannot create bag {path}: {exc}'
+        self.sync = ApproximateTimeSynchroniser(len(INPUTS), self.params['queue_size'],
+                                                self.params['slop'])
+        self._array_name = array
+        self._counts = dict.fromkeys(INPUTS + (TOPIC_SAMPLE,), 0)
+        self._missing_array = 0
+        self.get_logger().info(f'recording {array} on {plate or "?"} into {path}')
+        return True, str(path)
+
+    def stop(self) -> tuple[bool, str]:
+        if self.writer is None:
+            return False, 'not recording'
+        writer, self.writer = self.writer, None
+        writer.close()
+        dropped = dict(zip(INPUTS, self.sync.dropped))
+        summary = (f'closed {writer.path}: written {self._counts}, dropped by the synchroniser '
+                   f'{dropped}, frames without {self._array_name}: {self._missing_array}')
+        self.get_logger().info(summary)
+        return True, summary
+
+    def _on_start(self, request: StartRecording.Request, response: StartRecording.Response
+                  ) -> StartRecording.Response:
+        ok, message = self.start(request.array or self.params['array'],
+                                 request.plate or self.params['plate'],
+                                 request.operator_notes or self.params['operator_notes'])
+        response.success, response.message = ok, message
+        response.bag_path = message if ok else ''
+        return response
+
+    def _on_stop(self, request: Trigger.Request, response: Trigger.Response
+                 ) -> Trigger.Response:
+        response.success, response.message = self.stop()
+        return response
+
+    def on_shutdown(self) -> None:
+        self.stop()
+
+    def _flush_if_due(self) -> None:
+        if self.writer is not None:
+            self.writer.flush_if_due()
+
+    # --- streams ---------------------------------------------------------------------------
+
+    def _callback(self, index: int, topic: str):
+        def receive(msg) -> None:
+            if self.writer is None:
+                return
+            self._write(topic, serialize_message(msg))
+            stamp = Time.from_msg(msg.header.stamp).nanoseconds
+            matched = self.sync.add(index, stamp, msg)
+            if matched is not None:
+                self._write_sample(*matched)
+        return receive
+
+    def _write(self, topic: str, data: bytes) -> None:
+        self.writer.write_serialized(topic, self.now_ns(), data)
+        self._counts[topic] += 1
+
+    def _write_sample(self, hand: TactileHand, wrench: WrenchStamped, joints: JointState
+                      ) -> None:
+        tactile = next((a for a in hand.arrays if a.name == self._array_name), None)
+        if tactile is None:
+            self._missing_array += 1
+            return
+        sample = CalibrationSample(header=tactile.header, tactile=tactile, wrench=wrench,
+                                   joints=joints)
+        self.sample_publisher.publish(sample)
+        self._write(TOPIC_SAMPLE, serialize_message(sample))
+
+
+def main(args: list[str] | None = None) -> None:
+    sys.exit(run_node(SyncRecorder, args))
+
+
+if __name__ == '__main__':
+    main()

@@ -108,6 +108,7 @@ class LinearInputModel(AffineModel):
         rows = (len(models), 1, 3 * n_max)
 
         def predict_batch(X: np.ndarray) -> np.ndarray:
+            X = X[:, :n_max]        # wider input: the extra columns are zero padding
             # vecdot: one batched dot per output row; measured faster than matmul at this size.
             return np.vecdot(weights, X.reshape(rows)) + bias
 

@@ -57,6 +57,7 @@ class M2Quadratic(AffineModel):
         bias = np.stack([m.intercept_ for m in models])
 
         def predict_batch(X: np.ndarray) -> np.ndarray:
+            X = X[:, :n_max]        # wider input: the extra columns are zero padding
             z = np.matmul(project, X.reshape(k, -1, 1))[..., 0]
             return np.matmul(coef, quadratic_features(z)[..., None])[..., 0] + bias
 

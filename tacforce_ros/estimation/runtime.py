@@ -82,12 +82,13 @@ class RuntimeEstimator:
         self._abs = np.zeros(self._x.size)
         self._all_ok = (STATUS_OK,) * n_arrays
 
-    def _compile(self) -> list[tuple[np.ndarray, Callable[[np.ndarray], np.ndarray]]]:
+    def _compile(self) -> list[tuple[np.ndarray, int, Callable[[np.ndarray], np.ndarray]]]:
         groups = []
         for kind in dict.fromkeys(self.kinds):
             rows = np.flatnonzero(np.array(self.kinds) == kind)
             models = [self.bundles[k].model for k in rows]
-            groups.append((rows, type(models[0]).compile_batch(models)))
+            width = max(m.array.n_taxels for m in models)   # a group's own n_max
+            groups.append((rows, width, type(models[0]).compile_batch(models)))
         return groups
 
     # --- tare --------------------------------------------------------------------------------
@@ -137,11 +138,11 @@ class RuntimeEstimator:
             status = tuple(STATUS_OK if ok else 'input contains NaN or Inf' for ok in valid)
         if len(self._groups) == 1:
             # A fresh array even if the callable reuses an output buffer between calls.
-            force = self._groups[0][1](x) * self._f_std
+            force = self._groups[0][2](x) * self._f_std
         else:
             force = np.empty((n_arrays, 3))
-            for index, predict in self._groups:
-                force[index] = predict(x[index])
+            for index, width, predict in self._groups:
+                force[index] = predict(x[index, :width])
             force *= self._f_std
         force += self._f_mean
         if status is not self._all_ok:

@@ -56,7 +56,7 @@ MSG_HASH=$(hash_of "$ROOT"/msg/package.xml "$ROOT"/msg/CMakeLists.txt "$ROOT"/ms
 if ! stamp_ok msgs "$MSG_HASH"; then
     log "building interfaces tacforce_msgs (about 20 s)"
     "${COLCON[@]}" --base-paths "$ROOT/msg" --packages-select tacforce_msgs \
-        --cmake-args -DPython3_EXECUTABLE="$VENV/bin/python" -DBUILD_TESTING=OFF >/dev/null \
+        --cmake-args -DPython3_EXECUTABLE="$VENV/bin/python" -DBUILD_TESTING=OFF >/dev/null 2>&1 \
         || { echo "[setup] building msg/ failed; see $ROOT/build/log/latest" >&2; exit 1; }
     stamp_set msgs "$MSG_HASH"
 fi
@@ -64,10 +64,11 @@ fi
 # The package is symlink-installed (edits to the source are live); data files are re-linked when
 # the list of files under config/ or launch/ changes.
 PKG_HASH=$( (cat "$ROOT/setup.py" "$ROOT/setup.cfg" "$ROOT/package.xml";
-             cd "$ROOT" && find config launch -type f 2>/dev/null | sort) | sha256sum | cut -d' ' -f1)
+             cd "$ROOT" && { find config launch -type f 2>/dev/null || true; } | sort) \
+           | sha256sum | cut -d' ' -f1)
 if ! stamp_ok package "$PKG_HASH"; then
     log "installing tacforce_ros into $VENV"
-    "${COLCON[@]}" --base-paths "$ROOT" --packages-select tacforce_ros --symlink-install >/dev/null \
+    "${COLCON[@]}" --base-paths "$ROOT" --packages-select tacforce_ros --symlink-install >/dev/null 2>&1 \
         || { echo "[setup] installing tacforce_ros failed; see $ROOT/build/log/latest" >&2; exit 1; }
     # colcon leaves PYTHONPATH to its setup.bash; a .pth makes the plain venv interpreter and the
     # installed executables find the package without sourcing anything.

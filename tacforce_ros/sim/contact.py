@@ -14,6 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from tacforce_ros.sim.scene import Plate
+from tacforce_ros.sim.vector import cross
 
 # Foundation stiffness per taxel and elastomer spreading width: our estimates for a ~4-5 mm
 # silicone layer over a 4.7 mm taxel pitch (uSkin; Tomo et al. 2018), not datasheet values.
@@ -52,8 +53,7 @@ class PressureModel:
         if self.plate.shape == 'sphere':
             surface = np.sum(tangent ** 2, axis=1) / (2.0 * self.plate.radius)
         elif self.plate.shape == 'cylinder':
-            (nx, ny, nz), (ax, ay, az) = contact.normal, contact.axis
-            across = tangent @ np.array([ny * az - nz * ay, nz * ax - nx * az, nx * ay - ny * ax])
+            across = tangent @ cross(contact.normal, contact.axis)
             surface = across ** 2 / (2.0 * self.plate.radius)
         else:
             surface = np.zeros(len(d))

@@ -30,6 +30,7 @@ class EffectContext:
     array_of_taxel: np.ndarray    # (368,) array index of each flat taxel
     n_taxels: int
     dt: float                     # s between tactile frames
+    physics_dt: float             # s per simulator step (= dt in calibration scenes)
     params: ResponseParams
     idle_counts: np.ndarray | None = None   # (368, 3) float counts with no load
 
@@ -38,7 +39,7 @@ class TactileSensor:
     """Whole-hand uSkin readout with one array in contact with a plate."""
 
     def __init__(self, hand: HandDescription, array_name: str, plate: Plate,
-                 pipeline: Pipeline, frame_dt: float) -> None:
+                 pipeline: Pipeline, frame_dt: float, physics_dt: float | None = None) -> None:
         self.hand = hand
         self.array = hand.array(array_name)
         self.pipeline = pipeline
@@ -48,6 +49,7 @@ class TactileSensor:
             array_of[array.flat_indices] = index
         self.ctx = EffectContext(hand=hand, array=self.array, rows=self.array.flat_indices,
                                  array_of_taxel=array_of, n_taxels=hand.n_taxels, dt=frame_dt,
+                                 physics_dt=frame_dt if physics_dt is None else physics_dt,
                                  params=ResponseParams.nominal(hand.n_taxels))
 
     def reset(self, seed: int) -> None:

@@ -25,7 +25,7 @@ class ActuatorLimits(Effect):
 
     def reset(self, rng: np.random.Generator, ctx) -> None:
         self._clamp = np.array(FINGER_CLAMP * 3 + THUMB_CLAMP)
-        self._alpha = ctx.dt / self.time_constant
+        self._alpha = ctx.physics_dt / self.time_constant
         self.heat = np.zeros(16)
         self.throttled = np.zeros(16, bool)
 

@@ -12,6 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from tacforce_ros.sim.effects import Effect
+from tacforce_ros.sim.vector import cross
 
 
 @dataclass
@@ -32,9 +33,7 @@ class Deformation(Effect):
         dist2 = np.sum((self._positions - contact.point) ** 2, axis=1)
         fraction = (self.max_fraction * (1.0 - np.exp(-state.depth / self.depth_scale))
                     * np.exp(-0.5 * dist2 / self.reach ** 2))
-        nx, ny, nz = self._normals.T
-        cx, cy, cz = contact.normal
-        axis = np.column_stack([ny * cz - nz * cy, nz * cx - nx * cz, nx * cy - ny * cx])
+        axis = cross(self._normals, contact.normal)
         sin_angle = np.linalg.norm(axis, axis=1)
         angle = np.arctan2(sin_angle, self._normals @ contact.normal)
         unit = axis / np.maximum(sin_angle, 1e-12)[:, None]

@@ -24,7 +24,7 @@ class FTNoise(Effect):
         self._sigma = np.array([self.force_sigma] * 3 + [self.torque_sigma] * 3)
         self._bias = rng.normal(0.0, 1.0, 6) * np.array(
             [self.force_bias_sigma] * 3 + [self.torque_bias_sigma] * 3)
-        self._step = self.drift_per_sqrt_s * np.sqrt(ctx.dt)
+        self._step = self.drift_per_sqrt_s * np.sqrt(ctx.physics_dt)
 
     def on_wrench(self, state) -> None:
         self._bias[:3] += self._step * self._rng.standard_normal(3)

@@ -18,8 +18,7 @@ class JointFriction(Effect):
     def on_model(self, world) -> None:
         for joint in world.hand_joints():
             joint.frictionloss = self.coulomb
-            joint.damping = joint.damping[0] + self.viscous if np.ndim(joint.damping) else (
-                joint.damping + self.viscous)
+            joint.damping = np.asarray(joint.damping) + np.eye(len(joint.damping))[0] * self.viscous
 
 
 EFFECT = JointFriction

@@ -25,8 +25,8 @@ class Transport(Effect):
 
     def reset(self, rng: np.random.Generator, ctx) -> None:
         self._rng = rng
-        self._dt = ctx.dt
-        depth = {s: int(np.ceil((self.latency[s] + 4.0 * self.jitter[s]) / ctx.dt)) + 1
+        self._dt = ctx.physics_dt
+        depth = {s: int(np.ceil((self.latency[s] + 4.0 * self.jitter[s]) / ctx.physics_dt)) + 1
                  for s in STREAMS}
         self._history = {s: deque(maxlen=depth[s]) for s in STREAMS}
 

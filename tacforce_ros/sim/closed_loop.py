@@ -1,0 +1,262 @@
+"""Closed-loop simulator: MuJoCo finger dynamics from the hand URDF, torques in, contact out.
+
+The hand is the URDF compiled by MuJoCo (its own collision geometry switched off). One finger
+takes the caller's joint torques; the others are held by their own PD in the simulation. The
+fingertip touches the scene's plate (a rigid spherical indenter on the F/T sensor) or a soft
+object taped to the sensor. Contact is an explicit penalty model evaluated each physics step:
+normal spring-damper of the skin, a stick-slip tangential spring bounded by Coulomb friction;
+a soft object is a mass on a spring-damper (its compliance and damping) between the contact and
+the sensor, so the F/T reading is NOT collocated with the fingertip force during transients.
+A tactile frame is produced every 1/tactile_rate s (SimSample.tactile_fresh).
+"""
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+
+from tacforce_ros.hand.description import HandDescription
+from tacforce_ros.sim.contact import Contact
+from tacforce_ros.sim.effects import Pipeline
+from tacforce_ros.sim.operator import FINGER_JOINTS
+from tacforce_ros.sim.sample import SimSample, StepState
+from tacforce_ros.sim.scene import Scene
+from tacforce_ros.sim.sensors import TactileSensor, ft_counts
+from tacforce_ros.sim.vector import cross
+
+FRICTION = 1.0   # silicone skin on PLA / YCB surfaces: grippy; our estimate
+# Rotor inertia reflected through the Allegro gearbox, per joint (our estimate); it also keeps
+# the explicit contact spring well inside the integrator's stability bound.
+ARMATURE = 2e-5  # kg m^2
+
+
+class ModelBuild:
+    """The MuJoCo model under construction, as the 'model' stage effects see and edit it."""
+
+    def __init__(self, spec: mujoco.MjSpec, finger: str) -> None:
+        self.spec = spec
+        first = 4 * list(FINGER_JOINTS).index(finger)
+        self.tip_body = f'link_{first + 3}.0_tip'
+        self._finger_bodies = [f'link_{first + k}.0' for k in range(4)] + [self.tip_body]
+        self.tip_radius_extra = 0.0
+        self.contact_offset = np.zeros(3)   # contact sphere centre in the tip link frame
+
+    def hand_joints(self) -> list:
+        return list(self.spec.joints)
+
+    def finger_bodies(self) -> list:
+        """The finger's bodies from its base link to the tip, as MjSpec bodies."""
+        return [self.spec.body(name) for name in self._finger_bodies]
+
+
+class ClosedLoopSimulator:
+    """Simulator for scenes of kind 'closed_loop' (one step = 1/physics_rate s)."""
+
+    def __init__(self, scene: Scene, hand: HandDescription, seed: int | None = None) -> None:
+        self.scene, self.hand = scene, hand
+        self.dt = scene.dt
+        self.frame_every = int(round(scene.physics_rate / scene.tactile_rate))
+        finger = scene.finger
+        self.finger = finger.get('name', 'index')
+        self.joints = FINGER_JOINTS[self.finger]
+        self.pose = np.asarray(finger['pose'], np.float64)
+        others = np.ones(16, bool)
+        others[self.joints] = False
+        self.held = np.flatnonzero(others)
+        self.held_pose = np.asarray(finger['others'], np.float64)
+        self.held_kp, self.held_kd = float(finger['others_kp']), float(finger['others_kd'])
+        self.tip_radius = float(finger['tip_radius'])
+        self.skin_k, self.skin_c = float(finger['skin_stiffness']), float(finger['skin_damping'])
+        self.pipeline = Pipeline.from_scene(scene.effects)
+        self.sensor = TactileSensor(hand, scene.array, scene.plate, self.pipeline,
+                                    1.0 / scene.tactile_rate, self.dt)
+        self.reset(seed)
+
+    # ------------------------------------------------------------------ model
+
+    def _q0(self) -> np.ndarray:
+        q = np.empty(16)
+        q[self.joints] = self.pose
+        q[self.held] = self.held_pose
+        return q
+
+    def _compile(self, edit: bool) -> tuple[mujoco.MjModel, ModelBuild]:
+        spec = mujoco.MjSpec.from_file(str(self.hand.urdf_path))
+        spec.option.timestep = self.dt
+        spec.option.integrator = mujoco.mjtIntegrator.mjINT_IMPLICITFAST
+        for geom in spec.geoms:
+            geom.contype = geom.conaffinity = 0   # contact is our penalty model
+        held = {f'joint_{j}.0' for j in self.held}
+        for joint in spec.joints:
+            joint.armature = ARMATURE
+            if joint.name in held:
+                # Held fingers: a joint spring-damper towards their pose, which the implicit
+                # integrator treats stably, plus MuJoCo's exact gravity compensation.
+                index = int(joint.name.split('_')[1].split('.')[0])
+                joint.stiffness = np.eye(len(np.atleast_1d(joint.stiffness)))[0] * self.held_kp
+                joint.springref = self.held_pose[list(self.held).index(index)]
+                joint.damping = np.eye(len(joint.damping))[0] * self.held_kd
+        for body in spec.bodies:
+            if body.name.startswith('link_') and int(body.name[5:].split('.')[0]) in self.held:
+                body.gravcomp = 1.0
+        build = ModelBuild(spec, self.finger)
+        if edit:
+            self.pipeline.run('model', build)
+        return spec.compile(), build
+
+    def reset(self, seed: int | None = None) -> None:
+        self.seed = self.scene.seed if seed is None else int(seed)
+        self.sensor.reset(self.seed)
+        # The rig is placed against the NOMINAL hand: model errors then show as they do in
+        # the lab, where the plate sits where the nominal model says the fingertip touches.
+        nominal, _ = self._compile(edit=False)
+        self.model, build = self._compile(edit=True)
+        self.data = mujoco.MjData(self.model)
+        self.tip = self.model.body(build.tip_body).id
+        self.radius = self.tip_radius + build.tip_radius_extra
+        self.offset = build.contact_offset
+        self.s0 = self.model.body(self.sensor.array.frame_id).id
+        ft = self.model.body(self.hand.ft_frame).id
+        q0 = self._q0()
+        nominal_data = mujoco.MjData(nominal)
+        nominal_data.qpos[:] = q0
+        mujoco.mj_kinematics(nominal, nominal_data)
+        tip_centre = nominal_data.xpos[self.tip].copy()
+        self.r_base_f = nominal_data.xmat[ft].reshape(3, 3).copy()
+        self.up = self.r_base_f[:, 2]          # plate/object surface normal, towards the finger
+        surface = tip_centre - self.tip_radius * self.up   # nominal contact point
+        obj = self.scene.soft_object
+        if obj is None:
+            self.plate_centre = surface - self.scene.plate.radius * self.up
+            self.sensor_origin = surface
+        else:
+            self.sensor_origin = surface - obj.thickness * self.up
+        self.surface = surface
+        self.obj = obj
+        self.obj_x = self.obj_v = 0.0              # object compression and its rate
+        self.anchor: np.ndarray | None = None      # stick point of the tangential spring
+        self.data.qpos[:] = q0
+        mujoco.mj_forward(self.model, self.data)
+        self.step_index = 0
+        self._jac = np.zeros((3, self.model.nv))
+        self._last_frame: tuple | None = None
+        self._contact = (np.zeros(3), surface, self.up, False)
+
+    # ------------------------------------------------------------------ contact
+
+    def contact_point(self) -> np.ndarray:
+        """Current contact point on the fingertip sphere, base frame."""
+        centre = self.data.xpos[self.tip] + self.data.xmat[self.tip].reshape(3, 3) @ self.offset
+        return centre - self.radius * self._normal(centre)
+
+    def _normal(self, centre: np.ndarray) -> np.ndarray:
+        if self.obj is None:
+            d = centre - self.plate_centre
+            return d / np.linalg.norm(d)
+        return self.up
+
+    def _penetration(self, centre: np.ndarray, normal: np.ndarray) -> float:
+        if self.obj is None:
+            gap = np.linalg.norm(centre - self.plate_centre) - self.scene.plate.radius
+        else:
+            gap = (centre - self.surface) @ self.up + self.obj_x
+        return self.radius - gap
+
+    def _contact_force(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
+        """(force on the finger, contact point, normal, active), base frame."""
+        rot = self.data.xmat[self.tip].reshape(3, 3)
+        centre = self.data.xpos[self.tip] + rot @ self.offset
+        normal = self._normal(centre)
+        point = centre - self.radius * normal
+        depth = self._penetration(centre, normal)
+        if depth <= 0.0:
+            self.anchor = None
+            return np.zeros(3), point, normal, False
+        mujoco.mj_jac(self.model, self.data, self._jac, None, point, self.tip)
+        velocity = self._jac @ self.data.qvel
+        surface_speed = -self.obj_v * self.up if self.obj is not None else 0.0
+        relative = velocity - surface_speed
+        normal_force = max(self.skin_k * depth - self.skin_c * (relative @ normal), 0.0)
+        if self.anchor is None:
+            self.anchor = point.copy()
+        slip = point - self.anchor
+        slip -= (slip @ normal) * normal
+        tangential_velocity = relative - (relative @ normal) * normal
+        tangential = -self.skin_k * slip - self.skin_c * tangential_velocity
+        limit = FRICTION * normal_force
+        size = np.linalg.norm(tangential)
+        if size > limit:   # sliding: the stick point follows so the spring sits on the cone
+            tangential *= limit / size
+            self.anchor = point + tangential / self.skin_k
+        return normal_force * normal + tangential, point, normal, True
+
+    # ------------------------------------------------------------------ step
+
+    def step(self, joint_torques: np.ndarray | None = None) -> SimSample:
+        data = self.data
+        command = np.zeros(16) if joint_torques is None else np.asarray(joint_torques, np.float64)
+        if command.shape != (16,) or not np.all(np.isfinite(command)):
+            raise ValueError('joint_torques must be 16 finite values (N m), Allegro order')
+        t = self.step_index * self.dt
+        torque = command.copy()
+        torque[self.held] = 0.0   # held by their joint springs (see _compile)
+        state = StepState(t=t, contact=None, torque=torque)
+        self.pipeline.run('torque', state)
+        force, point, normal, active = self._contact_force()
+        on_sensor = self._advance_object(force, normal)
+        data.qfrc_applied[:] = state.torque
+        data.xfrc_applied[self.tip, :3] = force
+        data.xfrc_applied[self.tip, 3:] = cross(point - data.xipos[self.tip], force)
+        mujoco.mj_step(self.model, data)
+        # Ground truth and tactile frame in {S0}: the force the array applies (= -force on it).
+        rot_s0 = data.xmat[self.s0].reshape(3, 3)
+        origin = data.xpos[self.s0]
+        true_force = rot_s0.T @ -force
+        point_s0 = rot_s0.T @ (point - origin)
+        state.contact = Contact(true_force, point_s0, rot_s0.T @ -normal,
+                                self.sensor.array.rotations[0][:, 0], active)
+        state.q, state.qdot = data.qpos.copy(), data.qvel.copy()
+        fresh = self.step_index % self.frame_every == 0
+        if fresh:
+            self.sensor.measure(state)
+            self._last_frame = (state.counts_out, state.temperatures)
+        else:
+            state.counts_out, state.temperatures = self._last_frame
+        torque_at_sensor = cross(point - self.sensor_origin, on_sensor)
+        state.wrench = np.concatenate([self.r_base_f.T @ on_sensor,
+                                       self.r_base_f.T @ torque_at_sensor])
+        self.pipeline.run('wrench', state)
+        self.pipeline.run('delivery', state)
+        self.step_index += 1
+        return SimSample(t=t + self.dt, taxel_counts=state.counts_out,
+                         temperatures=state.temperatures, ft_counts=ft_counts(state.wrench),
+                         ft_wrench=state.wrench, ft_status=0, q=state.q, qdot=state.qdot,
+                         true_force=true_force, contact_point=point_s0, in_contact=active,
+                         delivered=state.delivered, tactile_fresh=fresh)
+
+    def _advance_object(self, force_on_finger: np.ndarray, normal: np.ndarray) -> np.ndarray:
+        """Advance the soft object one step; return the force on the F/T sensor (base frame)."""
+        if self.obj is None:
+            return -force_on_finger          # rigid plate: the sensor carries the contact force
+        obj, dt = self.obj, self.dt
+        push = -(force_on_finger @ self.up)    # finger pushes the object towards the sensor
+        spring = obj.stiffness * self.obj_x + obj.damping * self.obj_v
+        # Semi-implicit Euler; the object cannot lift off the sensor (it is taped on).
+        self.obj_v += dt * (push - spring) / obj.mass
+        self.obj_x = max(self.obj_x + dt * self.obj_v, 0.0)
+        if self.obj_x == 0.0:
+            self.obj_v = max(self.obj_v, 0.0)
+        shear = -(force_on_finger - (force_on_finger @ self.up) * self.up)
+        return -spring * self.up + shear
+
+    # ------------------------------------------------------------------ exact model access
+
+    def exact_jacobian(self) -> np.ndarray:
+        """(3, 4) translation Jacobian of the current contact point, base frame, from the
+        SIMULATED hand (with its model errors): what a perfect controller would use."""
+        jac = np.zeros((3, self.model.nv))
+        mujoco.mj_jac(self.model, self.data, jac, None, self.contact_point(), self.tip)
+        return jac[:, self.joints]
+
+    def bias_torques(self) -> np.ndarray:
+        """(16,) gravity and velocity torques of the simulated hand at its current state."""
+        return self.data.qfrc_bias.copy()

@@ -15,135 +15,26 @@ Inference runs in float32 on purpose: the weights were trained in float32, so fl
 adds no accuracy, and the float32 forward of numpy matches torch's to float32 rounding. Outputs are
 returned as float64 like every other model's.
 
-The torch helpers here (TorchTraining, fit_torch_regressor, module state conversion) are shared
-with M5 (m5_cnn.py).
+Training and state conversion are shared with M5 (torch_training.py).
 """
 from __future__ import annotations
 
 from collections import OrderedDict
-from collections.abc import Callable, Mapping, Sequence
-from dataclasses import asdict, dataclass
+from collections.abc import Callable, Sequence
+from dataclasses import asdict
 from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 
 from tacforce_ros.estimation.base import ForceModel, ModelNotFittedError, check_inputs
+from tacforce_ros.estimation.torch_training import (STATE_DTYPE, TorchTraining, checked_state,
+                                                    fit_torch_regressor, load_module_state,
+                                                    module_state)
 
 if TYPE_CHECKING:
     import torch
 
     from tacforce_ros.hand.description import TaxelArray
-
-STATE_DTYPE = np.float32
-# Torch buffers that are bookkeeping, not learned state the numpy forward needs.
-_SKIPPED_TORCH_STATE = ('num_batches_tracked',)
-
-
-@dataclass(frozen=True)
-class TorchTraining:
-    """Optimiser settings shared by the torch-trained models (defaults: paper Sec. IV-A)."""
-
-    epochs: int = 40
-    batch_size: int = 256
-    learning_rate: float = 2.5e-4
-    seed: int = 0
-    threads: int = 1        # torch intra-op threads during fit; fixed so runs are reproducible
-
-    def __post_init__(self) -> None:
-        for name in ('epochs', 'batch_size', 'threads'):
-            if int(getattr(self, name)) < 1:
-                raise ValueError(f'{name} must be >= 1, got {getattr(self, name)}')
-        if not float(self.learning_rate) > 0.0:
-            raise ValueError(f'learning_rate must be > 0, got {self.learning_rate}')
-        # Normalise types so hyperparameters() is plain JSON whatever the caller passed.
-        object.__setattr__(self, 'epochs', int(self.epochs))
-        object.__setattr__(self, 'batch_size', int(self.batch_size))
-        object.__setattr__(self, 'learning_rate', float(self.learning_rate))
-        object.__setattr__(self, 'seed', int(self.seed))
-        object.__setattr__(self, 'threads', int(self.threads))
-
-
-def fit_torch_regressor(build: Callable[[Any], torch.nn.Module], inputs: np.ndarray,
-                        targets: np.ndarray, training: TorchTraining) -> torch.nn.Module:
-    """Train build(torch) on (inputs, targets) with Adam + MSE; return it in eval mode.
-
-    Deterministic for a given seed and thread count: the weight initialisation runs under a forked,
-    seeded global RNG (the caller's RNG state is left untouched), shuffling uses its own seeded
-    generator, and torch's deterministic algorithms are enforced for the duration of the fit.
-    """
-    import torch
-
-    if len(inputs) < 1:
-        raise ValueError('cannot fit on an empty dataset')
-    threads, deterministic = torch.get_num_threads(), torch.are_deterministic_algorithms_enabled()
-    torch.set_num_threads(training.threads)
-    torch.use_deterministic_algorithms(True)
-    try:
-        with torch.random.fork_rng(devices=[]):
-            torch.manual_seed(training.seed)
-            module = build(torch).to(torch.float32)
-        x = torch.as_tensor(inputs, dtype=torch.float32)
-        y = torch.as_tensor(targets, dtype=torch.float32)
-        shuffle = torch.Generator().manual_seed(training.seed)
-        optimiser = torch.optim.Adam(module.parameters(), lr=training.learning_rate)
-        loss_fn = torch.nn.MSELoss()
-        module.train()
-        for _ in range(training.epochs):
-            order = torch.randperm(len(x), generator=shuffle)
-            for start in range(0, len(x), training.batch_size):
-                batch = order[start:start + training.batch_size]
-                optimiser.zero_grad(set_to_none=True)
-                loss_fn(module(x[batch]), y[batch]).backward()
-                optimiser.step()
-        return module.eval()
-    finally:
-        torch.set_num_threads(threads)
-        torch.use_deterministic_algorithms(deterministic)
-
-
-def state_name(torch_key: str) -> str:
-    """Torch state_dict key -> state array name: 'hidden.weight' -> 'hidden_weight_'."""
-    return torch_key.replace('.', '_') + '_'
-
-
-def module_state(module: torch.nn.Module) -> dict[str, np.ndarray]:
-    """The module's parameters and buffers as float32 numpy arrays named by state_name."""
-    return {state_name(key): value.detach().cpu().numpy().astype(STATE_DTYPE)
-            for key, value in module.state_dict().items()
-            if not key.endswith(_SKIPPED_TORCH_STATE)}
-
-
-def load_module_state(module: torch.nn.Module, arrays: Mapping[str, np.ndarray]) -> torch.nn.Module:
-    """Copy state arrays into a freshly built module (inverse of module_state); eval mode."""
-    import torch
-
-    state = module.state_dict()
-    for key in state:
-        if not key.endswith(_SKIPPED_TORCH_STATE):
-            value = np.asarray(arrays[state_name(key)])
-            state[key] = torch.as_tensor(value, dtype=state[key].dtype)
-    module.load_state_dict(state)
-    return module.eval()
-
-
-def checked_state(arrays: Mapping[str, np.ndarray],
-                  shapes: Mapping[str, tuple[int, ...]], kind: str) -> dict[str, np.ndarray]:
-    """The arrays as STATE_DTYPE, after checking their names, shapes and finiteness."""
-    missing, extra = sorted(set(shapes) - set(arrays)), sorted(set(arrays) - set(shapes))
-    if missing or extra:
-        raise ValueError(f'{kind} state arrays do not match the model: missing {missing}, '
-                         f'unexpected {extra}')
-    state = {}
-    for name, shape in shapes.items():
-        value = np.asarray(arrays[name])
-        if value.shape != tuple(shape):
-            raise ValueError(f'{kind} state array {name!r} has shape {value.shape}, '
-                             f'the model needs {tuple(shape)}')
-        if not np.all(np.isfinite(value)):
-            raise ValueError(f'{kind} state array {name!r} contains NaN or Inf')
-        state[name] = value.astype(STATE_DTYPE)
-    return state
-
 
 def relu(x: np.ndarray) -> np.ndarray:
     """In-place ReLU on a freshly computed array."""

@@ -28,9 +28,10 @@ import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 
 from tacforce_ros.estimation.base import ForceModel, ModelNotFittedError, check_inputs
-from tacforce_ros.estimation.m4_mlp import (STATE_DTYPE, TorchTraining, checked_state,
-                                            fit_torch_regressor, load_module_state, mlp_forward,
-                                            module_state, relu, same_kind_models)
+from tacforce_ros.estimation.m4_mlp import mlp_forward, relu, same_kind_models
+from tacforce_ros.estimation.torch_training import (STATE_DTYPE, TorchTraining, checked_state,
+                                                    fit_torch_regressor, load_module_state,
+                                                    module_state)
 
 if TYPE_CHECKING:
     import torch

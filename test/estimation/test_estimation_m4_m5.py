@@ -275,7 +275,7 @@ def test_bad_input_is_refused_with_a_reason():
     F[3, 1] = np.nan
     with pytest.raises(ValueError, match='NaN'):
         CNNModel(TIP).fit(X, F)
-    with pytest.raises(ValueError, match='empty'):
+    with pytest.raises(ValueError, match='zero samples'):
         MLPModel(TIP).fit(X[:0], F[:0])
     with pytest.raises(TypeError, match='other model kinds'):
         MLPModel.compile_batch([with_random_state(CNNModel, TIP, seed=0)])

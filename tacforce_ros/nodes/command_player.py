@@ -43,6 +43,7 @@ class CommandPlayer(TacforceNode):
                                                publisher_qos(TOPIC_DESIRED))
         self.create_service(Trigger, '~/start', self._on_start)
         self._started_ns: int | None = None
+        self._start_requested = False
         self.timer = self.create_timer(1.0 / self.params['rate_hz'], self._tick)
         self.get_logger().info(
             f'sequence {self.sequence.source}: {self.sequence.duration:.1f} s in '
@@ -51,12 +52,13 @@ class CommandPlayer(TacforceNode):
             self._start()
 
     def _start(self) -> None:
-        self._started_ns = self.now_ns()
-        self.get_logger().info('playing')
+        # The sequence's t = 0 is taken at the next tick: with use_sim_time the clock reads 0
+        # until the first /clock message, and timers only fire once it runs.
+        self._start_requested = True
 
     def _on_start(self, request: Trigger.Request, response: Trigger.Response
                   ) -> Trigger.Response:
-        restarted = self._started_ns is not None
+        restarted = self._started_ns is not None or self._start_requested
         self._start()
         response.success = True
         response.message = ('restarted' if restarted else 'started') + \
@@ -64,9 +66,13 @@ class CommandPlayer(TacforceNode):
         return response
 
     def _tick(self) -> None:
+        now = self.get_clock().now()
+        if self._start_requested:
+            self._start_requested = False
+            self._started_ns = now.nanoseconds
+            self.get_logger().info('playing')
         if self._started_ns is None:
             return
-        now = self.get_clock().now()
         t = (now.nanoseconds - self._started_ns) * 1e-9
         finished = t >= self.sequence.duration
         if finished and self.params['loop']:

@@ -1,0 +1,161 @@
+"""command_player as a real process over DDS: values at the right times, ~/start, bad parameters."""
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import rclpy
+import yaml
+from geometry_msgs.msg import Vector3Stamped
+from rclpy.time import Time
+from std_srvs.srv import Trigger
+
+from tacforce_ros.control.command_sequence import ForceSequence
+from tacforce_ros.nodes.common import EXIT_BAD_PARAMETERS, EXIT_OK, subscriber_qos
+from tacforce_ros.paths import config_dir
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from ros_processes import executable, start, stop, unique_domain_id  # noqa: E402
+
+pytestmark = pytest.mark.ros
+DOMAIN = unique_domain_id(offset=37)
+PARAMS = config_dir() / 'params' / 'command_player.yaml'
+SEQUENCE = {'frame_id': 'ft_sensor', 'segments': [
+    {'duration': 0.6, 'force': [0.0, 0.0, 0.0]},
+    {'duration': 0.6, 'force': [0.0, 0.0, -1.2], 'shape': 'ramp'},
+    {'duration': 0.6, 'force': [0.3, -0.2, -2.0]}]}
+RATE_HZ = 50.0
+
+
+@pytest.fixture(scope='module')
+def ros_node():
+    rclpy.init(domain_id=DOMAIN)
+    node = rclpy.create_node('command_player_test')
+    try:
+        yield node
+    finally:
+        node.destroy_node()
+        rclpy.shutdown()
+
+
+def spin_until(node, done, timeout):
+    deadline = time.monotonic() + timeout
+    while not done() and time.monotonic() < deadline:
+        rclpy.spin_once(node, timeout_sec=0.05)
+    return done()
+
+
+@pytest.fixture
+def sequence_file(tmp_path):
+    path = tmp_path / 'short.yaml'
+    path.write_text(yaml.safe_dump(SEQUENCE))
+    return path
+
+
+def play(ros_node, sequence_file, *extra):
+    received = []
+    sub = ros_node.create_subscription(Vector3Stamped, '/force_controller/desired',
+                                       received.append,
+                                       subscriber_qos('/force_controller/desired'))
+    proc = start([executable('command_player'), '--ros-args', '--params-file', PARAMS,
+                  '-p', f'sequence:={sequence_file}', '-p', f'rate_hz:={RATE_HZ}', *extra],
+                 DOMAIN)
+    return received, sub, proc
+
+
+def test_publishes_the_sequence_values_at_their_times(ros_node, sequence_file):
+    received, sub, proc = play(ros_node, sequence_file)
+    try:
+        reached = spin_until(ros_node, lambda: received and received[-1].vector.x == 0.3, 30.0)
+        # Then until the stream goes quiet for 0.5 s (bounded): the sequence has ended.
+        count, quiet_since = -1, time.monotonic()
+        while time.monotonic() - quiet_since < 0.5 and time.monotonic() - quiet_since < 10.0:
+            if len(received) != count:
+                count, quiet_since = len(received), time.monotonic()
+            rclpy.spin_once(ros_node, timeout_sec=0.05)
+        assert proc.poll() is None, 'the player must stay up after the sequence'
+    finally:
+        output = stop(proc)
+        ros_node.destroy_subscription(sub)
+    assert reached, f'the sequence never reached its last value; node said:\n{output}'
+    assert all(m.header.frame_id == 'ft_sensor' for m in received)
+    stamps = np.array([Time.from_msg(m.header.stamp).nanoseconds for m in received]) * 1e-9
+    values = np.array([[m.vector.x, m.vector.y, m.vector.z] for m in received])
+    assert np.all(np.diff(stamps) > 0)
+    # The ramp's messages fix the start time: z = -1.2 * (t - t0 - 0.6) / 0.6 on it.
+    ramp = (values[:, 2] < -1e-9) & (values[:, 2] > -1.2 + 1e-9)
+    assert ramp.sum() >= 0.6 * RATE_HZ - 3, 'ramp messages missing'
+    slope, intercept = np.polyfit(stamps[ramp], values[ramp, 2], 1)
+    assert slope == pytest.approx(-2.0, rel=1e-3)
+    t0 = -intercept / slope - 0.6
+    sequence = ForceSequence.from_mapping(SEQUENCE)
+    expected = np.array([sequence.force_at(t - t0) for t in stamps])
+    np.testing.assert_allclose(values, expected, atol=5e-3)
+    # Every received message was published while playing, about every 1/RATE_HZ.
+    # (The first few may be lost to DDS discovery: the topic is volatile by design.)
+    assert stamps[0] - t0 < SEQUENCE['segments'][0]['duration']
+    # A non-looping sequence stops right after its end.
+    assert sequence.duration <= stamps[-1] - t0 <= sequence.duration + 2.0 / RATE_HZ
+    assert np.median(np.diff(stamps)) == pytest.approx(1.0 / RATE_HZ, rel=0.05)
+    assert 'sequence finished' in output
+
+
+def test_waits_for_the_start_service_when_not_autostarting(ros_node, sequence_file):
+    received, sub, proc = play(ros_node, sequence_file, '-p', 'autostart:=false')
+    client = ros_node.create_client(Trigger, '/command_player/start')
+    try:
+        assert spin_until(ros_node, lambda: client.service_is_ready(), 20.0)
+        spin_until(ros_node, lambda: False, 0.5)
+        assert received == [], 'published before ~/start'
+        future = client.call_async(Trigger.Request())
+        assert spin_until(ros_node, future.done, 10.0)
+        assert future.result().success and 'started' in future.result().message
+        assert spin_until(ros_node, lambda: len(received) >= 5, 10.0)
+        assert received[0].vector.z == 0.0
+    finally:
+        output = stop(proc)
+        ros_node.destroy_client(client)
+        ros_node.destroy_subscription(sub)
+    assert proc.returncode == EXIT_OK, output
+
+
+@pytest.mark.parametrize('override, words', [
+    ('rate_hz:=-1', ['rate_hz', '-1', 'outside']),
+    ('sequence:=no_such_sequence', ['sequence', 'no_such_sequence']),
+])
+def test_bad_parameter_exits_non_zero_naming_it(override, words):
+    proc = start([executable('command_player'), '--ros-args', '--params-file', PARAMS,
+                  '-p', override], DOMAIN)
+    try:
+        proc.wait(timeout=30.0)
+    finally:
+        output = stop(proc)
+    assert proc.returncode == EXIT_BAD_PARAMETERS, output
+    assert all(word in output for word in words), output
+
+
+def test_follows_sim_time_from_clock(ros_node, sequence_file):
+    """With use_sim_time the sequence runs on /clock: here sim time runs 4x slower than wall
+    time, so wall-clock timing would put the values far off the sim stamps."""
+    from rosgraph_msgs.msg import Clock
+    clock_pub = ros_node.create_publisher(Clock, '/clock', 10)
+    received, sub, proc = play(ros_node, sequence_file, '-p', 'use_sim_time:=true')
+    sim_ns = 1000 * 10**9
+    try:
+        deadline = time.monotonic() + 40.0
+        while time.monotonic() < deadline and not (received and received[-1].vector.x == 0.3):
+            sim_ns += 2_500_000             # 2.5 ms of sim time per 10 ms of wall time
+            clock_pub.publish(Clock(clock=Time(nanoseconds=sim_ns).to_msg()))
+            rclpy.spin_once(ros_node, timeout_sec=0.01)
+    finally:
+        output = stop(proc)
+        ros_node.destroy_subscription(sub)
+        ros_node.destroy_publisher(clock_pub)
+    assert received and received[-1].vector.x == 0.3, output
+    stamps = np.array([Time.from_msg(m.header.stamp).nanoseconds for m in received]) * 1e-9
+    assert np.all((stamps >= 1000.0) & (stamps <= sim_ns * 1e-9)), 'stamps are not sim time'
+    values = np.array([m.vector.z for m in received])
+    ramp = (values < -1e-9) & (values > -1.2 + 1e-9)
+    slope, _ = np.polyfit(stamps[ramp], values[ramp], 1)
+    assert slope == pytest.approx(-2.0, rel=0.05), 'the ramp must run on sim time'

@@ -1,0 +1,154 @@
+"""Datasets, calibration bags -> dataset, and the train / bench command-line tools."""
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from tacforce_ros import bagio
+from tacforce_ros.estimation.bag_dataset import dataset_from_bag
+from tacforce_ros.estimation.dataset import CalibrationDataset, DatasetError, concatenate
+from tacforce_ros.estimation.model_io import load_model
+from tacforce_ros.estimation.synthetic import synthetic_dataset
+from tacforce_ros.hand.kinematics import HandKinematics
+from tacforce_ros.tools import bench, train
+
+
+def test_synthetic_is_deterministic_and_labelled(phalanx):
+    a = synthetic_dataset(phalanx, plates=('flat', 'edge'), seconds=5.0, seed=3)
+    b = synthetic_dataset(phalanx, plates=('flat', 'edge'), seconds=5.0, seed=3)
+    c = synthetic_dataset(phalanx, plates=('flat', 'edge'), seconds=5.0, seed=4)
+    np.testing.assert_array_equal(a.X, b.X)
+    assert not np.array_equal(a.X, c.X)
+    assert a.source == 'synthetic' and a.plate_names() == ['flat', 'edge']
+    assert a.X.min() >= 0.0 and a.X.max() <= 65535.0
+
+
+def test_dataset_file_round_trip_and_refusals(phalanx, tmp_path):
+    data = synthetic_dataset(phalanx, plates=('flat', 'edge'), seconds=4.0, seed=1)
+    loaded = CalibrationDataset.load(data.save(tmp_path / 'd.npz'))
+    np.testing.assert_array_equal(loaded.X, data.X)
+    np.testing.assert_array_equal(loaded.plates, data.plates)
+    assert loaded.array == data.array and loaded.source == 'synthetic'
+    with pytest.raises(DatasetError, match='expected'):
+        CalibrationDataset(array='x', X=data.X, F=data.F[:-1], plates=data.plates,
+                           sessions=data.sessions, time=data.time)
+    (tmp_path / 'junk.npz').write_bytes(b'junk')
+    with pytest.raises(DatasetError, match='not a readable dataset'):
+        CalibrationDataset.load(tmp_path / 'junk.npz')
+
+
+def test_concatenate_keeps_sessions_distinct(phalanx, tip):
+    a = synthetic_dataset(phalanx, plates=('flat', 'edge'), seconds=4.0, seed=1)
+    joined = concatenate([a, a])
+    assert np.unique(joined.sessions).size == 4
+    with pytest.raises(DatasetError, match='different arrays'):
+        concatenate([a, synthetic_dataset(tip, plates=('flat',), seconds=4.0, seed=1)])
+
+
+def write_bag(path, hand, array, data, rows, q, kinematics, plate):
+    """Calibration bag of `array` from synthetic rows: tactile at 100 Hz, wrench in {F} at
+    100 Hz (offset by half a period), joints at 50 Hz; one malformed tactile frame."""
+    rotation = kinematics.rotation_between(q, hand.ft_frame, array.frame_id)   # R^0_F
+    others = hand.merge([np.full((a.n_taxels, 3), 20000.0) for a in hand.arrays])
+    meta = bagio.session_metadata(array=array.name, plate=plate, source='sim', seed=0)
+    t0 = 1_700_000_000 * 10**9
+    with bagio.CalibrationBagWriter(path, meta, split_seconds=60.0) as writer:
+        for i, row in enumerate(rows):
+            stamp = t0 + i * 10_000_000
+            counts = others.copy()
+            counts[array.flat_indices] = data.X[row]
+            msg = bagio.tactile_hand(stamp, hand, np.round(counts), None, stamp * 1e-9, i)
+            if i == 7:
+                msg.arrays[hand.index(array.name)].x = msg.arrays[hand.index(array.name)].x[:3]
+            writer.write(bagio.TOPIC_TACTILE, stamp, msg)
+            force_f = rotation.T @ data.F[row]          # what the F/T sensor measures
+            writer.write(bagio.TOPIC_WRENCH, stamp + 5_000_000, bagio.wrench_stamped(
+                stamp + 5_000_000, hand.ft_frame, [*force_f, 0.0, 0.0, 0.0]))
+            if i % 2 == 0:
+                writer.write(bagio.TOPIC_JOINTS, stamp, bagio.joint_state(
+                    stamp, kinematics.joint_names, q))
+
+
+@pytest.fixture(scope='module')
+def bags(hand, tmp_path_factory):
+    array = hand.array('index_middle')
+    kinematics = HandKinematics(hand.urdf_path)
+    q = np.zeros(16)
+    q[1], q[2] = 0.4, 0.3           # bent index finger: R^0_F is not the identity
+    data = synthetic_dataset(array, plates=('flat', 'edge', 'button'), seconds=8.0, seed=5)
+    root = tmp_path_factory.mktemp('bags')
+    paths = []
+    for plate in data.plate_names():
+        rows = np.flatnonzero(data.plates == plate)
+        path = root / f'bag_{plate}'
+        write_bag(path, hand, array, data, rows, q, kinematics, plate)
+        paths.append(path)
+    return paths, data, array, kinematics
+
+
+def test_bag_to_dataset_recovers_counts_and_projected_force(hand, bags):
+    paths, data, array, kinematics = bags
+    dataset, dropped = dataset_from_bag(paths[0], hand, kinematics)
+    assert dropped == 1 and dataset.array == array.name and dataset.source == 'sim'
+    assert set(dataset.plates) == {'flat'}
+    truth = data.F[data.plates == 'flat']
+    rows = np.round(dataset.time / 0.01).astype(int) + 1     # first tactile frame precedes F/T
+    assert 7 not in rows                                    # the malformed frame was dropped
+    # the wrench of row r is stamped half a period after the tactile frame r
+    expected = 0.5 * (truth[rows - 1] + truth[rows])
+    core = slice(50, -50)                                   # away from the filter's edges
+    err = np.abs(dataset.F[core] - expected[core]).max()
+    assert err < 0.02, err          # projection with R^0_F(t) undoes the {F} rotation
+    raw = data.X[data.plates == 'flat'][rows]
+    assert np.abs(dataset.X[core] - raw[core]).max() < 5.0   # counts survive, low-passed
+
+
+def test_train_from_bags_writes_loadable_models_and_report(hand, bags, tmp_path):
+    paths, _, array, _ = bags
+    out = tmp_path / 'models'
+    code = train.main([*map(str, paths), '--out', str(out), '--kinds', 'M1', 'M3-lambda',
+                       '--lambda-cv', '--save-dataset'])
+    assert code == 0
+    report = json.loads((out / 'report.json').read_text())
+    assert report['dropped_messages'] == 3
+    assert [m['kind'] for m in report['models']] == ['M1', 'M3-lambda']
+    cv = report['models'][1]['cross_validation']
+    assert cv['folds'] == 3 and cv['e_hat_mean'] < 0.5
+    bundle = load_model(out / 'index_middle_M3-lambda.npz', array)
+    assert bundle.provenance['plates'] == ['flat', 'edge', 'button']
+    assert bundle.provenance['metrics']['folds'] == 3
+    assert (out / 'report.md').read_text().count('index_middle') >= 2
+    assert CalibrationDataset.load(out / 'index_middle.npz').array == 'index_middle'
+
+
+def test_train_refuses_unknown_arrays_and_missing_inputs(phalanx, tmp_path, capsys):
+    path = synthetic_dataset(phalanx, plates=('flat', 'edge'), seconds=4.0, seed=1).save(
+        tmp_path / 'd.npz')
+    assert train.main([str(path), '--out', str(tmp_path / 'o'), '--arrays', 'index_tip']) == 2
+    assert 'no data for arrays' in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        train.main([str(tmp_path / 'absent.npz'), '--out', str(tmp_path / 'o')])
+
+
+def test_bench_synthetic_writes_json_table_and_plot(tmp_path):
+    out = tmp_path / 'bench'
+    code = bench.main(['--synthetic', '--array', 'index_middle', '--seconds', '6',
+                       '--models', 'M1', 'M3-lambda', '--repeats', '50', '--out', str(out)])
+    assert code == 0
+    result = json.loads((out / 'bench.json').read_text())
+    assert [m['label'] for m in result['models']] == ['M1', 'M3-lambda']
+    for row in result['models']:
+        for key in ('predict_one', 'batch_one', 'full_hand_tick'):
+            assert 0.0 < row[key]['median_us'] <= row[key]['p99_us']
+        assert row['folds'] == 5 and row['train_seconds'] > 0.0
+    assert (out / 'bench.png').read_bytes()[:8] == b'\x89PNG\r\n\x1a\n'
+    assert '| M3-lambda |' in (out / 'bench.md').read_text()
+
+
+@pytest.mark.parametrize('tool', ['train', 'bench'])
+def test_tools_have_help(tool):
+    out = subprocess.run([sys.executable, '-m', f'tacforce_ros.tools.{tool}', '--help'],
+                         capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0 and 'usage' in out.stdout

@@ -1,0 +1,47 @@
+"""sim_record writes contract-layout bags; bench_sim writes its JSON."""
+import json
+from collections import Counter
+
+import numpy as np
+import pytest
+
+from tacforce_ros import bagio
+from tacforce_ros.tools import bench_sim, sim_record
+
+
+def test_sim_record_writes_one_bag_per_session_in_the_lab_layout(tmp_path, hand):
+    code = sim_record.main(['--out', str(tmp_path), '--arrays', 'index_middle', '--plates',
+                            'edge', '--sessions', '2', '--seconds', '6.0', '--seed', '3'])
+    assert code == 0
+    bags = sorted(p.name for p in tmp_path.iterdir())
+    assert bags == ['index_middle_edge_s0', 'index_middle_edge_s1']
+    meta = [bagio.read_session_metadata(tmp_path / b) for b in bags]
+    assert {m['source'] for m in meta} == {'sim'} and meta[0]['seed'] != meta[1]['seed']
+    assert meta[0]['scene'] == 'calibration_index_middle_edge' and meta[0]['plate'] == 'edge'
+    messages = list(bagio.read_messages(tmp_path / bags[0]))
+    counts = Counter(topic for topic, _, _ in messages)
+    assert counts[bagio.TOPIC_SESSION] == 1 and counts[bagio.TOPIC_SIM_CONTACT] == 600
+    assert 570 <= counts[bagio.TOPIC_TACTILE] <= 600    # transport may drop a few
+    tactile = next(m for t, _, m in messages if t == bagio.TOPIC_TACTILE)
+    assert [a.name for a in tactile.arrays] == [a.name for a in hand.arrays]
+    truth = [m for t, _, m in messages if t == bagio.TOPIC_SIM_CONTACT]
+    assert truth[0].header.frame_id == 'uskin_index_middle'
+    assert max(abs(m.wrench.force.z) for m in truth) > 0.1
+
+
+def test_sim_record_refuses_to_overwrite_a_bag(tmp_path):
+    args = ['--out', str(tmp_path), '--arrays', 'index_tip', '--plates', 'flat',
+            '--sessions', '1', '--seconds', '0.1']
+    assert sim_record.main(args) == 0
+    assert sim_record.main(args) == 1
+
+
+def test_bench_sim_writes_json(tmp_path, monkeypatch):
+    monkeypatch.setattr(bench_sim, 'EFFECTS', {'taxel_noise': None, 'joint_friction': None})
+    out = tmp_path / 'bench.json'
+    assert bench_sim.main(['--out', str(out), '--seconds', '0.2', '--repeats', '1',
+                           '--scenes', 'calibration_index_tip_flat']) == 0
+    result = json.loads(out.read_text())
+    assert result['scenes']['calibration_index_tip_flat']['realtime_factor'] > 0
+    assert set(result['effects']) == {'taxel_noise', 'joint_friction'}
+    assert np.isfinite(result['effects']['taxel_noise']['extra_ms_per_sim_s'])

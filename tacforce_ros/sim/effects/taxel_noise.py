@@ -7,6 +7,8 @@ import numpy as np
 
 from tacforce_ros.sim.effects import Effect
 
+BLOCK = 128   # frames of noise drawn per call: one large draw is far cheaper than many small
+
 
 @dataclass
 class TaxelNoise(Effect):
@@ -17,9 +19,16 @@ class TaxelNoise(Effect):
     def reset(self, rng: np.random.Generator, ctx) -> None:
         self._rng = rng
         self._sigma = np.asarray(self.sigma, np.float64)
+        self._shape = (BLOCK, ctx.n_taxels, 3)
+        self._block = self._rng.standard_normal(self._shape) * self._sigma
+        self._next = 0
 
     def on_counts(self, state) -> None:
-        state.counts += self._rng.standard_normal(state.counts.shape) * self._sigma
+        if self._next == BLOCK:
+            self._block = self._rng.standard_normal(self._shape) * self._sigma
+            self._next = 0
+        state.counts += self._block[self._next]
+        self._next += 1
 
 
 EFFECT = TaxelNoise

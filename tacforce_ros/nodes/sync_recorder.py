@@ -7,6 +7,11 @@ publishes. Bag layout and session metadata: docs/CONTRACTS.md. The bag is split 
 `split_seconds` (wall time), so a recorder killed with SIGKILL leaves a bag readable up to the
 last split. Services: ~/start (tacforce_msgs/srv/StartRecording; empty fields take the
 parameters) and ~/stop (std_srvs/Trigger).
+
+The subscriptions are raw: the CDR bytes as received go into the bag untouched (as rosbag2
+records), and only the stamps and the sample's parts are decoded, with the bag's own typestore.
+(rclpy's serialize_message is no substitute: with Fast DDS it returns the rmw's size
+estimate, e.g. 76 bytes for a 68-byte JointState, and rosbags refuses the trailing bytes.)
 """
 from __future__ import annotations
 
@@ -16,15 +21,14 @@ from pathlib import Path
 
 from geometry_msgs.msg import WrenchStamped
 from rclpy.clock import Clock, ClockType
-from rclpy.serialization import serialize_message
-from rclpy.time import Time
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 from tacforce_msgs.msg import CalibrationSample, TactileHand
 from tacforce_msgs.srv import StartRecording
 
-from tacforce_ros.bagio import (TOPIC_JOINTS, TOPIC_SAMPLE, TOPIC_TACTILE, TOPIC_WRENCH,
-                                BagError, session_metadata)
+from tacforce_ros.bagio import (TOPIC_JOINTS, TOPIC_SAMPLE, TOPIC_TACTILE, TOPIC_TYPES,
+                                TOPIC_WRENCH, BagError, calibration_sample, session_metadata,
+                                typestore)
 from tacforce_ros.hand.description import HandConfigError, load_hand
 from tacforce_ros.nodes.common import (ParameterError, ParamSpec, TacforceNode, publisher_qos,
                                        run_node, subscriber_qos)
@@ -68,12 +72,13 @@ class SyncRecorder(TacforceNode):
         self._array_name = ''
         self._counts: dict[str, int] = {}
         self._missing_array = 0
+        self._undecodable = 0
         self.sample_publisher = self.create_publisher(CalibrationSample, TOPIC_SAMPLE,
                                                       publisher_qos(TOPIC_SAMPLE))
         for index, (topic, msg_type) in enumerate(zip(
                 INPUTS, (TactileHand, WrenchStamped, JointState))):
             self.create_subscription(msg_type, topic, self._callback(index, topic),
-                                     subscriber_qos(topic))
+                                     subscriber_qos(topic), raw=True)
         self.create_service(StartRecording, '~/start', self._on_start)
         self.create_service(Trigger, '~/stop', self._on_stop)
         # Flushing is about wall time (what a crash can lose), not sim time: a steady timer.
@@ -115,7 +120,7 @@ class SyncRecorder(TacforceNode):
                                                 self.params['slop'])
         self._array_name = array
         self._counts = dict.fromkeys(INPUTS + (TOPIC_SAMPLE,), 0)
-        self._missing_array = 0
+        self._missing_array = self._undecodable = 0
         self.get_logger().info(f'recording {array} on {plate or "?"} into {path}')
         return True, str(path)
 
@@ -126,7 +131,8 @@ class SyncRecorder(TacforceNode):
         writer.close()
         dropped = dict(zip(INPUTS, self.sync.dropped))
         summary = (f'closed {writer.path}: written {self._counts}, dropped by the synchroniser '
-                   f'{dropped}, frames without {self._array_name}: {self._missing_array}')
+                   f'{dropped}, frames without {self._array_name}: {self._missing_array}, '
+                   f'undecodable: {self._undecodable}')
         self.get_logger().info(summary)
         return True, summary
 
@@ -154,11 +160,20 @@ class SyncRecorder(TacforceNode):
     # --- streams ---------------------------------------------------------------------------
 
     def _callback(self, index: int, topic: str):
-        def receive(msg) -> None:
+        msgtype = TOPIC_TYPES[topic]
+
+        def receive(data: bytes) -> None:
             if self.writer is None:
                 return
-            self._write(topic, serialize_message(msg))
-            stamp = Time.from_msg(msg.header.stamp).nanoseconds
+            self._write(topic, data)
+            try:
+                msg = typestore().deserialize_cdr(data, msgtype)
+            except Exception as exc:    # noqa: BLE001 - rosbags raises several kinds
+                self._undecodable += 1
+                self.get_logger().warning(f'{topic}: undecodable message dropped from the '
+                                          f'samples ({exc})', throttle_duration_sec=5.0)
+                return
+            stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
             matched = self.sync.add(index, stamp, msg)
             if matched is not None:
                 self._write_sample(*matched)
@@ -168,16 +183,17 @@ class SyncRecorder(TacforceNode):
         self.writer.write_serialized(topic, self.now_ns(), data)
         self._counts[topic] += 1
 
-    def _write_sample(self, hand: TactileHand, wrench: WrenchStamped, joints: JointState
-                      ) -> None:
+    def _write_sample(self, hand, wrench, joints) -> None:
+        """hand, wrench, joints: rosbags messages; the sample is published as CDR bytes."""
         tactile = next((a for a in hand.arrays if a.name == self._array_name), None)
         if tactile is None:
             self._missing_array += 1
             return
-        sample = CalibrationSample(header=tactile.header, tactile=tactile, wrench=wrench,
-                                   joints=joints)
-        self.sample_publisher.publish(sample)
-        self._write(TOPIC_SAMPLE, serialize_message(sample))
+        stamp = hand.header.stamp.sec * 1_000_000_000 + hand.header.stamp.nanosec
+        sample = calibration_sample(stamp, tactile, wrench, joints)
+        data = bytes(typestore().serialize_cdr(sample, TOPIC_TYPES[TOPIC_SAMPLE]))
+        self.sample_publisher.publish(data)
+        self._write(TOPIC_SAMPLE, data)
 
 
 def main(args: list[str] | None = None) -> None:

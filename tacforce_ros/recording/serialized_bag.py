@@ -1,9 +1,8 @@
 """Write already-serialised (CDR) messages into a calibration bag.
 
-A node receives rclpy messages; `rclpy.serialization.serialize_message` gives the same CDR bytes
-rosbag2 stores, so writing them directly avoids copying every field into a rosbags message.
-`CalibrationBagWriter` (bagio.py, the lead's) serialises rosbags messages itself; this adds the
-bytes path on top of it. TODO(lead): move `write_serialized` into CalibrationBagWriter (and have
+A node subscribing with raw=True receives the CDR bytes rosbag2 stores; writing them directly
+avoids decoding and copying every field. `CalibrationBagWriter` (bagio.py, the lead's)
+serialises rosbags messages itself; this adds the bytes path on top of it. TODO(lead): move `write_serialized` into CalibrationBagWriter (and have
 `write` call it), then delete this module.
 """
 from __future__ import annotations

@@ -1,0 +1,247 @@
+"""sync_recorder as a real process over DDS: services, bag contents and metadata, SIGKILL."""
+import json
+import signal
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import rclpy
+from geometry_msgs.msg import WrenchStamped
+from rclpy.time import Time
+from sensor_msgs.msg import JointState
+from std_srvs.srv import Trigger
+from tacforce_msgs.msg import TactileArray, TactileHand
+from tacforce_msgs.srv import StartRecording
+
+from tacforce_ros import bagio
+from tacforce_ros.hand.description import load_hand
+from tacforce_ros.nodes.common import EXIT_OK, publisher_qos
+from tacforce_ros.paths import config_dir
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from ros_processes import executable, start, stop, unique_domain_id  # noqa: E402
+
+pytestmark = pytest.mark.ros
+DOMAIN = unique_domain_id(offset=53)
+PARAMS = config_dir() / 'params' / 'sync_recorder.yaml'
+SLOP = 0.004
+MS = 1_000_000
+HAND = load_hand()
+
+
+@pytest.fixture(scope='module')
+def ros_node():
+    rclpy.init(domain_id=DOMAIN)
+    node = rclpy.create_node('sync_recorder_test')
+    try:
+        yield node
+    finally:
+        node.destroy_node()
+        rclpy.shutdown()
+
+
+def spin_until(node, done, timeout):
+    deadline = time.monotonic() + timeout
+    while not done() and time.monotonic() < deadline:
+        rclpy.spin_once(node, timeout_sec=0.05)
+    return done()
+
+
+def call(node, srv_type, name, request, timeout=20.0):
+    client = node.create_client(srv_type, name)
+    try:
+        assert spin_until(node, client.service_is_ready, timeout), f'{name} never appeared'
+        future = client.call_async(request)
+        assert spin_until(node, future.done, timeout), f'{name} did not answer'
+        return future.result()
+    finally:
+        node.destroy_client(client)
+
+
+class Streams:
+    """Synthetic calibration streams with realistic shapes: 18 arrays (368 taxels) at 100 Hz,
+    wrench at 200 Hz and 16 joint angles at 100 Hz, stamps offset by 1-2 ms as on real links."""
+
+    def __init__(self, node):
+        self.node = node
+        self.pubs = {topic: node.create_publisher(msg_type, topic, publisher_qos(topic))
+                     for topic, msg_type in ((bagio.TOPIC_TACTILE, TactileHand),
+                                             (bagio.TOPIC_WRENCH, WrenchStamped),
+                                             (bagio.TOPIC_JOINTS, JointState))}
+        self.rng = np.random.default_rng(7)
+        self.published = {topic: {} for topic in self.pubs}   # stamp ns -> payload
+
+    def wait_for_recorder(self, timeout=20.0):
+        return spin_until(self.node, lambda: all(p.get_subscription_count() > 0
+                                                 for p in self.pubs.values()), timeout)
+
+    def tactile(self, stamp_ns):
+        counts = self.rng.integers(30000, 40000, size=(HAND.n_taxels, 3)).astype(np.uint16)
+        msg = TactileHand(server_time=stamp_ns * 1e-9, server_sequence=len(
+            self.published[bagio.TOPIC_TACTILE]))
+        msg.header.stamp = Time(nanoseconds=stamp_ns).to_msg()
+        msg.header.frame_id = HAND.base_frame
+        for array, part in zip(HAND.arrays, HAND.split(counts)):
+            arr = TactileArray(name=array.name, x=part[:, 0], y=part[:, 1], z=part[:, 2])
+            arr.header = msg.header
+            arr.header.frame_id = array.frame_id
+            msg.arrays.append(arr)
+        return msg, counts
+
+    def wrench(self, stamp_ns):
+        values = self.rng.normal(0.0, 1.0, 6)
+        msg = WrenchStamped()
+        msg.header.stamp = Time(nanoseconds=stamp_ns).to_msg()
+        msg.header.frame_id = HAND.ft_frame
+        (msg.wrench.force.x, msg.wrench.force.y, msg.wrench.force.z,
+         msg.wrench.torque.x, msg.wrench.torque.y, msg.wrench.torque.z) = values
+        return msg, values
+
+    def joints(self, stamp_ns):
+        values = self.rng.uniform(-0.2, 1.4, 16)
+        msg = JointState(name=[f'joint_{i}.0' for i in range(16)], position=values)
+        msg.header.stamp = Time(nanoseconds=stamp_ns).to_msg()
+        return msg, values
+
+    def run(self, seconds):
+        """Publish in real time for `seconds` (bounded); 5 ms ticks."""
+        base = self.node.get_clock().now().nanoseconds
+        t_start = time.monotonic()
+        for k in range(int(seconds / 0.005)):
+            stamp = base + k * 5 * MS
+            due = [(bagio.TOPIC_WRENCH, self.wrench, stamp + 1 * MS)]
+            if k % 2 == 0:
+                due += [(bagio.TOPIC_TACTILE, self.tactile, stamp),
+                        (bagio.TOPIC_JOINTS, self.joints, stamp + 2 * MS)]
+            for topic, build, at in due:
+                msg, payload = build(at)
+                self.pubs[topic].publish(msg)
+                self.published[topic][at] = payload
+            rclpy.spin_once(self.node, timeout_sec=0.0)
+            time.sleep(max(0.0, t_start + (k + 1) * 0.005 - time.monotonic()))
+
+    def close(self):
+        for pub in self.pubs.values():
+            self.node.destroy_publisher(pub)
+
+
+def stamp_ns(header):
+    """Stamp of a header read back from the bag (a rosbags message), in ns."""
+    return header.stamp.sec * 1_000_000_000 + header.stamp.nanosec
+
+
+@pytest.fixture
+def streams(ros_node):
+    streams = Streams(ros_node)
+    yield streams
+    streams.close()
+
+
+def recorder(tmp_path, *extra):
+    return start([executable('sync_recorder'), '--ros-args', '--params-file', PARAMS,
+                  '-p', f'output_dir:={tmp_path}', '-p', f'slop:={SLOP}',
+                  '-p', 'split_seconds:=0.5', *extra], DOMAIN)
+
+
+def test_session_started_and_stopped_by_services_records_everything(ros_node, streams, tmp_path):
+    proc = recorder(tmp_path, '-p', 'plate:=button')
+    try:
+        assert streams.wait_for_recorder(), 'recorder never subscribed'
+        reply = call(ros_node, StartRecording, '/sync_recorder/start', StartRecording.Request(
+            array='index_middle', plate='flat', operator_notes='test session'))
+        assert reply.success, reply.message
+        again = call(ros_node, StartRecording, '/sync_recorder/start', StartRecording.Request())
+        assert not again.success and 'already recording' in again.message
+        streams.run(1.5)
+        spin_until(ros_node, lambda: False, 0.3)    # let the last messages arrive
+        stopped = call(ros_node, Trigger, '/sync_recorder/stop', Trigger.Request())
+        assert stopped.success, stopped.message
+        assert not call(ros_node, Trigger, '/sync_recorder/stop', Trigger.Request()).success
+    finally:
+        output = stop(proc)
+    assert proc.returncode == EXIT_OK, output
+    bag = Path(reply.bag_path)
+    assert bag.parent == tmp_path and len(list(bag.glob('*.mcap'))) >= 2, 'expected splits'
+
+    meta = bagio.read_session_metadata(bag)
+    assert (meta['array'], meta['plate'], meta['operator_notes'], meta['hand_side'],
+            meta['source']) == ('index_middle', 'flat', 'test session', 'right', 'lab')
+    messages = list(bagio.read_messages(bag))
+    assert messages[0][0] == bagio.TOPIC_SESSION
+    assert json.loads(messages[0][2].data)['array'] == 'index_middle'
+    by_topic = {topic: [m for t, _, m in messages if t == topic] for topic in bagio.TOPIC_TYPES}
+
+    # Raw streams: what was published arrived intact (best-effort: allow a few losses).
+    for topic in (bagio.TOPIC_TACTILE, bagio.TOPIC_WRENCH, bagio.TOPIC_JOINTS):
+        assert len(by_topic[topic]) >= 0.8 * len(streams.published[topic]), topic
+    for msg in by_topic[bagio.TOPIC_TACTILE][::20]:
+        sent = streams.published[bagio.TOPIC_TACTILE][stamp_ns(msg.header)]
+        got = HAND.merge([np.stack([a.x, a.y, a.z], axis=1) for a in msg.arrays])
+        np.testing.assert_array_equal(got, sent)
+    for msg in by_topic[bagio.TOPIC_WRENCH][::20]:
+        w = msg.wrench
+        np.testing.assert_allclose([w.force.x, w.force.y, w.force.z, w.torque.x, w.torque.y,
+                                    w.torque.z],
+                                   streams.published[bagio.TOPIC_WRENCH][stamp_ns(msg.header)])
+
+    # Synchronised samples: the chosen array, partners within slop, each tactile frame once.
+    samples = by_topic[bagio.TOPIC_SAMPLE]
+    assert len(samples) >= 0.8 * len(by_topic[bagio.TOPIC_TACTILE])
+    index = HAND.index('index_middle')
+    tactile_stamps = []
+    for sample in samples:
+        t = stamp_ns(sample.header)
+        assert sample.tactile.name == 'index_middle' and len(sample.tactile.x) == 16
+        assert stamp_ns(sample.tactile.header) == t
+        assert abs(stamp_ns(sample.wrench.header) - t) <= SLOP * 1e9
+        assert abs(stamp_ns(sample.joints.header) - t) <= SLOP * 1e9
+        sent = HAND.split(streams.published[bagio.TOPIC_TACTILE][t])[index]
+        np.testing.assert_array_equal(
+            np.stack([sample.tactile.x, sample.tactile.y, sample.tactile.z], axis=1), sent)
+        np.testing.assert_array_equal(
+            sample.joints.position,
+            streams.published[bagio.TOPIC_JOINTS][stamp_ns(sample.joints.header)])
+        tactile_stamps.append(t)
+    assert tactile_stamps == sorted(set(tactile_stamps))
+    assert 'closed' in output and 'dropped by the synchroniser' in output
+
+
+def test_unknown_array_is_refused_at_start_up_and_by_the_service(ros_node, tmp_path):
+    bad = recorder(tmp_path, '-p', 'array:=pinky_tip')
+    try:
+        bad.wait(timeout=30.0)
+    finally:
+        output = stop(bad)
+    assert bad.returncode != EXIT_OK and 'pinky_tip' in output, output
+    proc = recorder(tmp_path)
+    try:
+        reply = call(ros_node, StartRecording, '/sync_recorder/start',
+                     StartRecording.Request(array='pinky_tip'))
+    finally:
+        stop(proc)
+    assert not reply.success and 'pinky_tip' in reply.message
+    assert list(tmp_path.iterdir()) == [], 'a refused session must not leave a bag'
+
+
+# Last in the module: the killed process's DDS endpoints linger until their lease expires.
+def test_killed_recorder_leaves_a_bag_readable_up_to_the_last_split(ros_node, streams, tmp_path):
+    proc = recorder(tmp_path, '-p', 'autostart:=true', '-p', 'plate:=edge')
+    try:
+        assert streams.wait_for_recorder(), 'recorder never subscribed'
+        streams.run(2.0)
+        proc.send_signal(signal.SIGKILL)
+        proc.wait(timeout=10.0)
+    finally:
+        output = stop(proc)
+    assert proc.returncode == -signal.SIGKILL, output
+    (bag,) = tmp_path.iterdir()
+    assert bagio.read_session_metadata(bag)['plate'] == 'edge'
+    topics = [topic for topic, _, _ in bagio.read_messages(bag)]
+    # 2 s at 0.5 s splits: at least the first 1.5 s are in closed splits.
+    sent = len(streams.published[bagio.TOPIC_TACTILE])
+    assert 0.5 * sent <= topics.count(bagio.TOPIC_TACTILE) <= sent
+    assert topics.count(bagio.TOPIC_SAMPLE) > 0.5 * topics.count(bagio.TOPIC_TACTILE)
+    assert any(p.name.endswith('.partial') for p in bag.iterdir()), \
+        'the split open at the kill should be left behind unlisted'

@@ -21,7 +21,6 @@ from tacforce_ros.sim.operator import FINGER_JOINTS
 from tacforce_ros.sim.sample import SimSample, StepState
 from tacforce_ros.sim.scene import Scene
 from tacforce_ros.sim.sensors import TactileSensor, ft_counts
-from tacforce_ros.sim.vector import cross
 
 FRICTION = 1.0   # silicone skin on PLA / YCB surfaces: grippy; our estimate
 # Rotor inertia reflected through the Allegro gearbox, per joint (our estimate); it also keeps
@@ -151,12 +150,13 @@ class ClosedLoopSimulator:
     def _normal(self, centre: np.ndarray) -> np.ndarray:
         if self.obj is None:
             d = centre - self.plate_centre
-            return d / np.linalg.norm(d)
+            return d / np.sqrt(d @ d)
         return self.up
 
     def _penetration(self, centre: np.ndarray, normal: np.ndarray) -> float:
         if self.obj is None:
-            gap = np.linalg.norm(centre - self.plate_centre) - self.scene.plate.radius
+            d = centre - self.plate_centre
+            gap = np.sqrt(d @ d) - self.scene.plate.radius
         else:
             gap = (centre - self.surface) @ self.up + self.obj_x
         return self.radius - gap
@@ -183,7 +183,7 @@ class ClosedLoopSimulator:
         tangential_velocity = relative - (relative @ normal) * normal
         tangential = -self.skin_k * slip - self.skin_c * tangential_velocity
         limit = FRICTION * normal_force
-        size = np.linalg.norm(tangential)
+        size = np.sqrt(tangential @ tangential)
         if size > limit:   # sliding: the stick point follows so the spring sits on the cone
             tangential *= limit / size
             self.anchor = point + tangential / self.skin_k
@@ -205,7 +205,7 @@ class ClosedLoopSimulator:
         on_sensor = self._advance_object(force, normal)
         data.qfrc_applied[:] = state.torque
         data.xfrc_applied[self.tip, :3] = force
-        data.xfrc_applied[self.tip, 3:] = cross(point - data.xipos[self.tip], force)
+        mujoco.mju_cross(data.xfrc_applied[self.tip, 3:], point - data.xipos[self.tip], force)
         mujoco.mj_step(self.model, data)
         # Ground truth and tactile frame in {S0}: the force the array applies (= -force on it).
         rot_s0 = data.xmat[self.s0].reshape(3, 3)
@@ -221,7 +221,8 @@ class ClosedLoopSimulator:
             self._last_frame = (state.counts_out, state.temperatures)
         else:
             state.counts_out, state.temperatures = self._last_frame
-        torque_at_sensor = cross(point - self.sensor_origin, on_sensor)
+        torque_at_sensor = np.empty(3)
+        mujoco.mju_cross(torque_at_sensor, point - self.sensor_origin, on_sensor)
         state.wrench = np.concatenate([self.r_base_f.T @ on_sensor,
                                        self.r_base_f.T @ torque_at_sensor])
         self.pipeline.run('wrench', state)

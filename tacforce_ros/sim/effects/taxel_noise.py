@@ -20,12 +20,12 @@ class TaxelNoise(Effect):
         self._rng = rng
         self._sigma = np.asarray(self.sigma, np.float64)
         self._shape = (BLOCK, ctx.n_taxels, 3)
-        self._block = self._rng.standard_normal(self._shape) * self._sigma
-        self._next = 0
+        self._next = BLOCK
 
     def on_counts(self, state) -> None:
         if self._next == BLOCK:
-            self._block = self._rng.standard_normal(self._shape) * self._sigma
+            # float32 draws: half the cost, and ample for noise of a few counts.
+            self._block = self._rng.standard_normal(self._shape, np.float32) * self._sigma
             self._next = 0
         state.counts += self._block[self._next]
         self._next += 1

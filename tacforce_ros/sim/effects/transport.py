@@ -8,7 +8,10 @@ import numpy as np
 
 from tacforce_ros.sim.effects import Effect
 
-STREAMS = ('tactile', 'ft', 'joints')
+# Each stream and the step-state fields its messages carry.
+STREAM_FIELDS = {'tactile': ('counts_out', 'temperatures'), 'ft': ('wrench',),
+                 'joints': ('q', 'qdot')}
+BLOCK = 256   # steps of random draws made at once
 
 
 @dataclass
@@ -26,23 +29,35 @@ class Transport(Effect):
     def reset(self, rng: np.random.Generator, ctx) -> None:
         self._rng = rng
         self._dt = ctx.physics_dt
-        depth = {s: int(np.ceil((self.latency[s] + 4.0 * self.jitter[s]) / ctx.physics_dt)) + 1
-                 for s in STREAMS}
-        self._history = {s: deque(maxlen=depth[s]) for s in STREAMS}
+        self._streams = tuple(STREAM_FIELDS)
+        self._latency = np.array([self.latency[s] for s in self._streams])
+        self._jitter = np.array([self.jitter[s] for s in self._streams])
+        self._drop = np.array([self.drop[s] for s in self._streams])
+        depth = np.ceil((self._latency + 4.0 * self._jitter) / self._dt).astype(int) + 1
+        self._history = [deque(maxlen=int(d)) for d in depth]
+        self._next = BLOCK
+
+    def _draw(self) -> None:
+        n = len(self._streams)
+        delay = self._latency + np.abs(self._rng.standard_normal((BLOCK, n))) * self._jitter
+        self._delay = np.rint(delay / self._dt).astype(int)
+        self._dropped = self._rng.random((BLOCK, n)) < self._drop
+        self._next = 0
 
     def on_delivery(self, state) -> None:
-        # Each stream delivers what it carried `delay` steps ago (the oldest held when the
-        # history is still short); a dropped message is flagged, the step keeps the old values.
-        fields = {'tactile': ('counts_out', 'temperatures'), 'ft': ('wrench',),
-                  'joints': ('q', 'qdot')}
-        for stream in STREAMS:
-            history = self._history[stream]
-            history.append(tuple(getattr(state, f) for f in fields[stream]))
-            delay = self.latency[stream] + abs(self._rng.normal(0.0, self.jitter[stream]))
-            index = max(len(history) - 1 - int(round(delay / self._dt)), 0)
-            for name, value in zip(fields[stream], history[index]):
+        # Each stream delivers what it carried `delay` steps ago (the oldest held while the
+        # history is short); a dropped message is flagged, the step keeps the delayed values.
+        if self._next == BLOCK:
+            self._draw()
+        delays, dropped = self._delay[self._next], self._dropped[self._next]
+        self._next += 1
+        for i, stream in enumerate(self._streams):
+            history, fields = self._history[i], STREAM_FIELDS[stream]
+            history.append(tuple(getattr(state, f) for f in fields))
+            past = history[max(len(history) - 1 - delays[i], 0)]
+            for name, value in zip(fields, past):
                 setattr(state, name, value)
-            if self._rng.random() < self.drop[stream]:
+            if dropped[i]:
                 state.delivered[stream] = False
 
 

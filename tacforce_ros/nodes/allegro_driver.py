@@ -1,0 +1,285 @@
+"""allegro_driver: Allegro Hand V4 over CAN -> /joint_states, and the fingertip force controller.
+
+Joint states (sensor_msgs/JointState, 16 joints in Allegro order, position rad, velocity rad/s by
+finite differences on the node clock, effort = last commanded torque N m) are published for
+every complete FINGER_POSE cycle (333 Hz at `position_period_ms` = 3).
+
+`control` = force runs the paper's law (tacforce_ros/control/force_controller.py, parameters
+`force_controller.*`, see config/params/force_controller.yaml) for the selected finger at
+`control_rate_hz` on the node clock (sim time under use_sim_time): f_d from
+/force_controller/desired (geometry_msgs/Vector3Stamped, in force_controller.force_frame),
+f_hat from /tactile/estimates (the entry of `estimate_array`; invalid or missing entries count as
+stale). K_i = 0 is the open-loop baseline. The other fingers hold the pose they had at start-up
+(gravity + PD, `others_kp`/`others_kd`). The controller's watchdog ramps the force terms to a
+position hold when the estimate goes stale and the whole torque to zero when the joint stream
+does; every tick is published as tacforce_msgs/ControllerState on /force_controller/state.
+`control` = off (calibration sessions) only publishes joint states and never commands torque.
+On shutdown the driver stops the stream, sends zero torque and switches the servos off.
+"""
+from __future__ import annotations
+
+import sys
+from dataclasses import fields
+
+import can
+import numpy as np
+from geometry_msgs.msg import Vector3Stamped
+from sensor_msgs.msg import JointState
+from tacforce_msgs.msg import ControllerState, ForceEstimateArray
+
+from tacforce_ros.bagio import TOPIC_JOINTS
+from tacforce_ros.control.force_controller import (ControllerConfigError, ForceController,
+                                                   ForceControllerConfig)
+from tacforce_ros.devices.allegro import (N_JOINTS, AllegroConfig, AllegroError, AllegroV4Driver,
+                                          JointSample)
+from tacforce_ros.hand.description import HandConfigError, load_hand
+from tacforce_ros.hand.kinematics import HandKinematics
+from tacforce_ros.nodes.common import (ParameterError, ParamSpec, TacforceNode, publisher_qos,
+                                       run_node, subscriber_qos)
+from tacforce_ros.nodes.link_status import STATUS_PARAMETERS, LinkStatusReporter
+from tacforce_ros.nodes.messages import stamp, stamp_ns, vector3
+
+TOPIC_DESIRED = '/force_controller/desired'
+TOPIC_STATE = '/force_controller/state'
+TOPIC_ESTIMATES = '/tactile/estimates'
+CONTROLLER_GROUP = 'force_controller'
+# The Allegro's joint stream: one FINGER_POSE cycle every 3 ms.
+MAX_CONTROL_RATE_HZ = 1000.0 / 3.0
+
+_CONTROLLER_HELP = {
+    'finger': 'finger under force control (index, middle, ring, thumb)',
+    'base_frame': 'hand base frame of the URDF',
+    'force_frame': 'frame of f_d and of the integral ({F} = ft_sensor in the paper)',
+    'estimate_frame': 'frame of the force estimate (the array frame); empty = force_frame',
+    'k_i': 'integral gains per axis (1/s); all zero = open loop',
+    'k_p': 'joint stiffness per finger joint (N m/rad)',
+    'k_d': 'joint damping per finger joint (N m s/rad)',
+    'q_d': 'finger joint target (rad), chosen so the fingertip stays in contact',
+    'torque_cap': 'largest joint torque (N m), within the firmware clamps',
+    'integral_rate_limit': '|f_d - f_hat| per axis clipped to this before integrating (N)',
+    'integral_limit': 'integral clamp per axis (N s)',
+    'estimate_timeout': 'force estimates older than this are stale (s)',
+    'joints_timeout': 'joint states older than this are stale (s)',
+    'ramp_time': 'time to ramp to the safe state once a stream is stale (s)',
+}
+
+
+def _controller_parameters() -> tuple[ParamSpec, ...]:
+    """force_controller.* parameters, defaults from ForceControllerConfig (one source)."""
+    defaults = ForceControllerConfig()
+    specs = []
+    for f in fields(ForceControllerConfig):
+        value = getattr(defaults, f.name)
+        value = [float(v) for v in value] if isinstance(value, tuple) else value
+        specs.append(ParamSpec(f'{CONTROLLER_GROUP}.{f.name}', value, _CONTROLLER_HELP[f.name]))
+    return tuple(specs)
+
+
+class JointVelocity:
+    """Finite-difference joint velocity on the caller's clock; holds the last value when two
+    samples share a time stamp (sim clock granularity)."""
+
+    def __init__(self) -> None:
+        self._q: np.ndarray | None = None
+        self._t_ns = 0
+        self.qdot = np.zeros(N_JOINTS)
+
+    def update(self, q: np.ndarray, t_ns: int) -> np.ndarray:
+        if self._q is not None and t_ns > self._t_ns:
+            self.qdot = (q - self._q) / ((t_ns - self._t_ns) * 1e-9)
+        if self._q is None or t_ns > self._t_ns:
+            self._q, self._t_ns = q, t_ns
+        return self.qdot
+
+
+class AllegroDriver(TacforceNode):
+    """Allegro V4 joint states and torque control with the fingertip force controller."""
+
+    NODE_NAME = 'allegro_driver'
+    PARAMETERS = (
+        ParamSpec('interface', 'pcan', 'python-can interface',
+                  choices=('pcan', 'socketcan', 'socketcand', 'kvaser', 'virtual')),
+        ParamSpec('channel', 'PCAN_USBBUS1', 'python-can channel (socketcand: its CAN name)'),
+        ParamSpec('host', '127.0.0.1', 'socketcand server address (interface socketcand only)'),
+        ParamSpec('port', 29536, 'socketcand server port (interface socketcand only)',
+                  range=(1, 65535)),
+        ParamSpec('bitrate', 1_000_000, 'CAN bit rate (pcan, kvaser)', range=(10_000, 1_000_000)),
+        ParamSpec('rtr_requests', True, 'ask HAND_INFO/SERIAL with RTR frames (socketcand '
+                  'carries none: false)'),
+        ParamSpec('position_period_ms', 3, 'FINGER_POSE stream period (ms)', range=(1, 100)),
+        ParamSpec('hand_config', '', 'hand description YAML; empty = the default hand'),
+        ParamSpec('control', 'force', 'force: run the force controller; off: joint states '
+                  'only, no torque ever sent', choices=('force', 'off')),
+        ParamSpec('control_rate_hz', 100.0, 'controller loop rate (Hz, node clock), up to the '
+                  '333 Hz joint stream', range=(1.0, MAX_CONTROL_RATE_HZ)),
+        ParamSpec('estimate_array', 'index_tip', 'array whose estimate closes the loop'),
+        ParamSpec('gravity', [0.0, 0.0, -9.81], 'gravity in the hand base frame (m/s^2), from '
+                  'the mounting', range=(-20.0, 20.0)),
+        ParamSpec('others_kp', 1.0, 'stiffness holding the other fingers (N m/rad)',
+                  range=(0.0, 10.0)),
+        ParamSpec('others_kd', 0.03, 'damping of the other fingers (N m s/rad)',
+                  range=(0.0, 1.0)),
+    ) + STATUS_PARAMETERS + _controller_parameters()
+
+    def __init__(self) -> None:
+        super().__init__()
+        p = self.params
+        try:
+            self.hand = load_hand(p['hand_config'] or None)
+            self.kin = HandKinematics.for_hand(self.hand, gravity=np.asarray(p['gravity']))
+        except (HandConfigError, OSError, ValueError) as exc:
+            raise ParameterError(f'hand_config/gravity: {exc}') from None
+        self.controller: ForceController | None = None
+        if p['control'] == 'force':
+            self.controller = self._make_controller()
+        self.joint_publisher = self.create_publisher(JointState, TOPIC_JOINTS,
+                                                     publisher_qos(TOPIC_JOINTS))
+        self.velocity = JointVelocity()
+        self._joints: tuple[np.ndarray, np.ndarray, int] | None = None   # q, qdot, node ns
+        self._q_hold: np.ndarray | None = None
+        self._tau = np.zeros(N_JOINTS)
+        self._desired = np.zeros(3)
+        self._estimate: tuple[np.ndarray, int] | None = None     # f_hat, stamp ns
+        self.refused_commands = 0
+        try:
+            self.driver = AllegroV4Driver(self._driver_config())
+        except (AllegroError, can.CanError, OSError, ValueError) as exc:
+            raise ParameterError(f'interface/channel/host/port: hand not reachable: {exc}'
+                                 ) from None
+        self.driver.add_callback(self._on_joints)
+        self.status = LinkStatusReporter(self, self.driver)
+        if self.controller is not None:
+            self.create_subscription(Vector3Stamped, TOPIC_DESIRED, self._on_desired,
+                                     subscriber_qos(TOPIC_DESIRED))
+            self.create_subscription(ForceEstimateArray, TOPIC_ESTIMATES, self._on_estimates,
+                                     subscriber_qos(TOPIC_ESTIMATES))
+            self.state_publisher = self.create_publisher(ControllerState, TOPIC_STATE,
+                                                         publisher_qos(TOPIC_STATE))
+            self.create_timer(1.0 / p['control_rate_hz'], self._control)
+        self.driver.start()
+        info = self.driver.hand_info
+        self.get_logger().info(
+            f'Allegro {self.driver.serial} ({info.side}, fw 0x{info.firmware_version:04x}) on '
+            f'{p["interface"]}:{p["channel"]}; control '
+            + (f'force on {self.controller.config.finger} at {p["control_rate_hz"]:g} Hz, '
+               f'{"open loop" if self.controller.open_loop else "closed loop"} with '
+               f'{p["estimate_array"]}' if self.controller else 'off (joint states only)'))
+
+    def _make_controller(self) -> ForceController:
+        group = {name.split('.', 1)[1]: value for name, value in self.params.items()
+                 if name.startswith(CONTROLLER_GROUP + '.')}
+        try:
+            config = ForceControllerConfig.from_mapping(group)
+        except ControllerConfigError as exc:
+            raise ParameterError(f'{CONTROLLER_GROUP}.{exc}') from None
+        array = self.params['estimate_array']
+        if array not in {a.name for a in self.hand.arrays}:
+            raise ParameterError(f'estimate_array: {array!r} is not an array of the hand')
+        expected = self.hand.array(array).frame_id
+        if config.estimate_frame != expected:
+            raise ParameterError(f'{CONTROLLER_GROUP}.estimate_frame: {config.estimate_frame!r}'
+                                 f' but the estimates of {array} are in {expected!r}')
+        for name in ('base_frame', 'force_frame'):
+            if not self.kin.has_frame(getattr(config, name)):
+                raise ParameterError(f'{CONTROLLER_GROUP}.{name}: {getattr(config, name)!r} is '
+                                     'not a frame of the URDF')
+        return ForceController(config, self.kin)
+
+    def _driver_config(self) -> AllegroConfig:
+        p = self.params
+        if p['interface'] == 'socketcand':
+            bus = {'host': p['host'], 'port': p['port'], 'tcp_tune': True}
+        elif p['interface'] in ('pcan', 'kvaser'):
+            bus = {'bitrate': p['bitrate']}
+        else:
+            bus = {}
+        return AllegroConfig(interface=p['interface'], channel=p['channel'], bus_kwargs=bus,
+                             position_period_ms=p['position_period_ms'],
+                             rtr_requests=p['rtr_requests'])
+
+    # --- inputs (joint callback runs in the driver's thread) --------------------------------
+
+    def _on_joints(self, sample: JointSample) -> None:
+        now = self.now_ns()
+        q = sample.positions
+        qdot = self.velocity.update(q, now).copy()
+        if self._q_hold is None:
+            self._q_hold = q.copy()
+        self._joints = (q, qdot, now)
+        msg = JointState(name=self.kin.joint_names, position=q.tolist(),
+                         velocity=qdot.tolist(), effort=self._tau.tolist())
+        msg.header.stamp = stamp(now)
+        self.joint_publisher.publish(msg)
+
+    def _on_desired(self, msg: Vector3Stamped) -> None:
+        frame = self.controller.config.force_frame
+        if msg.header.frame_id not in ('', frame):
+            self.refused_commands += 1
+            self.get_logger().warn(f'desired force in {msg.header.frame_id!r} refused: the '
+                                   f'controller takes {frame!r} ({self.refused_commands} so far)',
+                                   throttle_duration_sec=5.0)
+            return
+        desired = np.array([msg.vector.x, msg.vector.y, msg.vector.z])
+        if np.all(np.isfinite(desired)):
+            self._desired = desired
+
+    def _on_estimates(self, msg: ForceEstimateArray) -> None:
+        item = next((e for e in msg.estimates if e.name == self.params['estimate_array']), None)
+        if item is None or not item.valid:
+            self._estimate = None          # invalid or stale: the watchdog takes over
+            return
+        self._estimate = (np.array([item.force.x, item.force.y, item.force.z]),
+                          stamp_ns(item.header.stamp))
+
+    # --- control tick ------------------------------------------------------------------------
+
+    def _control(self) -> None:
+        if self.driver.fatal_error is not None:
+            raise RuntimeError(f'Allegro link failed: {self.driver.fatal_error!r}')
+        if self._joints is None:
+            return                          # nothing to act on yet; no torque was ever sent
+        now = self.now_ns()
+        q, qdot, q_ns = self._joints
+        estimate = self._estimate
+        f_hat, f_age = ((estimate[0], (now - estimate[1]) * 1e-9) if estimate is not None
+                        else (np.full(3, np.nan), float('inf')))
+        tau_finger, state = self.controller.update(now * 1e-9, q, qdot, f_hat, f_age,
+                                                   (now - q_ns) * 1e-9, self._desired)
+        tau = state.hold_gain * self._hold_others(q, qdot)
+        tau[self.controller.joints] = tau_finger
+        self.driver.set_torques(tau)
+        self._tau = tau
+        self.state_publisher.publish(self._state_message(now, state, q, qdot))
+
+    def _hold_others(self, q: np.ndarray, qdot: np.ndarray) -> np.ndarray:
+        p = self.params
+        return (self.kin.gravity_torques(q) - p['others_kd'] * qdot
+                - p['others_kp'] * (q - self._q_hold))
+
+    def _state_message(self, now: int, state, q: np.ndarray, qdot: np.ndarray
+                       ) -> ControllerState:
+        joints = self.controller.joints
+        msg = ControllerState(finger=self.controller.config.finger, mode=state.mode,
+                              desired_force=vector3(state.desired_force),
+                              estimated_force=vector3(state.estimated_force),
+                              integral_error=vector3(state.integral_error),
+                              q=q[joints].tolist(), qdot=qdot[joints].tolist(),
+                              tau_cmd=state.tau_cmd.tolist(),
+                              saturation_scale=float(state.saturation_scale),
+                              estimate_fresh=state.estimate_fresh,
+                              joints_fresh=state.joints_fresh)
+        msg.header.stamp = stamp(now)
+        msg.header.frame_id = self.controller.config.force_frame
+        return msg
+
+    def on_shutdown(self) -> None:
+        self.driver.close()          # stream off, zero torque, servos off
+        self.status.report()
+
+
+def main(args: list[str] | None = None) -> None:
+    sys.exit(run_node(AllegroDriver, args))
+
+
+if __name__ == '__main__':
+    main()

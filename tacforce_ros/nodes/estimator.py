@@ -1,0 +1,196 @@
+"""estimator: /tactile/raw -> calibrated 3-D contact forces of every array with a model.
+
+One batched RuntimeEstimator pass per tactile frame publishes
+* /tactile/<array>/wrench (geometry_msgs/WrenchStamped, frame = the array frame {S0}, stamp =
+  the tactile frame's) for each valid estimate: the topics users subscribe to;
+* /tactile/estimates (tacforce_msgs/ForceEstimateArray) with validity, status and OOD score;
+* /tactile/markers (visualization_msgs/MarkerArray, force arrows) at `marker_rate_hz`.
+
+Models come from `model_config` (a YAML listing one model file per array, see
+nodes/model_set.py); arrays without a model are skipped, and said so at start-up.
+A timer on the node clock (sim time under use_sim_time) checks the input: after
+`stale_timeout` without a frame it publishes estimates flagged invalid (status "stale") at
+`stale_check_rate_hz`, so consumers and the force controller go safe; the per-array wrench
+topics stay silent meanwhile (a WrenchStamped cannot say "invalid").
+~/tare (std_srvs/Trigger) re-estimates the taxel offsets from the next `tare_frames` frames
+(nothing may touch the arrays meanwhile).
+"""
+from __future__ import annotations
+
+import sys
+
+import numpy as np
+from geometry_msgs.msg import Point, WrenchStamped
+from std_msgs.msg import Header
+from std_srvs.srv import Trigger
+from tacforce_msgs.msg import ForceEstimate, ForceEstimateArray, TactileHand
+from visualization_msgs.msg import Marker, MarkerArray
+
+from tacforce_ros.bagio import TOPIC_TACTILE
+from tacforce_ros.hand.description import HandConfigError, load_hand
+from tacforce_ros.nodes.common import (RELIABLE_QOS, ParameterError, ParamSpec, TacforceNode,
+                                       publisher_qos, run_node, subscriber_qos)
+from tacforce_ros.nodes.messages import flat_counts, stamp, stamp_ns, vector3, wrench_stamped
+from tacforce_ros.nodes.model_set import ModelConfigError, load_model_set
+from tacforce_ros.paths import config_dir
+
+TOPIC_ESTIMATES = '/tactile/estimates'
+TOPIC_MARKERS = '/tactile/markers'
+STATUS_STALE = 'stale'
+
+
+def wrench_topic(array: str) -> str:
+    return f'/tactile/{array}/wrench'
+
+
+class Estimator(TacforceNode):
+    """Per-array contact forces from whole-hand tactile frames, with staleness and tare."""
+
+    NODE_NAME = 'estimator'
+    PARAMETERS = (
+        ParamSpec('model_config', '', 'YAML listing one model file per array; empty = '
+                  'config/models/default.yaml'),
+        ParamSpec('hand_config', '', 'hand description YAML; empty = the default hand'),
+        ParamSpec('stale_timeout', 0.025, 'input counted stale after this long without a '
+                  'tactile frame (s, node clock)', range=(0.001, 10.0)),
+        ParamSpec('stale_check_rate_hz', 200.0, 'staleness checks (and invalid estimates while '
+                  'stale) per second', range=(1.0, 1000.0)),
+        ParamSpec('marker_rate_hz', 10.0, 'force-arrow MarkerArray rate; 0 = off',
+                  range=(0.0, 100.0)),
+        ParamSpec('marker_scale', 0.02, 'arrow length per newton (m/N)', range=(1e-5, 1.0)),
+        ParamSpec('tare_frames', 50, 'frames averaged by ~/tare', range=(1, 10000)),
+    )
+
+    def __init__(self) -> None:
+        super().__init__()
+        p = self.params
+        try:
+            self.hand = load_hand(p['hand_config'] or None)
+            self.models = load_model_set(p['model_config']
+                                         or config_dir() / 'models' / 'default.yaml', self.hand)
+        except (HandConfigError, OSError) as exc:
+            raise ParameterError(f'hand_config: {exc}') from None
+        except ModelConfigError as exc:
+            raise ParameterError(f'model_config: {exc}') from None
+        self.names = tuple(a.name for a in self.models.arrays)
+        self.frames = tuple(a.frame_id for a in self.models.arrays)
+        self.wrench_publishers = [
+            self.create_publisher(WrenchStamped, wrench_topic(n), publisher_qos(wrench_topic(n)))
+            for n in self.names]
+        self.estimates_publisher = self.create_publisher(
+            ForceEstimateArray, TOPIC_ESTIMATES, publisher_qos(TOPIC_ESTIMATES))
+        self.create_subscription(TactileHand, TOPIC_TACTILE, self._on_frame,
+                                 subscriber_qos(TOPIC_TACTILE))
+        self.create_service(Trigger, '~/tare', self._on_tare)
+        self.create_timer(1.0 / p['stale_check_rate_hz'], self._check_stale)
+        if p['marker_rate_hz'] > 0:
+            self.marker_publisher = self.create_publisher(MarkerArray, TOPIC_MARKERS,
+                                                          RELIABLE_QOS)
+            self.create_timer(1.0 / p['marker_rate_hz'], self._publish_markers)
+        self._last_frame_ns: int | None = None     # node clock at the last frame's arrival
+        self._last_force = np.zeros((len(self.names), 3))
+        self._last_stamp = stamp(0)
+        self._tare_buffer: list[np.ndarray] | None = None
+        self.rejected = 0
+        self.get_logger().info(
+            f'{len(self.names)} arrays with models ('
+            + ', '.join(f'{n}:{k}' for n, k in zip(self.names, self.models.kinds)) + ')'
+            + (f'; no model, skipped: {", ".join(self.models.skipped)}'
+               if self.models.skipped else ''))
+
+    # --- per frame -------------------------------------------------------------------------
+
+    def _on_frame(self, msg: TactileHand) -> None:
+        self._last_frame_ns = self.now_ns()
+        try:
+            counts = flat_counts(msg, self.hand)
+        except ValueError as exc:
+            self.rejected += 1      # counted and dropped; the stream goes on
+            self.get_logger().warn(f'tactile frame refused ({self.rejected} so far): {exc}',
+                                   throttle_duration_sec=5.0)
+            return
+        if self._tare_buffer is not None:
+            self._collect_tare(counts)
+        estimate = self.models.estimate(counts)
+        header_stamp = msg.header.stamp
+        array_msg = ForceEstimateArray()
+        array_msg.header.stamp = header_stamp
+        array_msg.header.frame_id = msg.header.frame_id
+        for k, (name, frame) in enumerate(zip(self.names, self.frames)):
+            force = estimate.force[k]
+            item = ForceEstimate(name=name, model_kind=self.models.kinds[k],
+                                 force=vector3(force), valid=bool(estimate.valid[k]),
+                                 status=estimate.status[k],
+                                 ood_score=float(estimate.ood_score[k]))
+            item.header.stamp, item.header.frame_id = header_stamp, frame
+            array_msg.estimates.append(item)
+            if item.valid:
+                self.wrench_publishers[k].publish(
+                    wrench_stamped(stamp_ns(header_stamp), frame, force))
+        self.estimates_publisher.publish(array_msg)
+        self._last_force = estimate.force
+        self._last_stamp = header_stamp
+
+    # --- staleness -------------------------------------------------------------------------
+
+    def _check_stale(self) -> None:
+        now = self.now_ns()
+        if (self._last_frame_ns is not None
+                and now - self._last_frame_ns <= self.params['stale_timeout'] * 1e9):
+            return
+        msg = ForceEstimateArray()
+        msg.header.stamp = stamp(now)
+        msg.header.frame_id = self.hand.base_frame
+        for name, frame, kind in zip(self.names, self.frames, self.models.kinds):
+            item = ForceEstimate(name=name, model_kind=kind, valid=False, status=STATUS_STALE,
+                                 ood_score=float('inf'))
+            item.header = Header(stamp=msg.header.stamp, frame_id=frame)
+            msg.estimates.append(item)
+        self.estimates_publisher.publish(msg)
+
+    # --- tare ------------------------------------------------------------------------------
+
+    def _on_tare(self, request: Trigger.Request, response: Trigger.Response
+                 ) -> Trigger.Response:
+        self._tare_buffer = []
+        response.success = True
+        response.message = (f'taring {len(self.names)} arrays from the next '
+                            f'{self.params["tare_frames"]} frames; keep them untouched')
+        self.get_logger().info(response.message)
+        return response
+
+    def _collect_tare(self, counts: np.ndarray) -> None:
+        self._tare_buffer.append(counts)
+        if len(self._tare_buffer) < self.params['tare_frames']:
+            return
+        frames, self._tare_buffer = np.stack(self._tare_buffer), None
+        try:
+            self.models.set_tare(frames)
+        except ValueError as exc:
+            self.get_logger().error(f'tare refused, offsets unchanged: {exc}')
+            return
+        self.get_logger().info(f'tare done from {len(frames)} frames')
+
+    # --- markers ---------------------------------------------------------------------------
+
+    def _publish_markers(self) -> None:
+        out = MarkerArray()
+        scale = self.params['marker_scale']
+        for k, frame in enumerate(self.frames):
+            marker = Marker(ns='tactile_force', id=k, type=Marker.ARROW, action=Marker.ADD)
+            marker.header.stamp, marker.header.frame_id = self._last_stamp, frame
+            tip = self._last_force[k] * scale
+            marker.points = [Point(), Point(x=float(tip[0]), y=float(tip[1]), z=float(tip[2]))]
+            marker.scale.x, marker.scale.y, marker.scale.z = 0.001, 0.002, 0.003  # shaft, head (m)
+            marker.color.r, marker.color.g, marker.color.a = 1.0, 0.3, 1.0
+            marker.pose.orientation.w = 1.0
+            out.markers.append(marker)
+        self.marker_publisher.publish(out)
+
+
+def main(args: list[str] | None = None) -> None:
+    sys.exit(run_node(Estimator, args))
+
+
+if __name__ == '__main__':
+    main()

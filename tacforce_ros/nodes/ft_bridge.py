@@ -1,0 +1,110 @@
+"""ft_bridge: ATI Net F/T (RDT over UDP) -> /ft_sensor/wrench (geometry_msgs/WrenchStamped).
+
+Each RDT record becomes one message in the sensor frame {F} (`frame_id`), N and N m, stamped on
+arrival with the node clock (sim time under use_sim_time). Out-of-order and malformed records are
+counted and dropped by the client. ~/bias (std_srvs/Trigger) zeroes the reading on the host with
+the mean of the last `bias_window` records (the paper biases with nothing on the plate).
+"""
+from __future__ import annotations
+
+import sys
+
+from geometry_msgs.msg import WrenchStamped
+from rclpy.clock import Clock, ClockType
+from std_srvs.srv import Trigger
+
+from tacforce_ros.bagio import TOPIC_WRENCH
+from tacforce_ros.devices.netft import (FORCE_UNITS_SI, TORQUE_UNITS_SI, NetFtClient, NetFtConfig,
+                                        WrenchSample)
+from tacforce_ros.nodes.common import (ParameterError, ParamSpec, TacforceNode, publisher_qos,
+                                       run_node)
+from tacforce_ros.nodes.link_status import STATUS_PARAMETERS, LinkStatusReporter
+from tacforce_ros.nodes.messages import wrench_stamped
+
+
+class FtBridge(TacforceNode):
+    """Publishes the Net F/T wrench in the sensor frame; ~/bias zeroes it."""
+
+    NODE_NAME = 'ft_bridge'
+    PARAMETERS = (
+        ParamSpec('host', '192.168.1.1', 'Net F/T box IP address (the box\'s default)'),
+        ParamSpec('port', 49152, 'RDT UDP port', range=(1, 65535)),
+        ParamSpec('frame_id', 'ft_sensor', 'sensor frame {F} (URDF)'),
+        ParamSpec('counts_per_force', 1_000_000.0, 'box setting cfgcpf', range=(1e-6, 1e12)),
+        ParamSpec('counts_per_torque', 1_000_000.0, 'box setting cfgcpt', range=(1e-6, 1e12)),
+        ParamSpec('force_unit', 'N', 'box setting scfgfu', choices=tuple(FORCE_UNITS_SI)),
+        ParamSpec('torque_unit', 'N-m', 'box setting scfgtu', choices=tuple(TORQUE_UNITS_SI)),
+        ParamSpec('bias_window', 100, 'records averaged by ~/bias', range=(1, 100000)),
+        ParamSpec('stale_after', 0.05, 'link counted stale after this long without records (s)',
+                  range=(0.001, 10.0)),
+        ParamSpec('restart_after', 1.0, 'ask the box for a new stream after this long without '
+                  'records (s, wall time)', range=(0.1, 60.0)),
+    ) + STATUS_PARAMETERS
+
+    def __init__(self) -> None:
+        super().__init__()
+        p = self.params
+        self.publisher = self.create_publisher(WrenchStamped, TOPIC_WRENCH,
+                                               publisher_qos(TOPIC_WRENCH))
+        self.config = NetFtConfig(
+            host=p['host'], port=p['port'], counts_per_force=p['counts_per_force'],
+            counts_per_torque=p['counts_per_torque'], force_unit=p['force_unit'],
+            torque_unit=p['torque_unit'], stale_after=p['stale_after'],
+            bias_window=p['bias_window'])
+        self.client = self._connect()
+        self.status = LinkStatusReporter(self, self.client)
+        self.create_service(Trigger, '~/bias', self._on_bias)
+        # RDT is request-driven: a box that rebooted (or came up after us) streams only when
+        # asked again, so a silent link is re-requested (wall time: a device matter).
+        self.create_timer(p['restart_after'], self._restart_if_silent,
+                          clock=Clock(clock_type=ClockType.STEADY_TIME))
+        self.get_logger().info(f'reading udp {p["host"]}:{p["port"]} -> {TOPIC_WRENCH} '
+                               f'in {p["frame_id"]}')
+
+    def _connect(self) -> NetFtClient:
+        try:
+            client = NetFtClient(self.config)
+        except OSError as exc:
+            raise ParameterError(f'host/port: cannot reach {self.config.host}:'
+                                 f'{self.config.port}: {exc}') from None
+        client.add_callback(self._publish)
+        client.start()
+        return client
+
+    def _restart_if_silent(self) -> None:
+        if self.client.diagnostics.age() <= self.params['restart_after']:
+            return
+        self.get_logger().info(f'no records for {self.params["restart_after"]:g} s; asking '
+                               'the box for a new stream', throttle_duration_sec=10.0)
+        self.client.close()
+        self.client = self._connect()
+        self.status.driver = self.client
+
+    def _publish(self, sample: WrenchSample) -> None:
+        w = sample.wrench
+        self.publisher.publish(wrench_stamped(self.now_ns(), self.params['frame_id'],
+                                              w[:3], w[3:]))
+
+    def _on_bias(self, request: Trigger.Request, response: Trigger.Response
+                 ) -> Trigger.Response:
+        try:
+            bias = self.client.set_host_bias()
+        except RuntimeError as exc:
+            response.success, response.message = False, str(exc)
+        else:
+            response.success = True
+            response.message = 'bias [N, N m]: ' + ' '.join(f'{v:+.4f}' for v in bias)
+        self.get_logger().info(f'bias: {response.message}')
+        return response
+
+    def on_shutdown(self) -> None:
+        self.client.close()
+        self.status.report()
+
+
+def main(args: list[str] | None = None) -> None:
+    sys.exit(run_node(FtBridge, args))
+
+
+if __name__ == '__main__':
+    main()

@@ -1,0 +1,82 @@
+"""The estimator's models: a YAML listing one model file per array (mixed kinds allowed), loaded
+into one RuntimeEstimator over just the arrays that have a model.
+
+    models:                      # paths relative to this file (or absolute)
+      index_tip: index_tip_M3-lambda.npz
+      index_middle: index_middle_M4.npz
+
+RuntimeEstimator needs one model per array of the hand it is given, so arrays without a model
+are left out of a sub-hand whose flat taxel indices are renumbered; `estimate()` gathers their
+taxels from the full frame first. Pure numpy (no rclpy): the node only wires it.
+"""
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from tacforce_ros.estimation.model_io import ModelFileError, load_model
+from tacforce_ros.estimation.runtime import HandEstimate, RuntimeEstimator
+from tacforce_ros.hand.description import HandDescription
+
+
+class ModelConfigError(ValueError):
+    """A model list that cannot be used; the message names the file and the entry."""
+
+
+@dataclass
+class ModelSet:
+    estimator: RuntimeEstimator
+    arrays: tuple                  # the modelled TaxelArrays, hand order (original indices)
+    skipped: tuple[str, ...]       # hand arrays without a model
+    taxels: np.ndarray             # flat indices (of the full frame) the sub-hand reads
+    kinds: tuple[str, ...]
+
+    def estimate(self, counts: np.ndarray) -> HandEstimate:
+        """Full-hand flat counts (n_taxels, 3) -> estimates of the modelled arrays."""
+        counts = np.asarray(counts)
+        if counts.ndim != 2 or counts.shape[0] <= int(self.taxels[-1]):
+            return self.estimator.estimate(counts)     # its own message names the shape
+        return self.estimator.estimate(counts[self.taxels])
+
+    def set_tare(self, frames: np.ndarray) -> None:
+        """Tare every modelled array from full-hand no-contact frames (T, n_taxels, 3)."""
+        self.estimator.set_tare(np.asarray(frames)[:, self.taxels])
+
+
+def load_model_set(path: str | Path, hand: HandDescription) -> ModelSet:
+    path = Path(path)
+    try:
+        doc = yaml.safe_load(path.read_text())
+    except (OSError, yaml.YAMLError) as exc:
+        raise ModelConfigError(f'{path}: {exc}') from None
+    models = (doc or {}).get('models') if isinstance(doc, dict) else None
+    if not isinstance(models, dict) or not models:
+        raise ModelConfigError(f'{path}: needs a non-empty "models" mapping array -> file')
+    names = {a.name for a in hand.arrays}
+    unknown = sorted(set(models) - names)
+    if unknown:
+        raise ModelConfigError(f'{path}: unknown arrays {unknown}; the hand has {sorted(names)}')
+    modelled = tuple(a for a in hand.arrays if a.name in models)
+    bundles = []
+    for array in modelled:
+        file = Path(str(models[array.name]))
+        file = file if file.is_absolute() else path.parent / file
+        try:
+            bundles.append(load_model(file, array))
+        except (ModelFileError, OSError) as exc:
+            raise ModelConfigError(f'{path}: models.{array.name}: {exc}') from None
+    taxels = np.sort(np.concatenate([a.flat_indices for a in modelled]))
+    sub_arrays = tuple(dataclasses.replace(a, flat_indices=np.searchsorted(taxels, a.flat_indices))
+                       for a in modelled)
+    sub_hand = dataclasses.replace(hand, arrays=sub_arrays)
+    try:
+        estimator = RuntimeEstimator(sub_hand, bundles)
+    except ValueError as exc:
+        raise ModelConfigError(f'{path}: {exc}') from None
+    return ModelSet(estimator=estimator, arrays=modelled,
+                    skipped=tuple(a.name for a in hand.arrays if a.name not in models),
+                    taxels=taxels, kinds=estimator.kinds)

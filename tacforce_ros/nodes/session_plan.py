@@ -1,0 +1,137 @@
+"""The node graph of each session mode: the one source of truth that launch/*.launch.py and the
+`session` tool both read, so both start the same executables with the same parameter files and
+the same argument-derived overrides.
+
+No rclpy here: the plan is data (executable, parameter files under config/params/, overrides).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from tacforce_ros.paths import config_dir
+
+MODES = ('calibration', 'closed_loop')
+HAND_SIDES = ('right', 'left')
+
+# Default device ports of the hardware; in simulation sim_world serves the emulators on these
+# (or on the ports a test chose) on 127.0.0.1.
+XELA_PORT = 5000        # xela_server's default WebSocket port
+NETFT_PORT = 49152      # ATI RDT UDP port
+CAN_PORT = 29536        # socketcand's default TCP port
+
+
+class PlanError(ValueError):
+    """Session arguments that cannot make a node graph; the message says which and why."""
+
+
+@dataclass(frozen=True)
+class NodeLaunch:
+    """One node: its installed executable, parameter files (in order) and overrides."""
+
+    executable: str
+    param_files: tuple[Path, ...]
+    overrides: dict[str, Any] = field(default_factory=dict)
+    ready_port: int | None = None     # a TCP port on 127.0.0.1 that accepts once it is ready
+
+    def ros_args(self) -> list[str]:
+        """Command-line arguments giving the node exactly these parameters."""
+        args = ['--ros-args']
+        for path in self.param_files:
+            args += ['--params-file', str(path)]
+        for name, value in self.overrides.items():
+            args += ['-p', f'{name}:={_ros_literal(value)}']
+        return args
+
+
+@dataclass(frozen=True)
+class SessionArgs:
+    """What a user chooses for a session (the launch files' arguments)."""
+
+    mode: str
+    sim: bool = True
+    hand_side: str = 'right'
+    array: str = 'index_tip'
+    plate: str = 'spherical'           # push-plate (calibration) or object (closed loop)
+    scene: str = ''                    # empty: derived from mode, array and plate
+    model_config: str = ''             # estimator models YAML; empty: the params file's
+    out: str = 'bags'                  # bag folder of the recorder
+    real_time_factor: float = 1.0
+    xela_port: int = XELA_PORT
+    netft_port: int = NETFT_PORT
+    can_port: int = CAN_PORT
+
+    def scene_name(self) -> str:
+        if self.scene:
+            return self.scene
+        if self.mode == 'calibration':
+            return f'calibration_{self.array}_{self.plate}'
+        return f'closed_loop_{self.plate}'
+
+
+def params_file(name: str) -> Path:
+    return config_dir() / 'params' / f'{name}.yaml'
+
+
+def hand_config(side: str) -> Path:
+    return config_dir() / 'hand' / f'allegro_{side}_uskin.yaml'
+
+
+def _ros_literal(value: Any) -> str:
+    if isinstance(value, bool):
+        return 'true' if value else 'false'
+    if isinstance(value, str):
+        # Quoted: ROS reads -p values as YAML, where off, N, yes ... would become booleans.
+        return "'" + value.replace("'", "''") + "'"
+    return repr(value)
+
+
+def plan(args: SessionArgs) -> list[NodeLaunch]:
+    """The nodes of one session, in start order (the clock source first)."""
+    if args.mode not in MODES:
+        raise PlanError(f'mode: {args.mode!r} is not one of {list(MODES)}')
+    if args.hand_side not in HAND_SIDES:
+        raise PlanError(f'hand_side: {args.hand_side!r} is not one of {list(HAND_SIDES)}')
+    hand = hand_config(args.hand_side)
+    if not hand.is_file():
+        raise PlanError(f'hand_side {args.hand_side!r}: no hand description {hand}')
+    common: dict[str, Any] = {'use_sim_time': True} if args.sim else {}
+    hand_param = {'hand_config': str(hand)}
+    nodes: list[NodeLaunch] = []
+    if args.sim:
+        nodes.append(NodeLaunch('sim_world', (params_file('sim_world'),), {
+            'scene': args.scene_name(), 'real_time_factor': float(args.real_time_factor),
+            'xela_port': args.xela_port, 'netft_port': args.netft_port,
+            'can_port': args.can_port, **hand_param},
+            ready_port=args.can_port))    # the emulators bind before the CAN one
+    sim_devices = ({'xela': {'url': f'ws://127.0.0.1:{args.xela_port}'},
+                    'netft': {'host': '127.0.0.1', 'port': args.netft_port},
+                    'allegro': {'interface': 'socketcand', 'channel': 'can0',
+                                'host': '127.0.0.1', 'port': args.can_port,
+                                'rtr_requests': False}}
+                   if args.sim else {'xela': {}, 'netft': {}, 'allegro': {}})
+    nodes.append(NodeLaunch('xela_driver', (params_file('xela_driver'),),
+                            {**common, **hand_param, **sim_devices['xela']}))
+    nodes.append(NodeLaunch('ft_bridge', (params_file('ft_bridge'),),
+                            {**common, **sim_devices['netft']}))
+    if args.mode == 'calibration':
+        # The operator moves the hand: joint states only, no torque commands.
+        nodes.append(NodeLaunch('allegro_driver', (params_file('allegro_driver'),),
+                                {**common, **hand_param, **sim_devices['allegro'],
+                                 'control': 'off'}))
+    else:
+        nodes.append(NodeLaunch('estimator', (params_file('estimator'),), {
+            **common, **hand_param,
+            **({'model_config': args.model_config} if args.model_config else {})}))
+        nodes.append(NodeLaunch('allegro_driver',
+                                (params_file('allegro_driver'), params_file('force_controller')),
+                                {**common, **hand_param, **sim_devices['allegro'],
+                                 'control': 'force', 'estimate_array': args.array}))
+        nodes.append(NodeLaunch('command_player', (params_file('command_player'),),
+                                dict(common)))
+    # Both modes keep the raw streams (closed loop: the F/T reading is the reference).
+    nodes.append(NodeLaunch('sync_recorder', (params_file('sync_recorder'),), {
+        **common, **hand_param, 'output_dir': args.out, 'array': args.array,
+        'plate': args.plate, 'source': 'sim' if args.sim else 'lab', 'autostart': True}))
+    return nodes

@@ -1,0 +1,160 @@
+"""session: run a calibration or closed-loop session without `ros2 launch`.
+
+Starts the same executables with the same parameter files and argument-derived overrides as
+launch/<mode>.launch.py (both read tacforce_ros.nodes.session_plan), waits for Ctrl-C or
+`--duration` seconds (wall time) or for a node to exit, then stops every node cleanly: SIGINT,
+wait `--grace` s, then kill. Prints where the bag is. Exit code 0 when every node stopped
+cleanly, 1 otherwise (the log of each node is under <out>/logs/).
+
+    session calibration --scene calibration_index_tip_flat --array index_tip --plate flat \\
+        --out bags --duration 120
+    session closed_loop --scene closed_loop_spherical --model config/models/default.yaml
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+from tacforce_ros.nodes.session_plan import (CAN_PORT, MODES, NETFT_PORT, XELA_PORT, NodeLaunch,
+                                             PlanError, SessionArgs, plan)
+
+POLL_S = 0.1
+EXECUTABLES = Path(sys.prefix) / 'lib' / 'tacforce_ros'
+
+
+def executable(name: str) -> Path:
+    """The installed executable (ament layout lib/<package>/<name>) of a node."""
+    path = EXECUTABLES / name
+    if not path.is_file():
+        raise FileNotFoundError(f'{path} is not installed; run ./run.sh setup')
+    return path
+
+
+def wait_for_port(port: int, proc: subprocess.Popen, timeout: float) -> bool:
+    """True once 127.0.0.1:port accepts a TCP connection; False on timeout or if proc exits."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline and proc.poll() is None:
+        try:
+            with socket.create_connection(('127.0.0.1', port), timeout=POLL_S):
+                return True
+        except OSError:
+            time.sleep(POLL_S)
+    return False
+
+
+def start_nodes(nodes: list[NodeLaunch], log_dir: Path, ready_timeout: float
+                ) -> list[tuple[str, subprocess.Popen]]:
+    """Start the nodes in plan order; a node with a ready_port is waited for before the next
+    (the drivers expect their devices to answer at start-up)."""
+    log_dir.mkdir(parents=True, exist_ok=True)
+    procs = []
+    for node in nodes:
+        with open(log_dir / f'{node.executable}.log', 'w') as log:   # the child keeps its copy
+            proc = subprocess.Popen([str(executable(node.executable)), *node.ros_args()],
+                                    stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
+        procs.append((node.executable, proc))
+        if node.ready_port is not None and not wait_for_port(node.ready_port, proc,
+                                                             ready_timeout):
+            print(f'session: {node.executable} not ready on port {node.ready_port} within '
+                  f'{ready_timeout:g} s', file=sys.stderr)
+            break
+    return procs
+
+
+def stop_nodes(procs: list[tuple[str, subprocess.Popen]], grace: float) -> dict[str, int]:
+    """SIGINT to every node (reverse start order: the recorder and controllers first, the clock
+    source last), wait up to `grace` s in total, then kill what is left. Returns exit codes
+    (negative: killed by that signal)."""
+    for _, proc in reversed(procs):
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGINT)
+    deadline = time.monotonic() + grace
+    for name, proc in procs:
+        try:
+            proc.wait(timeout=max(0.0, deadline - time.monotonic()))
+        except subprocess.TimeoutExpired:
+            print(f'session: {name} did not stop within {grace:g} s; killing it',
+                  file=sys.stderr)
+            proc.kill()
+            proc.wait(timeout=5.0)
+    return {name: proc.returncode for name, proc in procs}
+
+
+def run(args: SessionArgs, duration: float | None, grace: float) -> int:
+    try:
+        nodes = plan(args)
+    except PlanError as exc:
+        print(f'session: {exc}', file=sys.stderr)
+        return 2
+    out = Path(args.out)
+    log_dir = out / 'logs'
+    stop = {'requested': False}
+    previous = {sig: signal.signal(sig, lambda *_: stop.update(requested=True))
+                for sig in (signal.SIGINT, signal.SIGTERM)}
+    procs = start_nodes(nodes, log_dir, ready_timeout=30.0)
+    print(f'session {args.mode}: started {", ".join(name for name, _ in procs)} '
+          f'(logs in {log_dir})', flush=True)
+    started = time.monotonic()
+    exited_early = None if len(procs) == len(nodes) else 'start-up'
+    try:
+        while not stop['requested'] and exited_early is None:
+            if duration is not None and time.monotonic() - started >= duration:
+                break
+            exited_early = next((name for name, proc in procs if proc.poll() is not None), None)
+            if exited_early:
+                print(f'session: {exited_early} exited early; see {log_dir}/'
+                      f'{exited_early}.log', file=sys.stderr)
+                break
+            time.sleep(POLL_S)
+    finally:
+        codes = stop_nodes(procs, grace)
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+    bags = sorted(p for p in out.iterdir() if p.is_dir() and p.name != 'logs')
+    print(f'session {args.mode}: stopped after {time.monotonic() - started:.1f} s; exit codes '
+          + ', '.join(f'{n}={c}' for n, c in codes.items()))
+    print(f'bags in {out.resolve()}: ' + (', '.join(p.name for p in bags) or 'none'))
+    return 0 if exited_early is None and all(c == 0 for c in codes.values()) else 1
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(prog='session', description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument('mode', choices=MODES)
+    parser.add_argument('--hardware', action='store_true',
+                        help='use the real devices (default: sim_world and its emulators)')
+    parser.add_argument('--hand-side', default='right', help='hand description side')
+    parser.add_argument('--array', default='index_tip', help='array pressed / controlled')
+    parser.add_argument('--plate', default='spherical', help='push-plate or object')
+    parser.add_argument('--scene', default='', help='sim scene (default from mode/array/plate)')
+    parser.add_argument('--model', default='', help='estimator models YAML (closed_loop)')
+    parser.add_argument('--out', default='bags', help='folder for bags and node logs')
+    parser.add_argument('--real-time-factor', type=float, default=1.0,
+                        help='simulated seconds per wall second (sim only)')
+    parser.add_argument('--duration', type=float, default=None,
+                        help='stop after this many wall seconds (default: until Ctrl-C)')
+    parser.add_argument('--grace', type=float, default=10.0,
+                        help='seconds the nodes get to stop after SIGINT before being killed')
+    parser.add_argument('--ports', type=int, nargs=3, default=[XELA_PORT, NETFT_PORT, CAN_PORT],
+                        metavar=('XELA', 'NETFT', 'CAN'),
+                        help='emulator ports on 127.0.0.1 (sim only)')
+    a = parser.parse_args(argv)
+    if a.duration is not None and a.duration <= 0:
+        parser.error('--duration must be positive')
+    os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+    sys.exit(run(SessionArgs(mode=a.mode, sim=not a.hardware, hand_side=a.hand_side,
+                             array=a.array, plate=a.plate, scene=a.scene,
+                             model_config=a.model, out=a.out,
+                             real_time_factor=a.real_time_factor, xela_port=a.ports[0],
+                             netft_port=a.ports[1], can_port=a.ports[2]),
+                 a.duration, a.grace))
+
+
+if __name__ == '__main__':
+    main()

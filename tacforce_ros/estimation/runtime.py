@@ -60,10 +60,11 @@ class RuntimeEstimator:
             raise ValueError('hand arrays must partition the flat taxel indices 0..'
                              f'{self.n_taxels - 1} (each taxel in exactly one array)')
         # Standardisation happens on the flat frame (each taxel belongs to one array), then one
-        # gather builds the padded block; row n_taxels of the flat buffer stays zero (padding).
-        self._mean = np.zeros((self.n_taxels + 1, 3))
-        self._inv_std = np.zeros((self.n_taxels + 1, 3))
-        self._tare = np.zeros((self.n_taxels + 1, 3))
+        # gather builds the padded block; the flat buffer has one extra row, never written, that
+        # stays zero and feeds the padding.
+        self._mean = np.zeros((self.n_taxels, 3))
+        self._inv_std = np.zeros((self.n_taxels, 3))
+        self._tare = np.zeros((self.n_taxels, 3))
         gather = np.full((n_arrays, n_max), self.n_taxels, dtype=np.intp)
         for k, (array, bundle) in enumerate(zip(hand.arrays, self.bundles)):
             gather[k, :array.n_taxels] = array.flat_indices
@@ -80,6 +81,9 @@ class RuntimeEstimator:
         self._flat = np.zeros((self.n_taxels + 1, 3))
         self._x = np.zeros((n_arrays, n_max, 3))
         self._abs = np.zeros(self._x.size)
+        # views, made once: the frame part of the flat buffer, and both buffers raveled
+        self._frame = self._flat[:-1]
+        self._flat_1d, self._x_1d = self._flat.reshape(-1), self._x.reshape(-1)
         self._all_ok = (STATUS_OK,) * n_arrays
 
     def _compile(self) -> list[tuple[np.ndarray, int, Callable[[np.ndarray], np.ndarray]]]:
@@ -123,16 +127,16 @@ class RuntimeEstimator:
             reason = f'input has shape {counts.shape}, expected ({self.n_taxels}, 3)'
             return HandEstimate(force=np.zeros((n_arrays, 3)), valid=np.zeros(n_arrays, bool),
                                 status=(reason,) * n_arrays, ood_score=np.zeros(n_arrays))
-        flat, x = self._flat, self._x
-        flat[:-1] = counts
-        np.subtract(flat, self._centre, out=flat)
-        np.multiply(flat, self._inv_std, out=flat)
-        np.take(flat.reshape(-1), self._gather, out=x)
+        x, frame = self._x, self._frame
+        np.subtract(counts, self._centre, out=frame)    # copies and casts to float64 too
+        np.multiply(frame, self._inv_std, out=frame)
+        # mode='clip' skips per-element bounds errors (the indices are built valid): ~1 us less
+        np.take(self._flat_1d, self._gather, out=x, mode='clip')
         # NaN/Inf stay inside their own array's rows, so the OOD score doubles as the check.
-        ood = np.maximum.reduceat(np.abs(x.reshape(-1), out=self._abs), self._segments)
+        ood = np.maximum.reduceat(np.abs(self._x_1d, out=self._abs), self._segments)
         valid = np.isfinite(ood)
         status = self._all_ok
-        if not valid.all():
+        if np.count_nonzero(valid) < n_arrays:     # cheaper than valid.all() on 18 flags
             x[~valid] = 0.0
             ood[~valid] = np.inf     # no finite input: as far out of distribution as it gets
             status = tuple(STATUS_OK if ok else 'input contains NaN or Inf' for ok in valid)

@@ -27,6 +27,9 @@ from tacforce_ros.estimation.synthetic import synthetic_dataset
 from tacforce_ros.estimation.training import fit_bundle
 
 
+LABELS = ('M1', 'M2', 'M3', 'M3-lambda', 'M3-lambda-cv', 'M4', 'M5')
+
+
 def configurations(seed: int, epochs: int) -> dict[str, tuple[str, dict]]:
     """Row label -> (kind, hyper-parameters)."""
     torch_hyper = {'seed': seed, 'epochs': epochs}
@@ -123,8 +126,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--array', default='index_tip', help='array for --synthetic')
     parser.add_argument('--seconds', type=float, default=60.0,
                         help='synthetic seconds per plate (default 60)')
-    configs_all = configurations(0, 0)
-    parser.add_argument('--models', nargs='+', default=list(configs_all), choices=list(configs_all))
+    parser.add_argument('--models', nargs='+', default=list(LABELS), choices=LABELS,
+                        help='rows to run; M3-lambda-cv selects the damping by nested CV')
     parser.add_argument('--epochs', type=int, default=40, help='M4/M5 epochs (paper: 40)')
     parser.add_argument('--repeats', type=int, default=2000, help='timed calls per measurement')
     parser.add_argument('--seed', type=int, default=0)

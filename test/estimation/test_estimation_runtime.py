@@ -125,3 +125,26 @@ def test_model_set_must_match_the_hand(hand, mixed):
     _, bundles = mixed
     with pytest.raises(ValueError, match='missing'):
         RuntimeEstimator(hand, bundles[:-1])
+
+
+def test_torch_trained_kinds_mix_with_linear_ones(hand, hand_data):
+    """M4 and M5 groups (tips only for M5: a group narrower than the hand's widest array
+    for M4) run in the same pass and agree with their bundles."""
+    kinds = ['M3-lambda'] * len(hand.arrays)
+    for k, array in enumerate(hand.arrays):
+        if array.kind == 'fingertip':
+            kinds[k] = 'M5'
+        elif k % 3 == 0:
+            kinds[k] = 'M4'
+    fast = {'epochs': 2, 'batch_size': 128, 'learning_rate': 1e-2, 'seed': 0}
+    bundles = [fit_bundle(array, kind, {} if kind == 'M3-lambda' else fast, X, F, data.plates,
+                          x_offset=offset)
+               for array, kind, (X, F, offset, data) in zip(hand.arrays, kinds, hand_data)]
+    estimator = RuntimeEstimator(hand, bundles)
+    assert set(estimator.kinds) == {'M3-lambda', 'M4', 'M5'}
+    frame = pressed_frame(hand, hand_data, 250)
+    result = estimator.estimate(frame)
+    assert result.valid.all()
+    for k, (array, bundle) in enumerate(zip(hand.arrays, bundles)):
+        expected = bundle.predict(frame[array.flat_indices][None])[0]
+        np.testing.assert_allclose(result.force[k], expected, rtol=1e-4, atol=1e-4)

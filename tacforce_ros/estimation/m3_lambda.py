@@ -3,6 +3,9 @@
 With `lambda_grid` the damping is instead chosen by leave-one-plate-out cross-validation over the
 plates given to fit() (the training plates only), so a held-out test plate never influences it.
 One SVD per inner fold serves the whole grid (least_squares.CentredSVD).
+
+The damping multiplies ||W||^2 next to the residual SUM of squares (not the mean), as in the
+paper's damped least squares, so its effect shrinks as the number of samples grows.
 """
 from __future__ import annotations
 

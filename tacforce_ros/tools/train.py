@@ -106,6 +106,12 @@ def main(argv: list[str] | None = None) -> int:
                         help='choose the M3-lambda damping by CV nested in the training plates')
     parser.add_argument('--no-cv', action='store_true', help='skip leave-one-plate-out CV')
     parser.add_argument('--seed', type=int, default=0, help='seed of the random models (M4, M5)')
+    parser.add_argument('--static-force', type=float, default=0.3,
+                        help='static segments: force magnitude below this [N] (default 0.3)')
+    parser.add_argument('--static-activity', type=float, default=15.0,
+                        help='static segments: rms taxel deviation from rest below this [counts]')
+    parser.add_argument('--static-seconds', type=float, default=0.5,
+                        help='static segments: minimum duration [s] (default 0.5)')
     parser.add_argument('--save-dataset', action='store_true',
                         help='also write the processed dataset of each array (<out>/<array>.npz)')
     args = parser.parse_args(argv)
@@ -145,7 +151,9 @@ def main(argv: list[str] | None = None) -> int:
             if args.save_dataset:
                 dataset.save(args.out / f'{name}.npz')
             try:
-                prepared[name] = (dataset, *dataset.without_offsets())
+                prepared[name] = (dataset, *dataset.without_offsets(
+                    force_threshold=args.static_force, activity_threshold=args.static_activity,
+                    min_duration=args.static_seconds))
             except StaticSegmentError as exc:
                 print(f'train: {name}: {exc}', file=sys.stderr)
                 return 2

@@ -152,3 +152,13 @@ def test_tools_have_help(tool):
     out = subprocess.run([sys.executable, '-m', f'tacforce_ros.tools.{tool}', '--help'],
                          capture_output=True, text=True, timeout=60)
     assert out.returncode == 0 and 'usage' in out.stdout
+
+
+def test_train_reports_a_missing_static_segment(phalanx, tmp_path, capsys):
+    path = synthetic_dataset(phalanx, plates=('flat', 'edge'), seconds=4.0, seed=1).save(
+        tmp_path / 'd.npz')
+    code = train.main([str(path), '--out', str(tmp_path / 'o'), '--kinds', 'M1', '--no-cv',
+                       '--static-seconds', '30'])
+    assert code == 2 and 'no static no-contact segment' in capsys.readouterr().err
+    assert train.main([str(path), '--out', str(tmp_path / 'o'), '--kinds', 'M1',
+                       '--no-cv']) == 0

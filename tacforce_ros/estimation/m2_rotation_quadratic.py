@@ -8,12 +8,16 @@ inputs grow quadratically but finitely in float64. z_scale_ is a normalisation, 
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from tacforce_ros.estimation.affine import AffineModel
 from tacforce_ros.estimation.base import ForceModel
 from tacforce_ros.estimation.m1_rotation_linear import rotated_sum
+
+if TYPE_CHECKING:
+    from tacforce_ros.hand.description import TaxelArray
 
 
 def quadratic_features(z: np.ndarray) -> np.ndarray:
@@ -25,7 +29,7 @@ def quadratic_features(z: np.ndarray) -> np.ndarray:
 class M2Quadratic(AffineModel):
     kind = 'M2'
 
-    def __init__(self, array) -> None:
+    def __init__(self, array: TaxelArray) -> None:
         super().__init__(array)
         self.z_scale_: np.ndarray | None = None
 

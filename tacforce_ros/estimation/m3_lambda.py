@@ -10,12 +10,16 @@ paper's damped least squares, so its effect shrinks as the number of samples gro
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from tacforce_ros.estimation.base import check_inputs
 from tacforce_ros.estimation.least_squares import CentredSVD
 from tacforce_ros.estimation.m3_linear import M3Linear
+
+if TYPE_CHECKING:
+    from tacforce_ros.hand.description import TaxelArray
 
 PAPER_LAMBDA = 33.0
 DEFAULT_GRID = tuple(float(v) for v in np.logspace(-3, 5, 17))
@@ -43,7 +47,7 @@ class M3Lambda(M3Linear):
     kind = 'M3-lambda'
     needs_groups = True
 
-    def __init__(self, array, lam: float = PAPER_LAMBDA,
+    def __init__(self, array: TaxelArray, lam: float = PAPER_LAMBDA,
                  lambda_grid: Sequence[float] | None = None) -> None:
         super().__init__(array)
         if not (np.isfinite(lam) and lam >= 0.0):

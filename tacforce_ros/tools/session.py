@@ -48,8 +48,8 @@ def wait_for_port(port: int, proc: subprocess.Popen, timeout: float) -> bool:
     return False
 
 
-def start_nodes(nodes: list[NodeLaunch], log_dir: Path, ready_timeout: float
-                ) -> list[tuple[str, subprocess.Popen]]:
+def start_nodes(nodes: list[NodeLaunch], log_dir: Path, ready_timeout: float,
+                env: dict[str, str] | None = None) -> list[tuple[str, subprocess.Popen]]:
     """Start the nodes in plan order; a node with a ready_port is waited for before the next
     (the drivers expect their devices to answer at start-up)."""
     log_dir.mkdir(parents=True, exist_ok=True)
@@ -57,7 +57,8 @@ def start_nodes(nodes: list[NodeLaunch], log_dir: Path, ready_timeout: float
     for node in nodes:
         with open(log_dir / f'{node.executable}.log', 'w') as log:   # the child keeps its copy
             proc = subprocess.Popen([str(executable(node.executable)), *node.ros_args()],
-                                    stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
+                                    stdout=log, stderr=subprocess.STDOUT, start_new_session=True,
+                                    env=env)
         procs.append((node.executable, proc))
         if node.ready_port is not None and not wait_for_port(node.ready_port, proc,
                                                              ready_timeout):

@@ -1,0 +1,13 @@
+"""ros2 launch tacforce_ros closed_loop.launch.py [sim:=true|false] [hand_side:=right] [array:=index_tip]
+[plate:=spherical] [scene:=...] [model:=...] [out:=bags] [real_time_factor:=1.0]
+
+The node graph is tacforce_ros.nodes.session_plan's, shared with `session closed_loop`."""
+import sys
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from session_launch import session_launch_description  # noqa: E402
+
+
+def generate_launch_description():
+    return session_launch_description('closed_loop')

@@ -1,0 +1,60 @@
+"""Shared body of calibration.launch.py and closed_loop.launch.py (needs a full ROS 2 install with
+the launch and launch_ros packages; on this machine `session <mode>` starts the same graph).
+
+The node list, parameter files and overrides come from tacforce_ros.nodes.session_plan, the
+same source the `session` tool reads. robot_state_publisher publishes the package URDF on /tf
+for RViz; our nodes compute frames from the URDF in-process and do not need /tf.
+"""
+from pathlib import Path
+
+from launch import LaunchDescription
+from launch.actions import DeclareLaunchArgument, OpaqueFunction, TimerAction
+from launch.substitutions import LaunchConfiguration
+from launch_ros.actions import Node
+
+from tacforce_ros.nodes.session_plan import (CAN_PORT, NETFT_PORT, XELA_PORT, SessionArgs,
+                                             hand_config, plan)
+from tacforce_ros.paths import config_dir
+
+READY_DELAY_S = 3.0
+ARGUMENTS = {
+    'sim': ('true', 'true: sim_world and its device emulators; false: the hardware'),
+    'hand_side': ('right', 'hand description config/hand/allegro_<side>_uskin.yaml'),
+    'array': ('index_tip', 'array pressed on the plate (calibration) or controlled'),
+    'plate': ('spherical', 'push-plate (calibration) or object (closed loop)'),
+    'scene': ('', 'sim scene; empty: derived from the mode, array and plate'),
+    'model': ('', 'estimator models YAML; empty: config/models/default.yaml'),
+    'out': ('bags', 'folder for the recorded bags'),
+    'real_time_factor': ('1.0', 'simulated seconds per wall second (sim only)'),
+}
+
+
+def _nodes(context, mode: str):
+    value = {name: LaunchConfiguration(name).perform(context) for name in ARGUMENTS}
+    args = SessionArgs(mode=mode, sim=value['sim'].lower() == 'true',
+                       hand_side=value['hand_side'], array=value['array'],
+                       plate=value['plate'], scene=value['scene'],
+                       model_config=value['model'], out=value['out'],
+                       real_time_factor=float(value['real_time_factor']),
+                       xela_port=XELA_PORT, netft_port=NETFT_PORT, can_port=CAN_PORT)
+    actions, delay = [], 0.0
+    for node in plan(args):
+        action = Node(package='tacforce_ros', executable=node.executable, output='screen',
+                      parameters=[str(p) for p in node.param_files] + [node.overrides])
+        actions.append(TimerAction(period=delay, actions=[action]) if delay else action)
+        if node.ready_port is not None:
+            # launch cannot wait for a port like `session` does: give the emulators time.
+            delay = READY_DELAY_S
+    urdf = Path(config_dir() / 'urdf' / f'allegro_{args.hand_side}_uskin.urdf')
+    if hand_config(args.hand_side).is_file() and urdf.is_file():
+        actions.append(Node(package='robot_state_publisher', executable='robot_state_publisher',
+                            parameters=[{'robot_description': urdf.read_text(),
+                                         'use_sim_time': args.sim}]))
+    return actions
+
+
+def session_launch_description(mode: str) -> LaunchDescription:
+    return LaunchDescription(
+        [DeclareLaunchArgument(name, default_value=default, description=text)
+         for name, (default, text) in ARGUMENTS.items()]
+        + [OpaqueFunction(function=_nodes, args=[mode])])

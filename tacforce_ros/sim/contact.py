@@ -18,7 +18,7 @@ from tacforce_ros.sim.vector import cross
 
 # Foundation stiffness per taxel and elastomer spreading width: our estimates for a ~4-5 mm
 # silicone layer over a 4.7 mm taxel pitch (uSkin; Tomo et al. 2018), not datasheet values.
-FOUNDATION_STIFFNESS = 4000.0   # N/m per taxel
+FOUNDATION_STIFFNESS = 2000.0   # N/m per taxel
 SPREAD_SIGMA = 0.0025           # m
 
 

@@ -76,7 +76,7 @@ def draw_schedule(params: OperatorParams, array: TaxelArray, n_steps: int, dt: f
     # Operators press near the middle of the pad more often than on its rim.
     centre = array.positions.mean(axis=0)
     spread = np.linalg.norm(array.positions - centre, axis=1)
-    preference = np.exp(-0.5 * (spread / max(spread.max(), 1e-9)) ** 2 * 4.0)
+    preference = np.exp(-0.5 * (spread / max(spread.max(), 1e-9)) ** 2)
     preference /= preference.sum()
     start = rng.uniform(*params.pause_seconds)
     while True:

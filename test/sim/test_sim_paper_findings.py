@@ -39,7 +39,7 @@ def test_rotation_assisted_linear_loses_to_raw_linear_on_the_curved_tip(hand):
         m1.append(affine_mae(z(x_train), f_train, z(x_test), f_test))
         m3.append(affine_mae(x_train.reshape(len(x_train), -1), f_train,
                              x_test.reshape(len(x_test), -1), f_test))
-    assert np.mean(m1) > 1.5 * np.mean(m3), (np.mean(m1), np.mean(m3))
+    assert np.mean(m1) > 1.3 * np.mean(m3), (np.mean(m1), np.mean(m3))
 
 
 def test_ft_reading_projected_with_the_urdf_gives_the_ground_truth(hand):

@@ -18,9 +18,9 @@ from tacforce_ros.sim.vector import cross
 @dataclass
 class Deformation(Effect):
     name = 'deformation'
-    max_fraction: float = 0.7     # share of the taxel-to-contact-normal angle removed at most
-    depth_scale: float = 0.0003   # m of indentation for ~63 % of that flattening
-    reach: float = 0.007          # m, radius of the flattened patch (fingertip ~ 14 mm radius)
+    max_fraction: float = 1.0     # share of the taxel-to-contact-normal angle removed at most
+    depth_scale: float = 0.0004   # m of indentation for ~63 % of that flattening
+    reach: float = 0.010          # m, radius of the flattened patch (fingertip 13.5 mm radius)
 
     def reset(self, rng: np.random.Generator, ctx) -> None:
         self._positions = ctx.array.positions

@@ -1,0 +1,63 @@
+"""The session plan (shared by the launch files and `session`): every executable and parameter
+file it names exists, overrides are quoted so YAML cannot retype them, bad choices are refused."""
+import ast
+import sys
+from pathlib import Path
+
+import pytest
+import yaml
+
+from tacforce_ros.nodes.session_plan import MODES, PlanError, SessionArgs, plan
+from tacforce_ros.paths import share_dir
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from ros_processes import executable  # noqa: E402
+
+LAUNCH = share_dir() / 'launch'
+
+
+@pytest.mark.parametrize('mode', MODES)
+@pytest.mark.parametrize('sim', [True, False])
+def test_every_named_executable_and_file_exists(mode, sim):
+    nodes = plan(SessionArgs(mode=mode, sim=sim))
+    assert ('sim_world' in [n.executable for n in nodes]) == sim
+    for node in nodes:
+        assert executable(node.executable).is_file()
+        for path in node.param_files:
+            assert path.is_file(), f'{node.executable}: {path} missing'
+            doc = yaml.safe_load(path.read_text())
+            # Each file addresses this node by name (or every node with /**).
+            assert set(doc) & {node.executable, '/**'}, f'{path} does not address the node'
+        # In simulation every node but the clock source runs on /clock.
+        wants_sim_time = sim and node.executable != 'sim_world'
+        assert node.overrides.get('use_sim_time', False) is wants_sim_time
+
+
+@pytest.mark.parametrize('mode', MODES)
+def test_launch_files_build_their_graph_from_the_plan(mode):
+    path = LAUNCH / f'{mode}.launch.py'
+    tree = ast.parse(path.read_text())
+    calls = [n for n in ast.walk(tree) if isinstance(n, ast.Call)
+             and getattr(n.func, 'id', '') == 'session_launch_description']
+    assert [c.args[0].value for c in calls] == [mode]
+    shared = ast.parse((LAUNCH / 'session_launch.py').read_text())
+    imported = {alias.name for n in ast.walk(shared) if isinstance(n, ast.ImportFrom)
+                and n.module == 'tacforce_ros.nodes.session_plan' for alias in n.names}
+    assert 'plan' in imported
+
+
+def test_string_overrides_survive_yaml():
+    node = next(n for n in plan(SessionArgs(mode='calibration'))
+                if n.executable == 'allegro_driver')
+    args = node.ros_args()
+    value = args[args.index('control:=\'off\'')].split(':=', 1)[1]
+    assert yaml.safe_load(value) == 'off'      # bare off would read as False
+
+
+@pytest.mark.parametrize('field, value, message', [
+    ('mode', 'teleop', 'mode'), ('hand_side', 'middle', 'hand_side'),
+    ('hand_side', 'left', 'no hand description')])
+def test_bad_choices_are_refused(field, value, message):
+    args = {'mode': 'calibration', field: value}
+    with pytest.raises(PlanError, match=message):
+        plan(SessionArgs(**args))

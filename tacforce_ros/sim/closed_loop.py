@@ -239,7 +239,7 @@ class ClosedLoopSimulator:
         if self.obj is None:
             return -force_on_finger          # rigid plate: the sensor carries the contact force
         obj, dt = self.obj, self.dt
-        push = force_on_finger @ self.up   # the object's reaction on the finger = its compression load
+        push = force_on_finger @ self.up   # the object's push on the finger = its load
         spring = obj.stiffness * self.obj_x + obj.damping * self.obj_v
         # Semi-implicit Euler; the object cannot lift off the sensor (it is taped on).
         self.obj_v += dt * (push - spring) / obj.mass

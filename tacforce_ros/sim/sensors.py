@@ -69,7 +69,8 @@ class TactileSensor:
         state.rotations = self.array.rotations
         run('rotations', state)
         # Force on each taxel, expressed in its own frame: R_i^T (w_i f).
-        state.local_force = np.einsum('nji,j->ni', state.rotations, contact.force) * weights[:, None]
+        state.local_force = (np.einsum('nji,j->ni', state.rotations, contact.force)
+                             * weights[:, None])
         run('local_force', state)
         counts = self.ctx.idle_counts.copy()
         counts[self.ctx.rows] = counts_from_loads(taxel_loads(state.local_force), self.ctx.params,

@@ -3,7 +3,6 @@ import json
 from collections import Counter
 
 import numpy as np
-import pytest
 
 from tacforce_ros import bagio
 from tacforce_ros.tools import bench_sim, sim_record

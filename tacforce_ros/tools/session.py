@@ -120,7 +120,8 @@ def run(args: SessionArgs, duration: float | None, grace: float) -> int:
     bags = sorted(p for p in out.iterdir() if p.is_dir() and p.name != 'logs')
     print(f'session {args.mode}: stopped after {time.monotonic() - started:.1f} s; exit codes '
           + ', '.join(f'{n}={c}' for n, c in codes.items()))
-    print(f'bags in {out.resolve()}: ' + (', '.join(p.name for p in bags) or 'none'))
+    print('bags:' + ''.join(f'\n  {p.resolve()}' for p in bags) if bags else
+          f'no bag in {out.resolve()}')
     return 0 if exited_early is None and all(c == 0 for c in codes.values()) else 1
 
 

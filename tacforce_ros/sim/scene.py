@@ -15,6 +15,8 @@ import yaml
 from tacforce_ros.paths import config_dir
 
 KINDS = ('calibration', 'closed_loop')
+FINGER_FIELDS = {'pose': 4, 'others': 12, 'others_kp': 0, 'others_kd': 0, 'tip_radius': 0,
+                 'skin_stiffness': 0, 'skin_damping': 0}   # closed loop; value = list length
 PLATE_SHAPES = ('sphere', 'cylinder', 'plane')
 
 
@@ -180,6 +182,19 @@ def _effects(raw: dict, where: str) -> dict[str, dict[str, Any]]:
     return result
 
 
+def _finger(raw: dict, where: str) -> dict[str, Any]:
+    finger = _get(raw, 'finger', dict, where)
+    for key, length in FINGER_FIELDS.items():
+        sub = f'{where}: finger'
+        if length:
+            value = _get(finger, key, list, sub)
+            if len(value) != length or not all(isinstance(v, (int, float)) for v in value):
+                raise SceneError(f'{sub}: field "finger.{key}" must be {length} numbers')
+        else:
+            _get(finger, key, float, sub)
+    return finger
+
+
 def load_scene(name_or_path: str | Path) -> Scene:
     """Load a scene by file stem under config/scenes/ or by path to a YAML file."""
     path = _resolve_path(name_or_path)
@@ -201,5 +216,5 @@ def load_scene(name_or_path: str | Path) -> Scene:
         tactile_rate=tactile_rate, physics_rate=physics_rate, seed=seed,
         effects=_effects(raw, where),
         operator=_get(raw, 'operator', dict, where) if kind == 'calibration' else {},
-        finger=_get(raw, 'finger', dict, where) if kind == 'closed_loop' else {},
+        finger=_finger(raw, where) if kind == 'closed_loop' else {},
         soft_object=_soft_object(raw, where), path=path)

@@ -47,6 +47,7 @@ def test_extends_merges_and_null_removes_an_effect(tmp_path):
      '"effects.taxel_noise"'),
     ('extends: _base\nkind: dream\n', '"kind"'),
     ('extends: scene\n', '"extends"'),
+    ('extends: closed_loop_spherical\nfinger: {pose: [0.0, 0.1]}\n', '"finger.pose"'),
 ])
 def test_bad_scene_names_the_field(tmp_path, body, field):
     with pytest.raises(SceneError, match=field):

@@ -83,8 +83,14 @@ def publisher_qos(topic: str) -> QoSProfile:
     return SENSOR_PUBLISHER_QOS if _kind(topic) == SENSOR else RELIABLE_QOS
 
 
-def subscriber_qos(topic: str) -> QoSProfile:
-    return SENSOR_SUBSCRIBER_QOS if _kind(topic) == SENSOR else RELIABLE_QOS
+def subscriber_qos(topic: str, depth: int | None = None) -> QoSProfile:
+    """Subscriber QoS of `topic`; `depth` deepens the history for a consumer that must ride
+    out CPU hiccups without losing samples (a recorder), keeping the reliability policy."""
+    base = SENSOR_SUBSCRIBER_QOS if _kind(topic) == SENSOR else RELIABLE_QOS
+    if depth is None:
+        return base
+    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth,
+                      reliability=base.reliability, durability=base.durability)
 
 
 class ParameterError(ValueError):
@@ -175,6 +181,11 @@ class TacforceNode(Node):
                                    ignore_override=True)
         if problems:
             raise ParameterError('; '.join(problems))
+        unknown = sorted(name for name in overrides
+                         if name not in self._specs and not self.has_parameter(name)
+                         and not name.startswith('qos_overrides.'))
+        if unknown:     # a typo in a parameter file would otherwise pass silently
+            self.get_logger().warning(f'ignoring parameters this node does not have: {unknown}')
         return values
 
     def _check_change(self, parameters: list[Parameter]) -> SetParametersResult:

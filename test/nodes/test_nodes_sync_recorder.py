@@ -225,6 +225,25 @@ def test_unknown_array_is_refused_at_start_up_and_by_the_service(ros_node, tmp_p
     assert list(tmp_path.iterdir()) == [], 'a refused session must not leave a bag'
 
 
+
+def test_sigterm_closes_the_bag_completely(ros_node, streams, tmp_path):
+    proc = recorder(tmp_path, '-p', 'autostart:=true', '-p', 'split_seconds:=60.0')
+    try:
+        assert streams.wait_for_recorder(), 'recorder never subscribed'
+        streams.run(1.0)
+        spin_until(ros_node, lambda: False, 0.3)
+        proc.send_signal(signal.SIGTERM)
+        proc.wait(timeout=15.0)
+    finally:
+        output = stop(proc)
+    assert proc.returncode == EXIT_OK, output
+    (bag,) = tmp_path.iterdir()
+    # One long split, closed by on_shutdown: everything is listed, nothing left half-written.
+    assert not any(p.name.endswith('.partial') for p in bag.iterdir())
+    topics = [topic for topic, _, _ in bagio.read_messages(bag)]
+    assert topics.count(bagio.TOPIC_TACTILE) >= 0.8 * len(streams.published[bagio.TOPIC_TACTILE])
+    assert 'closed' in output
+
 # Last in the module: the killed process's DDS endpoints linger until their lease expires.
 def test_killed_recorder_leaves_a_bag_readable_up_to_the_last_split(ros_node, streams, tmp_path):
     proc = recorder(tmp_path, '-p', 'autostart:=true', '-p', 'plate:=edge')

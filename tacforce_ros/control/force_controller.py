@@ -16,7 +16,8 @@ Around the law, in this order per tick:
    position hold (gravity + PD on where it is), so it neither keeps pushing an unmonitored force
    nor falls. Stale joints make the PD meaningless, so then the WHOLE torque ramps to zero.
    The integral is frozen while ramping and reset once the force terms reach zero; when the
-   streams come back, the gains ramp in again at the same rate (no torque step).
+   streams come back, the gains ramp in again at the same rate (no torque step). Worst case
+   from the last good message to safe: timeout + ramp_time + one tick (defaults: 50 + 50 ms).
 2. Integral with a rate limiter (each axis of e_f clipped to `integral_rate_limit` N before
    integrating, so one bad estimate moves the integral by at most that many N s per second),
    clamped to +/- `integral_limit`, and conditional integration: while saturated, a step that
@@ -270,12 +271,10 @@ class ForceController:
 
         scale = saturation_scale(tau_raw, self._limits)
         tau = scale * tau_raw
-        if force_target == 1.0 and mem.force_gain == 1.0:
+        if force_target == 1.0:     # running, or ramping back in after a stale spell
             mode = MODE_OPEN_LOOP if self.open_loop else MODE_CLOSED_LOOP
         elif joints_fresh and mem.force_gain == 0.0:
             mode = MODE_HOLD
-        elif force_target == 1.0:
-            mode = MODE_OPEN_LOOP if self.open_loop else MODE_CLOSED_LOOP   # ramping back in
         else:
             mode = MODE_SAFE
         state = ControllerState(

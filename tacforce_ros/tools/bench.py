@@ -2,7 +2,8 @@
 
 Every model goes through the leave-one-plate-out protocol on one array's dataset; then its cost is
 timed: one `predict` on one sample, the compiled batch of one, and a full-hand tick of the runtime
-estimator (18 arrays of that kind, one batched pass). Writes bench.json, bench.md and bench.png.
+estimator (18 arrays of that kind, one batched pass), all timed round-robin so every model sees
+the same machine load. Writes bench.json, bench.md and bench.png.
 
 Full-hand models are fitted on short synthetic recordings of every array: the cost of a tick does
 not depend on the weights' values, only on the shapes.
@@ -13,6 +14,7 @@ import argparse
 import json
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -21,7 +23,6 @@ from tqdm import tqdm
 from tacforce_ros.estimation.cross_validation import cross_validate
 from tacforce_ros.estimation.dataset import CalibrationDataset, DatasetError
 from tacforce_ros.estimation.m3_lambda import DEFAULT_GRID, PAPER_LAMBDA
-from tacforce_ros.estimation.registry import model_class
 from tacforce_ros.estimation.runtime import RuntimeEstimator
 from tacforce_ros.estimation.synthetic import synthetic_dataset
 from tacforce_ros.estimation.training import fit_bundle
@@ -41,17 +42,27 @@ def configurations(seed: int, epochs: int) -> dict[str, tuple[str, dict]]:
     }
 
 
-def timed_us(call, repeats: int) -> dict[str, float]:
-    """Median and p99 wall time of call() in microseconds, after a short warm-up."""
-    for _ in range(min(50, repeats)):
-        call()
-    samples = np.empty(repeats)
-    for i in range(repeats):
-        start = time.perf_counter_ns()
-        call()
-        samples[i] = time.perf_counter_ns() - start
-    return {'median_us': float(np.median(samples) / 1e3),
-            'p99_us': float(np.percentile(samples, 99) / 1e3)}
+def time_interleaved(calls: dict[tuple[str, str], Callable[[], object]], repeats: int,
+                     rounds: int = 10) -> dict[tuple[str, str], dict[str, float]]:
+    """Median and p99 wall time [us] of each call, `repeats` calls each.
+
+    The calls are timed round-robin in `rounds` slices, so on a shared machine every model sees
+    the same background load and the ratios between models stay meaningful.
+    """
+    per_round = max(1, repeats // rounds)
+    samples: dict[tuple[str, str], list[int]] = {key: [] for key in calls}
+    for call in calls.values():
+        for _ in range(50):         # warm-up: caches, lazy buffers
+            call()
+    for _ in range(rounds):
+        for key, call in calls.items():
+            record = samples[key].append
+            for _ in range(per_round):
+                start = time.perf_counter_ns()
+                call()
+                record(time.perf_counter_ns() - start)
+    return {key: {'median_us': float(np.median(v) / 1e3),
+                  'p99_us': float(np.percentile(v, 99) / 1e3)} for key, v in samples.items()}
 
 
 def hand_estimator(hand, kind: str, hyper: dict, seed: int) -> RuntimeEstimator:
@@ -64,8 +75,9 @@ def hand_estimator(hand, kind: str, hyper: dict, seed: int) -> RuntimeEstimator:
 
 
 def bench_model(array, hand, label: str, kind: str, hyper: dict, dataset: CalibrationDataset,
-                X: np.ndarray, F: np.ndarray, offset: np.ndarray, repeats: int,
-                seed: int) -> dict:
+                X: np.ndarray, F: np.ndarray, offset: np.ndarray,
+                seed: int) -> tuple[dict, dict[str, Callable[[], object]]]:
+    """Cross-validated accuracy row of one model, and the calls whose cost is to be timed."""
     cv = cross_validate(array, kind, hyper, X, F, dataset.plates).summary()
     bundle = fit_bundle(array, kind, hyper, X, F, dataset.plates, x_offset=offset)
     one = bundle.x_scaler.transform(X[:1])
@@ -73,10 +85,10 @@ def bench_model(array, hand, label: str, kind: str, hyper: dict, dataset: Calibr
     estimator = hand_estimator(hand, kind, hyper, seed)
     frame = np.clip(np.round(hand.merge([b.x_offset for b in estimator.bundles])), 0, 65535
                     ).astype(np.uint16)
-    return {'label': label, 'kind': kind, 'hyperparameters': hyper, **cv,
-            'predict_one': timed_us(lambda: bundle.model.predict(one), repeats),
-            'batch_one': timed_us(lambda: batch_one(one), repeats),
-            'full_hand_tick': timed_us(lambda: estimator.estimate(frame), repeats)}
+    calls = {'predict_one': lambda: bundle.model.predict(one),
+             'batch_one': lambda: batch_one(one),
+             'full_hand_tick': lambda: estimator.estimate(frame)}
+    return {'label': label, 'kind': kind, 'hyperparameters': hyper, **cv}, calls
 
 
 def table(rows: list[dict], title: str) -> str:
@@ -129,7 +141,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--models', nargs='+', default=list(LABELS), choices=LABELS,
                         help='rows to run; M3-lambda-cv selects the damping by nested CV')
     parser.add_argument('--epochs', type=int, default=40, help='M4/M5 epochs (paper: 40)')
-    parser.add_argument('--repeats', type=int, default=2000, help='timed calls per measurement')
+    parser.add_argument('--repeats', type=int, default=2000,
+                        help='timed calls per measurement, interleaved across models')
     parser.add_argument('--seed', type=int, default=0)
     parser.add_argument('--out', type=Path, default=Path('bench_out'))
     args = parser.parse_args(argv)
@@ -148,16 +161,17 @@ def main(argv: list[str] | None = None) -> int:
         print(f'bench: {exc}', file=sys.stderr)
         return 2
     configs = configurations(args.seed, args.epochs)
-    rows = []
+    rows, calls = [], {}
     for label in tqdm(args.models, desc='models', unit='model'):
         kind, hyper = configs[label]
-        try:
-            model_class(kind)
-        except ValueError as exc:
-            print(f'bench: skipping {label}: {exc}', file=sys.stderr)
-            continue
-        rows.append(bench_model(array, hand, label, kind, hyper, dataset, X, F, offset,
-                                args.repeats, args.seed))
+        row, timed = bench_model(array, hand, label, kind, hyper, dataset, X, F, offset,
+                                 args.seed)
+        rows.append(row)
+        calls.update({(label, key): call for key, call in timed.items()})
+    timings = time_interleaved(calls, args.repeats)
+    for row in rows:
+        row.update({key: timings[(row['label'], key)]
+                    for key in ('predict_one', 'batch_one', 'full_hand_tick')})
     title = (f"{array.name} ({array.n_taxels} taxels), {dataset.source} data, "
              f"{len(dataset.plate_names())}-fold leave-one-plate-out")
     result = {'array': array.name, 'n_taxels': array.n_taxels, 'source': dataset.source,

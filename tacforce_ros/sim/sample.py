@@ -44,7 +44,7 @@ class StepState:
     t: float
     contact: Contact
     depth: float = 0.0
-    rotations: np.ndarray | None = None       # (n, 3, 3) taxel frames in {S0}
+    taxel_force: np.ndarray | None = None     # (n, 3) force on each taxel, in {S0}
     local_force: np.ndarray | None = None     # (n, 3) per-taxel force in its own frame
     counts: np.ndarray | None = None          # (368, 3) float counts
     temperatures: np.ndarray | None = None    # (368,) K

@@ -66,11 +66,10 @@ class TactileSensor:
         contact, run = state.contact, self.pipeline.run
         weights = self.pressure.weights(contact)
         state.depth = self.pressure.depth
-        state.rotations = self.array.rotations
-        run('rotations', state)
-        # Force on each taxel, expressed in its own frame: R_i^T (w_i f).
-        state.local_force = (np.einsum('nji,j->ni', state.rotations, contact.force)
-                             * weights[:, None])
+        state.taxel_force = weights[:, None] * contact.force
+        run('taxel_force', state)
+        # Force on each taxel, expressed in its own frame: R_i^T f_i.
+        state.local_force = np.einsum('nji,nj->ni', self.array.rotations, state.taxel_force)
         run('local_force', state)
         counts = self.ctx.idle_counts.copy()
         counts[self.ctx.rows] = counts_from_loads(taxel_loads(state.local_force), self.ctx.params,

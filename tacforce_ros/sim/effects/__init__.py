@@ -8,7 +8,7 @@ tuple, so an effect that a scene does not name costs nothing on the step path.
 Stages, in the order a step runs them:
   model        closed loop only, once at build: edits the simulated hand/world (MjSpec)
   response     once at reset: per-taxel response parameters
-  rotations    taxel frames {S_i} in {S0} under load
+  taxel_force  each taxel's share of the contact force, in {S0}
   local_force  per-taxel force in its own frame
   counts       whole-hand float counts and temperatures (368 taxels)
   wrench       the F/T wrench in {F}
@@ -23,7 +23,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-STAGES = ('model', 'response', 'rotations', 'local_force', 'counts', 'wrench', 'torque',
+STAGES = ('model', 'response', 'taxel_force', 'local_force', 'counts', 'wrench', 'torque',
           'delivery')
 
 

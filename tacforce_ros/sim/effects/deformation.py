@@ -1,9 +1,10 @@
 """Elastomer deformation: under load a curved skin flattens, turning its taxels' frames.
 
-Taxels near the contact rotate towards the contact normal, by a fraction that grows with the
+Taxels near the contact turn towards the contact normal, by a fraction that grows with the
 indentation depth and fades with distance; on a flat array the normals already agree, so nothing
-turns. Models that assume the unloaded R_i^0 (M1, M2 of the paper) then mis-project the taxel
-readings, which is why they lose on the curved fingertip (paper, Table I and section V-A).
+turns. A taxel frame turned by Q reads R_i^T Q^T f_i, so the effect turns each taxel's force by
+Q^T (Rodrigues' formula on vectors, batched). Models that assume the unloaded R_i^0 (M1, M2 of
+the paper) then mis-project the readings, as on the curved fingertip (paper, Table I).
 """
 from __future__ import annotations
 
@@ -18,15 +19,16 @@ from tacforce_ros.sim.vector import cross
 @dataclass
 class Deformation(Effect):
     name = 'deformation'
+    # Our estimates for a ~4-5 mm silicone layer on the 13.5 mm radius uSkin fingertip.
     max_fraction: float = 1.0     # share of the taxel-to-contact-normal angle removed at most
     depth_scale: float = 0.0004   # m of indentation for ~63 % of that flattening
-    reach: float = 0.010          # m, radius of the flattened patch (fingertip 13.5 mm radius)
+    reach: float = 0.010          # m, radius of the flattened patch
 
     def reset(self, rng: np.random.Generator, ctx) -> None:
         self._positions = ctx.array.positions
         self._normals = ctx.array.rotations[:, :, 2]
 
-    def on_rotations(self, state) -> None:
+    def on_taxel_force(self, state) -> None:
         contact = state.contact
         if state.depth <= 0.0:
             return
@@ -34,17 +36,15 @@ class Deformation(Effect):
         fraction = (self.max_fraction * (1.0 - np.exp(-state.depth / self.depth_scale))
                     * np.exp(-0.5 * dist2 / self.reach ** 2))
         axis = cross(self._normals, contact.normal)
-        sin_angle = np.linalg.norm(axis, axis=1)
+        sin_angle = np.sqrt(np.sum(axis * axis, axis=1))
         angle = np.arctan2(sin_angle, self._normals @ contact.normal)
         unit = axis / np.maximum(sin_angle, 1e-12)[:, None]
-        theta = fraction * angle
-        # Rodrigues' formula, batched: R = I + sin(t) K + (1 - cos(t)) K^2.
-        k = np.zeros((len(unit), 3, 3))
-        k[:, 0, 1], k[:, 0, 2], k[:, 1, 2] = -unit[:, 2], unit[:, 1], -unit[:, 0]
-        k -= k.transpose(0, 2, 1)
-        turn = (np.eye(3) + np.sin(theta)[:, None, None] * k
-                + (1.0 - np.cos(theta))[:, None, None] * (k @ k))
-        state.rotations = turn @ state.rotations
+        theta = (fraction * angle)[:, None]
+        force = state.taxel_force
+        # Q^T f = f cos(t) - (k x f) sin(t) + k (k . f)(1 - cos(t))
+        along = np.sum(unit * force, axis=1, keepdims=True)
+        state.taxel_force = (force * np.cos(theta) - cross(unit, force) * np.sin(theta)
+                             + unit * along * (1.0 - np.cos(theta)))
 
 
 EFFECT = Deformation

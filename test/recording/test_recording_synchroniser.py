@@ -79,6 +79,14 @@ def test_picks_the_nearest_message_and_drops_the_older_ones():
     assert sync.add(1, 21 * MS, 'w21') == ('t20', 'w21')
 
 
+def test_partners_each_within_slop_of_the_new_message_but_not_of_each_other_wait():
+    sync = ApproximateTimeSynchroniser(3, queue_size=10, slop=0.004)
+    sync.add(1, -4 * MS, 'a')
+    sync.add(2, 4 * MS, 'b')
+    assert sync.add(0, 0, 'p') is None              # a and b are 8 ms apart
+    assert sync.add(1, 3 * MS, 'a2') == ('p', 'a2', 'b')
+
+
 def test_full_queue_pushes_out_its_oldest_message():
     sync = ApproximateTimeSynchroniser(2, queue_size=2, slop=0.001)
     for stamp in (0, 10 * MS, 20 * MS):

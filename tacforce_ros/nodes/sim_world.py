@@ -80,13 +80,18 @@ class SimWorld(TacforceNode):
         rtf = p['real_time_factor']
         self._torques = np.zeros(16)
         self._latest = self._step()
+        self._tactile = threading.Condition()
+        self._tactile_count = 0                       # fresh tactile frames so far
+        self._tactile_seen: dict[int, int] = {}       # per emulator client thread
         self._stop = threading.Event()
         self.clock_publisher = (self.create_publisher(Clock, '/clock', CLOCK_QOS)
                                 if p['publish_clock'] else None)
         self.truth_publisher = self.create_publisher(WrenchStamped, TOPIC_SIM_CONTACT,
                                                      SENSOR_PUBLISHER_QOS)
+        # The emulator may poll at twice the frame rate: _tactile_frame waits for the next fresh
+        # simulated frame, so the simulator (not the wall clock) sets the tactile rate.
         self.xela = XelaServerEmulator(self._tactile_frame, port=p['xela_port'],
-                                       rate_hz=scene.tactile_rate * rtf,
+                                       rate_hz=2.0 * scene.tactile_rate * rtf,
                                        model=self.hand.sensor_model or 'XR23AHRCPP')
         self.netft = NetFtEmulator(self._wrench_record, port=p['netft_port'],
                                    rate_hz=p['ft_rate_hz'] * rtf)
@@ -104,7 +109,15 @@ class SimWorld(TacforceNode):
     # --- emulator sources and sinks (called from the emulators' threads) ---------------------
 
     def _tactile_frame(self) -> tuple[np.ndarray, np.ndarray]:
-        sample = self._latest
+        # Each client (one emulator thread per connection) gets every fresh frame exactly once;
+        # a stalled simulator yields a repeat after 0.5 s rather than blocking shutdown.
+        client = threading.get_ident()
+        with self._tactile:
+            seen = self._tactile_seen.get(client, self._tactile_count - 1)
+            self._tactile.wait_for(lambda: self._tactile_count > seen or self._stop.is_set(),
+                                   timeout=0.5)
+            self._tactile_seen[client] = self._tactile_count
+            sample = self._latest
         return sample.taxel_counts, sample.temperatures
 
     def _wrench_record(self) -> tuple[np.ndarray, int]:
@@ -128,7 +141,11 @@ class SimWorld(TacforceNode):
             except Exception as exc:   # noqa: BLE001 - a dead simulator must be said, not hidden
                 self.get_logger().fatal(f'simulator stopped: {type(exc).__name__}: {exc}')
                 return
-            self._latest = sample
+            with self._tactile:
+                self._latest = sample
+                if sample.tactile_fresh:
+                    self._tactile_count += 1
+                    self._tactile.notify_all()
             steps += 1
             # Time at the end of the step: the first /clock is dt, never the "unset" zero.
             now_ns = int(round((sample.t + self.sim.dt) * 1e9))
@@ -153,6 +170,8 @@ class SimWorld(TacforceNode):
 
     def on_shutdown(self) -> None:
         self._stop.set()
+        with self._tactile:
+            self._tactile.notify_all()
         self._thread.join(timeout=2.0)
         for emulator in (self.xela, self.netft, self.allegro):
             emulator.close()

@@ -73,7 +73,11 @@ def synthetic_model_set(folder: Path, hand: HandDescription,
             continue
         data = synthetic_dataset(array, plates=('flat', 'button'), seconds=4.0, seed=k)
         rest = data.X[:20].mean(axis=0)
-        bundle = fit_bundle(array, 'M3', {}, data.X - rest, data.F, data.plates, x_offset=rest)
+        provenance = {'dataset': ['synthetic'], 'plates': ['flat', 'button'],
+                      'samples': int(data.X.shape[0]), 'date': 'test', 'seed': k,
+                      'code_version': 'test', 'metrics': None}
+        bundle = fit_bundle(array, 'M3', {}, data.X - rest, data.F, data.plates, x_offset=rest,
+                            provenance=provenance)
         models[array.name] = save_model(folder / f'{array.name}_M3.npz', bundle).name
     path = folder / 'models.yaml'
     path.write_text(yaml.safe_dump({'models': models}))

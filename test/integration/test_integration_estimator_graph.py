@@ -1,0 +1,141 @@
+"""The estimation graph over DDS in simulation: sim_world -> xela_driver -> estimator (a model on
+every array) -> allegro_driver's force controller.
+
+* a third-party subscriber sees the 18 per-array WrenchStamped topics at 100 Hz, in the array
+  frames;
+* when the tactile stream stops (sim_world's xela_server goes away), the estimates are flagged
+  invalid ("stale") and the controller is safe within 100 ms of the last tactile frame; it
+  comes back to closed loop when the stream returns.
+"""
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import rclpy
+from geometry_msgs.msg import WrenchStamped
+from std_srvs.srv import SetBool
+from tacforce_msgs.msg import ControllerState, ForceEstimateArray, TactileHand
+
+from tacforce_ros.hand.description import load_hand
+from tacforce_ros.nodes.common import subscriber_qos
+from tacforce_ros.nodes.messages import stamp_ns
+from tacforce_ros.paths import config_dir
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from graph_support import (Graph, graph_nodes, session_args, synthetic_model_set,  # noqa: E402
+                           unique_domain_id, wait_until, with_overrides)
+
+pytestmark = pytest.mark.ros
+DOMAIN = unique_domain_id(offset=83)
+NODES = ('sim_world', 'xela_driver', 'estimator', 'allegro_driver')
+SAFE_MODES = ('safe', 'hold')
+
+
+@pytest.fixture(scope='module')
+def hand():
+    return load_hand()
+
+
+@pytest.fixture(scope='module')
+def graph(tmp_path_factory, hand):
+    folder = tmp_path_factory.mktemp('graph')
+    models = synthetic_model_set(folder / 'models', hand, use={
+        'index_tip': config_dir() / 'models' / 'index_tip_M3-lambda.npz'})
+    nodes = [n for n in graph_nodes(session_args('closed_loop', offset=1)) if n.executable in NODES]
+    nodes = with_overrides(nodes, estimator={'model_config': str(models)})
+    running = Graph(nodes, DOMAIN, folder / 'logs')
+    rclpy.init(domain_id=DOMAIN)
+    node = rclpy.create_node('estimator_graph_probe')
+    try:
+        yield running, node
+    finally:
+        node.destroy_node()
+        rclpy.shutdown()
+        codes = running.stop()
+        assert all(c == 0 for c in codes.values()), (codes, running.logs())
+
+
+def spin(node):
+    rclpy.spin_once(node, timeout_sec=0.02)
+
+
+def test_third_party_sees_every_array_wrench_at_100_hz(graph, hand):
+    running, node = graph
+    stamps = {a.name: [] for a in hand.arrays}
+    frames = {a.name: set() for a in hand.arrays}
+
+    def receiver(name):
+        def receive(msg: WrenchStamped):
+            stamps[name].append(stamp_ns(msg.header.stamp))
+            frames[name].add(msg.header.frame_id)
+        return receive
+
+    subs = [node.create_subscription(WrenchStamped, f'/tactile/{a.name}/wrench',
+                                     receiver(a.name), subscriber_qos(f'/tactile/{a.name}/wrench'))
+            for a in hand.arrays]
+    try:
+        assert wait_until(lambda: all(len(s) > 300 for s in stamps.values()), 60.0,
+                          lambda: spin(node)), (
+            {k: len(v) for k, v in stamps.items()}, running.logs())
+    finally:
+        for sub in subs:
+            node.destroy_subscription(sub)
+    for array in hand.arrays:
+        t = np.asarray(stamps[array.name]) * 1e-9
+        rate = (t.size - 1) / (t[-1] - t[0])
+        assert 90.0 < rate < 110.0, (array.name, rate)      # 100 Hz in simulated time
+        assert frames[array.name] == {array.frame_id}
+
+
+def test_stale_tactile_stream_makes_the_controller_safe_within_100_ms(graph):
+    running, node = graph
+    last_frame = [0]
+    estimates, states = [], []
+    subs = [node.create_subscription(TactileHand, '/tactile/raw',
+                                     lambda m: last_frame.__setitem__(
+                                         0, max(last_frame[0], stamp_ns(m.header.stamp))),
+                                     subscriber_qos('/tactile/raw')),
+            node.create_subscription(ForceEstimateArray, '/tactile/estimates', estimates.append,
+                                     subscriber_qos('/tactile/estimates')),
+            node.create_subscription(ControllerState, '/force_controller/state', states.append,
+                                     subscriber_qos('/force_controller/state'))]
+    pause = node.create_client(SetBool, '/sim_world/pause_tactile')
+    try:
+        assert wait_until(lambda: states and states[-1].mode == 'closed_loop'
+                          and states[-1].estimate_fresh, 60.0, lambda: spin(node)), \
+            ([s.mode for s in states[-5:]], running.logs())
+        assert pause.wait_for_service(timeout_sec=10.0)
+        future = pause.call_async(SetBool.Request(data=True))
+        assert wait_until(future.done, 10.0, lambda: spin(node)) and future.result().success
+        paused_from = len(states)
+        assert wait_until(lambda: any(s.mode == 'hold' for s in states[paused_from:]), 10.0,
+                          lambda: spin(node)), [s.mode for s in states[paused_from:]][:20]
+        # Every valid estimate carries its tactile frame's stamp: both bound the last frame.
+        valid = [stamp_ns(e.header.stamp) for e in estimates
+                 if e.estimates and all(x.valid for x in e.estimates)]
+        last = max(last_frame[0], max(valid))
+        after = [s for s in states if stamp_ns(s.header.stamp) > last]
+        # The first state the stale estimate made safe (a loaded machine can also delay the
+        # joint stream past its 20 ms timeout now and then: that is the other watchdog).
+        first_safe = next(s for s in after if s.mode in SAFE_MODES and not s.estimate_fresh)
+        first_hold = next(s for s in after if s.mode == 'hold')
+        to_safe = (stamp_ns(first_safe.header.stamp) - last) * 1e-9
+        to_hold = (stamp_ns(first_hold.header.stamp) - last) * 1e-9
+        print(f'\nlast tactile frame -> first safe ControllerState {to_safe * 1e3:.1f} ms, '
+              f'-> force terms fully off (hold) {to_hold * 1e3:.1f} ms (simulated time)')
+        assert to_safe <= 0.1
+        assert np.allclose([first_hold.integral_error.x, first_hold.integral_error.y,
+                            first_hold.integral_error.z], 0.0)
+        stale = [e for e in estimates if e.estimates and e.estimates[0].status == 'stale']
+        assert stale and all(not x.valid for e in stale for x in e.estimates)
+        # The stream returns: the controller ramps back into closed loop.
+        future = pause.call_async(SetBool.Request(data=False))
+        assert wait_until(future.done, 10.0, lambda: spin(node)) and future.result().success
+        resumed_from = len(states)
+        assert wait_until(lambda: any(s.mode == 'closed_loop' and s.estimate_fresh
+                                      for s in states[resumed_from:]), 30.0, lambda: spin(node))
+    finally:
+        for sub in subs:
+            node.destroy_subscription(sub)
+        node.destroy_client(pause)

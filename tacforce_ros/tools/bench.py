@@ -121,7 +121,7 @@ def plot(rows: list[dict], path: Path, title: str) -> None:
     ax.set_xscale('log')
     ax.set_xlabel('full-hand tick, 18 arrays [us] (median)')
     ax.set_ylabel('e_hat, mean absolute error [N]')
-    ax.set_title(title)
+    ax.set_title(title, fontsize=9)
     ax.grid(True, which='both', alpha=0.3)
     fig.tight_layout()
     fig.savefig(path, dpi=120)

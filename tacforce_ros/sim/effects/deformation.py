@@ -27,24 +27,33 @@ class Deformation(Effect):
     def reset(self, rng: np.random.Generator, ctx) -> None:
         self._positions = ctx.array.positions
         self._normals = ctx.array.rotations[:, :, 2]
+        self._key = b''
+
+    def _geometry(self, point: np.ndarray, normal: np.ndarray) -> None:
+        """Turn axes, full angles and distance fall-off for one contact location (cached: the
+        operator holds a location through a press)."""
+        key = point.tobytes() + normal.tobytes()
+        if key == self._key:
+            return
+        self._key = key
+        dist2 = np.sum((self._positions - point) ** 2, axis=1)
+        self._falloff = self.max_fraction * np.exp(-0.5 * dist2 / self.reach ** 2)
+        axis = cross(self._normals, normal)
+        sin_angle = np.sqrt(np.sum(axis * axis, axis=1))
+        self._angle = np.arctan2(sin_angle, self._normals @ normal)
+        self._unit = axis / np.maximum(sin_angle, 1e-12)[:, None]
 
     def on_taxel_force(self, state) -> None:
-        contact = state.contact
         if state.depth <= 0.0:
             return
-        dist2 = np.sum((self._positions - contact.point) ** 2, axis=1)
-        fraction = (self.max_fraction * (1.0 - np.exp(-state.depth / self.depth_scale))
-                    * np.exp(-0.5 * dist2 / self.reach ** 2))
-        axis = cross(self._normals, contact.normal)
-        sin_angle = np.sqrt(np.sum(axis * axis, axis=1))
-        angle = np.arctan2(sin_angle, self._normals @ contact.normal)
-        unit = axis / np.maximum(sin_angle, 1e-12)[:, None]
-        theta = (fraction * angle)[:, None]
-        force = state.taxel_force
+        self._geometry(state.contact.point, state.contact.normal)
+        theta = (self._falloff * self._angle
+                 * (1.0 - np.exp(-state.depth / self.depth_scale)))[:, None]
+        force, unit = state.taxel_force, self._unit
         # Q^T f = f cos(t) - (k x f) sin(t) + k (k . f)(1 - cos(t))
         along = np.sum(unit * force, axis=1, keepdims=True)
-        state.taxel_force = (force * np.cos(theta) - cross(unit, force) * np.sin(theta)
-                             + unit * along * (1.0 - np.cos(theta)))
-
+        cos = np.cos(theta)
+        state.taxel_force = (force * cos - cross(unit, force) * np.sin(theta)
+                             + unit * along * (1.0 - cos))
 
 EFFECT = Deformation

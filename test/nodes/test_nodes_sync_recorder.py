@@ -12,12 +12,12 @@ from geometry_msgs.msg import WrenchStamped
 from rclpy.time import Time
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
-from tacforce_msgs.msg import TactileArray, TactileHand
+from tacforce_msgs.msg import CalibrationSample, TactileArray, TactileHand
 from tacforce_msgs.srv import StartRecording
 
 from tacforce_ros import bagio
 from tacforce_ros.hand.description import load_hand
-from tacforce_ros.nodes.common import EXIT_OK, publisher_qos
+from tacforce_ros.nodes.common import EXIT_OK, publisher_qos, subscriber_qos
 from tacforce_ros.paths import config_dir
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
@@ -146,6 +146,9 @@ def recorder(tmp_path, *extra):
 
 
 def test_session_started_and_stopped_by_services_records_everything(ros_node, streams, tmp_path):
+    live = []
+    sub = ros_node.create_subscription(CalibrationSample, bagio.TOPIC_SAMPLE, live.append,
+                                       subscriber_qos(bagio.TOPIC_SAMPLE))
     proc = recorder(tmp_path, '-p', 'plate:=button')
     try:
         assert streams.wait_for_recorder(), 'recorder never subscribed'
@@ -161,7 +164,10 @@ def test_session_started_and_stopped_by_services_records_everything(ros_node, st
         assert not call(ros_node, Trigger, '/sync_recorder/stop', Trigger.Request()).success
     finally:
         output = stop(proc)
+        ros_node.destroy_subscription(sub)
     assert proc.returncode == EXIT_OK, output
+    # The samples are also published live, as the same CDR bytes the bag holds.
+    assert live and all(m.tactile.name == 'index_middle' for m in live)
     bag = Path(reply.bag_path)
     assert bag.parent == tmp_path and len(list(bag.glob('*.mcap'))) >= 2, 'expected splits'
 

@@ -1,1 +1,2 @@
-"""tacforce_ros.recording: recording helpers without ROS (approximate-time synchroniser, serialised-message bag writing)."""
+"""tacforce_ros.recording: recording helpers without ROS (approximate-time synchroniser,
+bag writing from serialised messages)."""

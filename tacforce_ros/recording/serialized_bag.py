@@ -2,8 +2,9 @@
 
 A node subscribing with raw=True receives the CDR bytes rosbag2 stores; writing them directly
 avoids decoding and copying every field. `CalibrationBagWriter` (bagio.py, the lead's)
-serialises rosbags messages itself; this adds the bytes path on top of it. TODO(lead): move `write_serialized` into CalibrationBagWriter (and have
-`write` call it), then delete this module.
+serialises rosbags messages itself; this adds the bytes path on top of it (it reads the
+writer's private state). TODO(lead): move `write_serialized` and `flush_if_due` into
+CalibrationBagWriter (and have `write` call them), then delete this module.
 """
 from __future__ import annotations
 

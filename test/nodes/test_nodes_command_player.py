@@ -170,3 +170,18 @@ def test_follows_sim_time_from_clock(ros_node, sequence_file):
     ramp = (values < -1e-9) & (values > -1.2 + 1e-9)
     slope, _ = np.polyfit(stamps[ramp], values[ramp], 1)
     assert slope == pytest.approx(-2.0, rel=0.05), 'the ramp must run on sim time'
+
+
+def test_loop_starts_the_sequence_over(ros_node, sequence_file):
+    received, sub, proc = play(ros_node, sequence_file, '-p', 'autostart:=false',
+                               '-p', 'loop:=true')
+    try:
+        assert start_when_matched(ros_node, sub).success
+        # Past the last segment (x = 0.3) and back into the first one (all zero) again.
+        looped = spin_until(ros_node, lambda: any(m.vector.x == 0.3 for m in received)
+                            and received[-1].vector.z == 0.0, 20.0)
+    finally:
+        output = stop(proc)
+        ros_node.destroy_subscription(sub)
+    assert looped, output
+    assert 'sequence finished' not in output

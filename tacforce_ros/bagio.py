@@ -160,7 +160,8 @@ class CalibrationBagWriter:
 
     def __init__(self, path: str | Path, metadata: dict[str, Any], *,
                  split_seconds: float = 2.0, topics: dict[str, str] | None = None,
-                 storage: StoragePlugin = StoragePlugin.MCAP) -> None:
+                 storage: StoragePlugin = StoragePlugin.MCAP,
+                 started_ns: int | None = None) -> None:
         self.path = Path(path)
         if self.path.exists():
             raise BagError(f'{self.path} exists already; refusing to overwrite a bag')
@@ -174,7 +175,9 @@ class CalibrationBagWriter:
         self._connections: dict[str, Any] = {}
         self._split_started = 0.0
         self._open_split()
-        self.write(TOPIC_SESSION, time.time_ns(), session_message(self.metadata))
+        # started_ns: the recorder's clock (sim time under use_sim_time), else wall time.
+        self.write(TOPIC_SESSION, time.time_ns() if started_ns is None else started_ns,
+                   session_message(self.metadata))
 
     def _split_dir(self, index: int) -> Path:
         return self.path / f'.{self.path.name}_{index}{_SPLIT_SUFFIX}'
@@ -221,15 +224,27 @@ class CalibrationBagWriter:
         tmp.replace(self.path / 'metadata.yaml')
 
     def write(self, topic: str, stamp_ns: int, msg) -> None:
-        """Serialise and write one message; closes the split when it is old enough."""
+        """Serialise one rosbags message and write it."""
+        self.write_serialized(topic, stamp_ns,
+                              typestore().serialize_cdr(msg, self._connection(topic).msgtype))
+
+    def write_serialized(self, topic: str, stamp_ns: int, data: bytes | memoryview) -> None:
+        """Write one CDR-serialised message (e.g. as an rclpy raw subscription receives it)."""
         if self._writer is None:
             raise BagError(f'bag {self.path} is closed')
+        self._writer.write(self._connection(topic), int(stamp_ns), data)
+        self.flush_if_due()
+
+    def _connection(self, topic: str):
         connection = self._connections.get(topic)
         if connection is None:
             raise BagError(f'topic {topic} is not part of this bag ({sorted(self.topics)})')
-        data = typestore().serialize_cdr(msg, connection.msgtype)
-        self._writer.write(connection, int(stamp_ns), data)
-        if time.monotonic() - self._split_started >= self.split_seconds:
+        return connection
+
+    def flush_if_due(self) -> None:
+        """Close the split once it is `split_seconds` old; call it from a timer too, so a quiet
+        stream still reaches the disk."""
+        if self._writer is not None and time.monotonic() - self._split_started >= self.split_seconds:
             self.flush()
 
     def flush(self) -> None:

@@ -27,12 +27,11 @@ from tacforce_msgs.msg import CalibrationSample, TactileHand
 from tacforce_msgs.srv import StartRecording
 
 from tacforce_ros.bagio import (TOPIC_JOINTS, TOPIC_SAMPLE, TOPIC_TACTILE, TOPIC_TYPES,
-                                TOPIC_WRENCH, BagError, calibration_sample, session_metadata,
-                                typestore)
+                                TOPIC_WRENCH, BagError, CalibrationBagWriter, calibration_sample,
+                                session_metadata, typestore)
 from tacforce_ros.hand.description import HandConfigError, load_hand
 from tacforce_ros.nodes.common import (ParameterError, ParamSpec, TacforceNode, publisher_qos,
                                        run_node, subscriber_qos)
-from tacforce_ros.recording.serialized_bag import SerializedBagWriter
 from tacforce_ros.recording.synchroniser import ApproximateTimeSynchroniser
 
 INPUTS = (TOPIC_TACTILE, TOPIC_WRENCH, TOPIC_JOINTS)   # synchroniser input order
@@ -70,7 +69,7 @@ class SyncRecorder(TacforceNode):
         problem = self._array_problem(self.params['array'])
         if problem:
             raise ParameterError(problem)
-        self.writer: SerializedBagWriter | None = None
+        self.writer: CalibrationBagWriter | None = None
         self.sync: ApproximateTimeSynchroniser | None = None
         self._array_name = ''
         self._counts: dict[str, int] = {}
@@ -115,8 +114,8 @@ class SyncRecorder(TacforceNode):
                                 operator_notes=notes, source=self.params['source'])
         try:
             folder.mkdir(parents=True, exist_ok=True)
-            self.writer = SerializedBagWriter(path, meta,
-                                              split_seconds=self.params['split_seconds'])
+            self.writer = CalibrationBagWriter(path, meta, started_ns=self.now_ns(),
+                                               split_seconds=self.params['split_seconds'])
         except (OSError, BagError) as exc:
             return False, f'cannot create bag {path}: {exc}'
         self.sync = ApproximateTimeSynchroniser(len(INPUTS), self.params['queue_size'],

@@ -5,6 +5,7 @@ import os
 import subprocess
 import sys
 import sysconfig
+import time
 from pathlib import Path
 
 VENV = Path(sys.prefix)
@@ -51,3 +52,24 @@ def stop(proc: subprocess.Popen, timeout: float = 10.0) -> str:
 
 PYTHON = sys.executable
 PURELIB = sysconfig.get_paths()['purelib']
+
+
+def spin_until(node, done, timeout: float) -> bool:
+    """Spin `node` until done() is true or `timeout` seconds pass; returns done()."""
+    import rclpy
+    deadline = time.monotonic() + timeout
+    while not done() and time.monotonic() < deadline:
+        rclpy.spin_once(node, timeout_sec=0.05)
+    return done()
+
+
+def call_service(node, srv_type, name: str, request, timeout: float = 20.0):
+    """Call a service from a test node, waiting (bounded) for it to appear and answer."""
+    client = node.create_client(srv_type, name)
+    try:
+        assert spin_until(node, client.service_is_ready, timeout), f'{name} never appeared'
+        future = client.call_async(request)
+        assert spin_until(node, future.done, timeout), f'{name} did not answer'
+        return future.result()
+    finally:
+        node.destroy_client(client)

@@ -16,7 +16,7 @@ from tacforce_ros.nodes.common import EXIT_BAD_PARAMETERS, EXIT_OK, subscriber_q
 from tacforce_ros.paths import config_dir
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from ros_processes import executable, start, stop, unique_domain_id  # noqa: E402
+from ros_processes import executable, spin_until, start, stop, unique_domain_id  # noqa: E402
 
 pytestmark = pytest.mark.ros
 DOMAIN = unique_domain_id(offset=37)
@@ -37,13 +37,6 @@ def ros_node():
     finally:
         node.destroy_node()
         rclpy.shutdown()
-
-
-def spin_until(node, done, timeout):
-    deadline = time.monotonic() + timeout
-    while not done() and time.monotonic() < deadline:
-        rclpy.spin_once(node, timeout_sec=0.05)
-    return done()
 
 
 @pytest.fixture

@@ -21,7 +21,8 @@ from tacforce_ros.nodes.common import EXIT_OK, publisher_qos, subscriber_qos
 from tacforce_ros.paths import config_dir
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from ros_processes import executable, start, stop, unique_domain_id  # noqa: E402
+from ros_processes import (call_service, executable, spin_until, start, stop,  # noqa: E402
+                           unique_domain_id)
 
 pytestmark = pytest.mark.ros
 DOMAIN = unique_domain_id(offset=53)
@@ -40,24 +41,6 @@ def ros_node():
     finally:
         node.destroy_node()
         rclpy.shutdown()
-
-
-def spin_until(node, done, timeout):
-    deadline = time.monotonic() + timeout
-    while not done() and time.monotonic() < deadline:
-        rclpy.spin_once(node, timeout_sec=0.05)
-    return done()
-
-
-def call(node, srv_type, name, request, timeout=20.0):
-    client = node.create_client(srv_type, name)
-    try:
-        assert spin_until(node, client.service_is_ready, timeout), f'{name} never appeared'
-        future = client.call_async(request)
-        assert spin_until(node, future.done, timeout), f'{name} did not answer'
-        return future.result()
-    finally:
-        node.destroy_client(client)
 
 
 class Streams:
@@ -152,16 +135,18 @@ def test_session_started_and_stopped_by_services_records_everything(ros_node, st
     proc = recorder(tmp_path, '-p', 'plate:=button')
     try:
         assert streams.wait_for_recorder(), 'recorder never subscribed'
-        reply = call(ros_node, StartRecording, '/sync_recorder/start', StartRecording.Request(
+        reply = call_service(
+            ros_node, StartRecording, '/sync_recorder/start', StartRecording.Request(
             array='index_middle', plate='flat', operator_notes='test session'))
         assert reply.success, reply.message
-        again = call(ros_node, StartRecording, '/sync_recorder/start', StartRecording.Request())
+        again = call_service(ros_node, StartRecording, '/sync_recorder/start',
+                             StartRecording.Request())
         assert not again.success and 'already recording' in again.message
         streams.run(1.5)
         spin_until(ros_node, lambda: False, 0.3)    # let the last messages arrive
-        stopped = call(ros_node, Trigger, '/sync_recorder/stop', Trigger.Request())
+        stopped = call_service(ros_node, Trigger, '/sync_recorder/stop', Trigger.Request())
         assert stopped.success, stopped.message
-        assert not call(ros_node, Trigger, '/sync_recorder/stop', Trigger.Request()).success
+        assert not call_service(ros_node, Trigger, '/sync_recorder/stop', Trigger.Request()).success
     finally:
         output = stop(proc)
         ros_node.destroy_subscription(sub)
@@ -223,7 +208,7 @@ def test_unknown_array_is_refused_at_start_up_and_by_the_service(ros_node, tmp_p
     assert bad.returncode != EXIT_OK and 'pinky_tip' in output, output
     proc = recorder(tmp_path)
     try:
-        reply = call(ros_node, StartRecording, '/sync_recorder/start',
+        reply = call_service(ros_node, StartRecording, '/sync_recorder/start',
                      StartRecording.Request(array='pinky_tip'))
     finally:
         stop(proc)

@@ -1,0 +1,72 @@
+"""Calibration sessions simulated in-process -> CalibrationDataset (pipeline steps 1-3), no bag.
+
+The direct path of `reproduce`: the simulator sim_record drives, with its streams going straight
+into the estimation's preprocessing (low-pass, resampling onto the tactile stamps, projection of
+the F/T force into {S0} with R^0_F(q) from the nominal kinematics) instead of through a bag.
+Messages the transport effect drops are left out of their stream, as a recorder would miss them.
+"""
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from tacforce_ros.estimation.dataset import CalibrationDataset, DatasetError
+from tacforce_ros.estimation.preprocessing import common_span, lowpass, project_force, resample
+from tacforce_ros.sim import load_scene, make_simulator
+from tacforce_ros.tools.sim_record import session_seed
+
+if TYPE_CHECKING:
+    from tacforce_ros.hand.description import HandDescription
+    from tacforce_ros.hand.kinematics import HandKinematics
+
+
+def simulate_calibration(hand: HandDescription, kinematics: HandKinematics, scene_name: str,
+                         seed: int, seconds: float, start: float = 0.0) -> CalibrationDataset:
+    """Simulate `scene_name` with `seed` and keep the stamps in [start, seconds] (simulated s).
+
+    Stamps are the simulator's time at the end of each step, as sim_world stamps its messages,
+    so a window cut from a node-recorded bag can be reproduced here exactly.
+    """
+    scene = load_scene(scene_name)
+    sim = make_simulator(scene, hand, seed=seed)
+    array = hand.array(scene.array)
+    rows = array.flat_indices
+    times: dict[str, list[float]] = {'tactile': [], 'ft': [], 'joints': []}
+    values: dict[str, list[np.ndarray]] = {'tactile': [], 'ft': [], 'joints': []}
+    for _ in range(int(round(seconds / sim.dt))):
+        sample = sim.step()
+        stamp = sample.t + sim.dt
+        if stamp < start:
+            continue
+        for stream, value in (('tactile', lambda: sample.taxel_counts[rows]),
+                              ('ft', lambda: sample.ft_wrench[:3]), ('joints', lambda: sample.q)):
+            if sample.delivered[stream]:
+                times[stream].append(stamp)
+                values[stream].append(np.asarray(value(), dtype=np.float64))
+    for stream, samples in values.items():
+        if len(samples) < 2:
+            raise DatasetError(f'{scene_name} seed {seed}: only {len(samples)} {stream} samples')
+    t_tac, t_ft, t_q = (np.asarray(times[s]) for s in ('tactile', 'ft', 'joints'))
+    tactile = lowpass(np.stack(values['tactile']), fs=scene.tactile_rate)
+    force = lowpass(np.stack(values['ft']), fs=scene.tactile_rate)
+    first, last = common_span(t_tac, t_ft, t_q)
+    inside = (t_tac >= first) & (t_tac <= last)
+    base = t_tac[inside]
+    force = resample(base, t_ft, force)
+    joints = resample(base, t_q, np.stack(values['joints']))
+    rotations = np.stack([kinematics.rotation_between(q, hand.ft_frame, array.frame_id)
+                          for q in joints])
+    n = base.size
+    return CalibrationDataset(array=array.name, X=tactile[inside],
+                              F=project_force(force, rotations),
+                              plates=np.full(n, scene.plate.name),
+                              sessions=np.zeros(n, dtype=np.int64), time=base - base[0],
+                              source='sim')
+
+
+def simulate_session(hand: HandDescription, kinematics: HandKinematics, array: str, plate: str,
+                     session: int, seconds: float, base_seed: int) -> CalibrationDataset:
+    """One operator session of `array` on `plate`, seeded exactly as sim_record seeds it."""
+    return simulate_calibration(hand, kinematics, f'calibration_{array}_{plate}',
+                                session_seed(base_seed, array, plate, session), seconds)

@@ -1,0 +1,132 @@
+"""Closed-loop force control on the simulated hand, composed in-process (paper Sec. IV-C, V-C).
+
+The same core objects the node graph wires over DDS, called directly and faster than real time:
+the MuJoCo closed-loop simulator, the estimator's ModelSet (runtime estimator over the modelled
+arrays, tared on the first frames as the estimator node tares), the ForceController, and the
+force command sequence. Control and estimation tick at `control_rate` (paper: 100 Hz); the torque
+is held over the physics steps in between, as the Allegro firmware holds the last command.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from tacforce_ros.control.force_controller import ForceController, ForceControllerConfig
+from tacforce_ros.estimation.metrics import error_stats
+from tacforce_ros.sim import load_scene, make_simulator
+
+if TYPE_CHECKING:
+    from tacforce_ros.control.command_sequence import ForceSequence
+    from tacforce_ros.hand.description import HandDescription
+    from tacforce_ros.hand.kinematics import HandKinematics
+    from tacforce_ros.nodes.model_set import ModelSet
+
+METRIC_WINDOW = (16.0, 70.0)   # s; paper Sec. V-C: after the initial f_d = 0 phase
+
+
+@dataclass
+class ClosedLoopTrace:
+    """One run sampled at the control ticks; forces in the sequence's frame {F}, newtons."""
+
+    t: np.ndarray          # (T,) s since the start of the sequence
+    f_d: np.ndarray        # (T, 3) desired
+    f_hat: np.ndarray      # (T, 3) estimate (NaN while there is none: open loop, before tare)
+    f_tilde: np.ndarray    # (T, 3) F/T measurement
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        return {'t': self.t, 'f_d': self.f_d, 'f_hat': self.f_hat, 'f_tilde': self.f_tilde}
+
+
+def run_closed_loop(hand: HandDescription, kinematics: HandKinematics, scene: str | Path,
+                    seed: int, config: ForceControllerConfig, sequence: ForceSequence,
+                    models: ModelSet | None, control_rate: float = 100.0,
+                    tare_frames: int = 50, tare_start: float = 10.0) -> ClosedLoopTrace:
+    """Play `sequence` once. `models` None runs without an estimator (open loop only).
+
+    The estimator is tared on `tare_frames` frames from `tare_start` s, while f_d is still zero
+    and the finger has settled on the plate (the model's default tare comes from other sessions,
+    whose simulated taxel baselines differ). Until then the controller has no estimate: its
+    watchdog holds the finger's position.
+    """
+    controller = ForceController(config, kinematics)
+    if models is None and not controller.open_loop:
+        raise ValueError('a closed-loop controller (k_i != 0) needs force models')
+    scene = load_scene(scene)
+    sim = make_simulator(scene, hand, seed=seed)
+    every = int(round(1.0 / (control_rate * sim.dt)))
+    if every < 1 or abs(every * sim.dt * control_rate - 1.0) > 1e-9:
+        raise ValueError(f'control rate {control_rate} Hz must divide the physics rate '
+                         f'{1.0 / sim.dt:g} Hz')
+    row = None if models is None else [a.name for a in models.arrays].index(scene.array)
+    joints = kinematics.finger_joints(config.finger)
+    tare: list[np.ndarray] = []
+    q = qdot = None
+    q_time = estimate_time = -np.inf
+    f_hat = np.full(3, np.nan)
+    torque = np.zeros(16)
+    ticks = int(round(sequence.duration * control_rate))
+    log = {key: np.full((ticks, 3), np.nan) for key in ('f_d', 'f_hat', 'f_tilde')}
+    log_t = np.zeros(ticks)
+    for tick in range(ticks):
+        frame = None
+        for _ in range(every):
+            sample = sim.step(torque)
+            if sample.tactile_fresh and sample.delivered['tactile']:
+                frame = sample.taxel_counts
+        t = sample.t    # closed-loop samples are stamped at the end of their step
+        if q is None:   # the first state, even if its message was dropped (then it is stale)
+            q, qdot = sample.q, sample.qdot
+        if sample.delivered['joints']:
+            q, qdot, q_time = sample.q, sample.qdot, t
+        if models is not None and frame is not None and t >= tare_start:
+            if len(tare) < tare_frames:    # the estimator node tares on its first frames
+                tare.append(frame.astype(np.float64))
+                if len(tare) == tare_frames:
+                    models.set_tare(np.stack(tare))
+            else:
+                estimate = models.estimate(frame)
+                if estimate.valid[row]:
+                    f_hat, estimate_time = estimate.force[row], t
+        f_d = sequence.force_at(t)
+        tau, state = controller.update(t, q, qdot, f_hat, t - estimate_time, t - q_time, f_d)
+        torque = np.zeros(16)
+        torque[joints] = tau
+        log_t[tick] = t
+        log['f_d'][tick] = f_d
+        if state.estimate_fresh:
+            log['f_hat'][tick] = state.estimated_force
+        log['f_tilde'][tick] = sample.ft_wrench[:3]
+    return ClosedLoopTrace(t=log_t, **log)
+
+
+def trace_metrics(traces: list[ClosedLoopTrace],
+                  window: tuple[float, float] = METRIC_WINDOW) -> dict:
+    """The paper's Table III metrics over `window`, pooled over the repeats (mean and std over
+    samples), plus the spread of the per-repeat means of e~.
+
+    e_r, e_hat: estimate vs F/T; e_track: desired vs estimate; e~: desired vs F/T. Metrics that
+    need the estimate are None when the runs had none (open loop).
+    """
+    inside = [(tr.t >= window[0]) & (tr.t <= window[1]) for tr in traces]
+    f_d = np.concatenate([tr.f_d[k] for tr, k in zip(traces, inside)])
+    f_tilde = np.concatenate([tr.f_tilde[k] for tr, k in zip(traces, inside)])
+    f_hat = np.concatenate([tr.f_hat[k] for tr, k in zip(traces, inside)])
+    true_tracking = error_stats(f_d, f_tilde)
+    per_run = [error_stats(tr.f_d[k], tr.f_tilde[k]).e_hat_mean for tr, k in zip(traces, inside)]
+    result = {'runs': len(traces), 'samples': int(f_d.shape[0]), 'window_s': list(window),
+              'e_tilde_mean': true_tracking.e_hat_mean, 'e_tilde_std': true_tracking.e_hat_std,
+              'e_tilde_per_run': per_run, 'estimate_coverage': 0.0,
+              'e_r_mean': None, 'e_r_std': None, 'e_hat_mean': None, 'e_hat_std': None,
+              'e_track_mean': None, 'e_track_std': None}
+    have = np.all(np.isfinite(f_hat), axis=1)
+    if have.any():
+        estimate = error_stats(f_tilde[have], f_hat[have])
+        tracking = error_stats(f_d[have], f_hat[have])
+        result.update(estimate_coverage=float(have.mean()),
+                      e_r_mean=estimate.e_r_mean, e_r_std=estimate.e_r_std,
+                      e_hat_mean=estimate.e_hat_mean, e_hat_std=estimate.e_hat_std,
+                      e_track_mean=tracking.e_hat_mean, e_track_std=tracking.e_hat_std)
+    return result

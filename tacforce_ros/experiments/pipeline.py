@@ -1,0 +1,454 @@
+"""The reproduction pipeline: stages, their cache keys, and the worker jobs that compute them.
+
+Independent units (calibration sessions, cross-validation folds of one model, final fits,
+closed-loop runs) go to a process pool; each unit is cached on its own, so a changed input
+recomputes only the units whose key it enters.
+"""
+from __future__ import annotations
+
+import dataclasses
+import sys
+import time
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+import yaml
+from tqdm import tqdm
+
+from tacforce_ros.experiments.cache import (StageCache, code_digest, digest, file_digest,
+                                            scene_digest)
+from tacforce_ros.paths import config_dir
+
+PLATES = ('button', 'flat', 'fillet', 'convex', 'edge')      # training plates (paper Fig. 2d)
+HELD_OUT_PLATE = 'spherical'
+ARRAYS = ('index_tip', 'index_middle')                       # curved fingertip, flat phalanx
+OBJECTS = ('spherical', 'foam_brick', 'softball', 'abrasive_sponge', 'bleach_cleanser')
+CONTROLLERS = ('open_loop', 'M3-lambda', 'M4')               # Table III rows
+ONLINE_MODELS = ('M3-lambda', 'M4')                          # Table II rows
+
+
+@dataclass(frozen=True)
+class Settings:
+    """Data sizes and choices of one run (the defaults are the full run)."""
+
+    sessions_per_plate: int = 4          # paper: 4 x 100 s per plate and array
+    session_seconds: float = 100.0
+    online_seconds: float = 200.0        # paper: 200 s online on the spherical plate
+    models: tuple[str, ...] = ('M1', 'M2', 'M3', 'M3-lambda', 'M3-lambda-cv', 'M4', 'M5')
+    epochs: int = 8                      # M4/M5 (paper: 40; see the report's sizes section)
+    timing_repeats: int = 2000
+    objects: tuple[str, ...] = OBJECTS
+    repeats: int = 5                     # paper: 5 runs per object and controller
+    sequence: str = 'paper_70s'
+    control_rate: float = 100.0          # paper: control and estimation at 100 Hz
+    seed: int = 0
+    # Static-segment force threshold for offsets [N]: the simulated F/T carries an un-zeroed
+    # bias of ~0.15 N per axis, so the estimation's 0.3 N default misses the rest periods of
+    # some sessions; 0.6 N stays below the operator's smallest press peaks' plateau.
+    static_force: float = 0.6
+    node_path: bool = True
+
+    @classmethod
+    def quick(cls) -> Settings:
+        """Small sizes for tests: every stage runs, on less data and fewer runs."""
+        return cls(sessions_per_plate=1, session_seconds=30.0, online_seconds=30.0, epochs=2,
+                   timing_repeats=200, objects=('spherical', 'foam_brick'), repeats=1,
+                   node_path=False)
+
+
+@dataclass
+class Context:
+    """What every stage needs: settings, cache, output folder, pool and progress output."""
+
+    settings: Settings
+    out: Path
+    cache: StageCache
+    pool: ProcessPoolExecutor
+    log: Callable[[str], None] = print
+    timings: dict[str, float] = field(default_factory=dict)
+
+    def scene_folder(self) -> Path:
+        return self.out / 'scenes'
+
+
+# ---------------------------------------------------------------------------------- workers
+
+_WORKER: dict[str, Any] = {}
+
+
+def init_worker() -> None:
+    """Per-process hand and kinematics (loaded once per worker)."""
+    import warnings
+
+    from tacforce_ros.hand.description import load_hand
+    from tacforce_ros.hand.kinematics import HandKinematics
+    warnings.simplefilter('ignore')     # sim warnings repeat per run; the report states effects
+    _WORKER['hand'] = load_hand()
+    _WORKER['kinematics'] = HandKinematics.for_hand(_WORKER['hand'])
+
+
+def _hand():
+    if not _WORKER:
+        init_worker()
+    return _WORKER['hand'], _WORKER['kinematics']
+
+
+def job_calibration(scene: str, seed: int, seconds: float, target: str) -> str:
+    from tacforce_ros.experiments.calibration_data import simulate_calibration
+    hand, kinematics = _hand()
+    dataset = simulate_calibration(hand, kinematics, scene, seed, seconds)
+    tmp = Path(target).with_name(Path(target).name + '.tmp')
+    dataset.save(tmp)
+    tmp.replace(target)
+    return target
+
+
+def load_training(paths: list[str], static_force: float):
+    """(dataset, X, F, x_offset) of the joined sessions, offsets removed per session."""
+    from tacforce_ros.estimation.dataset import CalibrationDataset, concatenate
+    dataset = concatenate([CalibrationDataset.load(p) for p in paths])
+    return (dataset, *dataset.without_offsets(force_threshold=static_force))
+
+
+def job_cross_validation(array: str, kind: str, hyper: dict, paths: list[str],
+                         static_force: float) -> dict:
+    from tacforce_ros.estimation.cross_validation import cross_validate
+    hand, _ = _hand()
+    dataset, X, F, _ = load_training(paths, static_force)
+    return cross_validate(hand.array(array), kind, hyper, X, F, dataset.plates).summary()
+
+
+def job_final_model(array: str, kind: str, hyper: dict, paths: list[str], static_force: float,
+                    provenance: dict, target: str) -> str:
+    from tacforce_ros.estimation.model_io import save_model
+    from tacforce_ros.estimation.training import fit_bundle
+    hand, _ = _hand()
+    dataset, X, F, offset = load_training(paths, static_force)
+    provenance = {**provenance, 'plates': dataset.plate_names(), 'samples': int(X.shape[0])}
+    bundle = fit_bundle(hand.array(array), kind, hyper, X, F, dataset.plates, x_offset=offset,
+                        provenance=provenance)
+    tmp = Path(target).with_name(Path(target).name + '.tmp')
+    save_model(tmp, bundle)
+    tmp.replace(target)
+    return target
+
+
+def job_closed_loop(scene: str, seed: int, controller: str, model_config: str | None,
+                    sequence: str, control_rate: float, target: str) -> str:
+    from tacforce_ros.control.command_sequence import ForceSequence
+    from tacforce_ros.experiments.closed_loop import run_closed_loop
+    from tacforce_ros.nodes.model_set import load_model_set
+    hand, kinematics = _hand()
+    models = None if model_config is None else load_model_set(model_config, hand)
+    trace = run_closed_loop(hand, kinematics, scene, seed, controller_config(controller),
+                            ForceSequence.load(sequence), models, control_rate=control_rate,
+                            tare_frames=tare_frames())
+    tmp = Path(target).with_name(Path(target).name + '.tmp.npz')
+    np.savez(tmp, **trace.arrays())
+    tmp.replace(target)
+    return target
+
+
+# ---------------------------------------------------------------------------------- inputs
+
+def controller_params_file() -> Path:
+    return config_dir() / 'params' / 'force_controller.yaml'
+
+
+def controller_config(controller: str):
+    """The project's controller parameters; open loop is the same with K_i = 0 (paper)."""
+    from tacforce_ros.control.force_controller import ForceControllerConfig
+    config = ForceControllerConfig.from_yaml(controller_params_file())
+    return dataclasses.replace(config, k_i=(0.0, 0.0, 0.0)) if controller == 'open_loop' \
+        else config
+
+
+def tare_frames() -> int:
+    """Frames the estimator node tares on (config/params/estimator.yaml)."""
+    doc = yaml.safe_load((config_dir() / 'params' / 'estimator.yaml').read_text())
+    return int(doc['estimator']['ros__parameters']['tare_frames'])
+
+
+def hand_digest() -> str:
+    hand_dir = config_dir() / 'hand'
+    return file_digest(*sorted(hand_dir.glob('*.yaml')),
+                       *sorted((config_dir() / 'urdf').glob('*.urdf')))
+
+
+def session_seed(array: str, plate: str, session: int, base: int) -> int:
+    from tacforce_ros.tools.sim_record import session_seed as seed_of
+    return seed_of(base, array, plate, session)
+
+
+def model_hyper(label: str, settings: Settings) -> tuple[str, dict]:
+    from tacforce_ros.tools.bench import configurations
+    return configurations(settings.seed, settings.epochs)[label]
+
+
+# ---------------------------------------------------------------------------------- running
+
+def run_units(ctx: Context, title: str, units: list[tuple[str, Callable, tuple]]
+              ) -> dict[str, Any]:
+    """Submit (name, job, args) units to the pool; tqdm over completions; results by name."""
+    results: dict[str, Any] = {}
+    if not units:
+        return results
+    started = time.perf_counter()
+    futures = {ctx.pool.submit(job, *args): name for name, job, args in units}
+    with tqdm(total=len(futures), desc=title, unit='job', file=sys.stderr) as bar:
+        for future in as_completed(futures):
+            results[futures[future]] = future.result()
+            bar.update(1)
+    ctx.timings[title] = ctx.timings.get(title, 0.0) + time.perf_counter() - started
+    return results
+
+
+def calibration_stage(ctx: Context) -> dict[str, dict[str, list[str]]]:
+    """Simulated sessions: {array: {plate: [dataset paths]}}, training plates + held-out."""
+    s = ctx.settings
+    code = code_digest('sim', 'hand', 'estimation/preprocessing', 'estimation/dataset',
+                       'experiments/calibration_data')
+    jobs, layout = [], {}
+    plan = [(a, p, k, s.session_seconds) for a in ARRAYS for p in PLATES
+            for k in range(s.sessions_per_plate)]
+    plan.append(('index_tip', HELD_OUT_PLATE, 0, s.online_seconds))   # online test session
+    for array, plate, session, seconds in plan:
+        scene = f'calibration_{array}_{plate}'
+        seed = session_seed(array, plate, session, s.seed)
+        key = digest({'scene': scene_digest(scene), 'seed': seed, 'seconds': seconds,
+                      'code': code, 'hand': hand_digest()})
+        path = ctx.cache.path('calibration', key, '.npz')
+        layout.setdefault(array, {}).setdefault(plate, []).append(str(path))
+        if ctx.cache.lookup('calibration', key, '.npz') is None:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            jobs.append((str(path), job_calibration, (scene, seed, seconds, str(path))))
+    ctx.log(f'stage calibration: {len(plan)} sessions, {len(jobs)} to simulate')
+    run_units(ctx, 'calibration sessions', jobs)
+    return layout
+
+
+def _training_key(paths: list[str], label: str, settings: Settings) -> str:
+    return digest({'data': sorted(Path(p).stem for p in paths),
+                   'model': model_hyper(label, settings),
+                   'static_force': settings.static_force, 'code': code_digest('estimation')})
+
+
+def benchmark_stage(ctx: Context, layout: dict) -> tuple[dict, dict]:
+    """Table I: leave-one-plate-out CV per array and model; final models on all five plates.
+
+    Returns ({array: {label: cv summary}}, {array: {label: model path}}).
+    """
+    s = ctx.settings
+    cv_jobs, fit_jobs, cv, models, keys = [], [], {}, {}, {}
+    for array in ARRAYS:
+        paths = [p for plate in PLATES for p in layout[array][plate]]
+        for label in s.models:
+            kind, hyper = model_hyper(label, s)
+            key = _training_key(paths, label, s)
+            name = f'{array}/{label}'
+            keys[name] = key
+            cached = ctx.cache.load_json('cross_validation', key)
+            if cached is None:
+                cv_jobs.append((name, job_cross_validation,
+                                (array, kind, hyper, paths, s.static_force)))
+            else:
+                cv.setdefault(array, {})[label] = cached
+            target = ctx.cache.path('models', key, '.npz')
+            models.setdefault(array, {})[label] = str(target)
+            if ctx.cache.lookup('models', key, '.npz') is None:
+                target.parent.mkdir(parents=True, exist_ok=True)
+                provenance = {'dataset': f'reproduce cache {key[:24]}', 'date':
+                              time.strftime('%Y-%m-%dT%H:%M:%S%z'), 'seed': s.seed,
+                              'code_version': code_digest('estimation')[:12], 'metrics': None}
+                fit_jobs.append((name, job_final_model, (array, kind, hyper, paths,
+                                                         s.static_force, provenance,
+                                                         str(target))))
+    ctx.log(f'stage benchmark: {len(cv_jobs)} cross-validations and {len(fit_jobs)} final fits '
+            f'to run ({len(ARRAYS) * len(s.models)} each in all)')
+    # Slow (torch) units first, so the pool does not end on one long job.
+    slow = ('M4', 'M5')
+    order = sorted(cv_jobs + fit_jobs, key=lambda u: not u[0].endswith(slow))
+    results = run_units(ctx, 'benchmark fits', [
+        (('cv:' if job is job_cross_validation else 'fit:') + name, job, args)
+        for name, job, args in order])
+    for name, value in results.items():
+        if name.startswith('cv:'):
+            array, label = name[3:].split('/')
+            ctx.cache.store_json('cross_validation', keys[name[3:]], value)
+            cv.setdefault(array, {})[label] = value
+    return cv, models
+
+
+def timing_stage(ctx: Context, models: dict) -> dict:
+    """Inference cost per array and model: one prediction, the compiled batch of one, and a
+    full-hand tick (18 arrays of the kind), timed round-robin by the bench tool's timer so every
+    model sees the same machine load. Runs in this process while the pool is idle."""
+    from tacforce_ros.estimation.model_io import load_model
+    from tacforce_ros.tools.bench import hand_estimator, time_interleaved
+    s = ctx.settings
+    key = digest({'models': {a: {m: Path(p).stem for m, p in by.items()}
+                             for a, by in models.items()},
+                  'repeats': s.timing_repeats, 'code': code_digest('estimation', 'tools/bench')})
+    cached = ctx.cache.load_json('timing', key)
+    if cached is not None:
+        return cached
+    ctx.log(f'stage timing: {len(ARRAYS) * len(s.models)} models, {s.timing_repeats} calls each')
+    started = time.perf_counter()
+    hand, _ = _hand()
+    calls = {}
+    for label in s.models:
+        kind, hyper = model_hyper(label, s)
+        estimator = hand_estimator(hand, kind, hyper, s.seed)
+        frame = np.clip(np.round(hand.merge([b.x_offset for b in estimator.bundles])), 0,
+                        65535).astype(np.uint16)
+        for array in ARRAYS:
+            bundle = load_model(models[array][label], hand.array(array))
+            one = np.zeros((1, bundle.array.n_taxels, 3))
+            batch = type(bundle.model).compile_batch([bundle.model])
+            calls[(array, label, 'predict_one')] = lambda m=bundle.model, x=one: m.predict(x)
+            calls[(array, label, 'batch_one')] = lambda b=batch, x=one: b(x)
+            calls[(array, label, 'full_hand_tick')] = \
+                lambda e=estimator, f=frame: e.estimate(f)
+    measured = time_interleaved(calls, s.timing_repeats)
+    timing: dict[str, dict] = {}
+    for (array, label, what), value in measured.items():
+        timing.setdefault(array, {}).setdefault(label, {})[what] = value
+    ctx.timings['timing'] = time.perf_counter() - started
+    ctx.cache.store_json('timing', key, timing)
+    return timing
+
+
+def online_stage(ctx: Context, layout: dict, models: dict) -> dict:
+    """Table II: the final models on the held-out spherical session of the index fingertip."""
+    from tacforce_ros.estimation.metrics import error_stats
+    from tacforce_ros.estimation.model_io import load_model
+    from tacforce_ros.hand.description import load_hand
+    hand = load_hand()
+    dataset, X, F, _ = load_training(layout['index_tip'][HELD_OUT_PLATE],
+                                     ctx.settings.static_force)
+    result = {'seconds': float(dataset.time[-1] - dataset.time[0]), 'samples': int(len(F))}
+    for label in ONLINE_MODELS:
+        bundle = load_model(models['index_tip'][label], hand.array('index_tip'))
+        # Offsets were removed from X already (the session's own static segments): no tare.
+        result[label] = error_stats(F, bundle.predict(X, tare=np.zeros_like(bundle.x_offset))
+                                    ).as_dict()
+    ctx.log(f'stage online: {result["samples"]} samples on the held-out plate')
+    return result
+
+
+def model_config_file(ctx: Context, label: str, models: dict) -> Path:
+    """An estimator model list (nodes/model_set.py format) with the index fingertip's model."""
+    path = ctx.out / 'models' / f'{label}.yaml'
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(yaml.safe_dump({'models': {'index_tip': str(Path(
+        models['index_tip'][label]).resolve())}}))
+    return path
+
+
+def closed_loop_seed(obj: str, repeat: int, base: int) -> int:
+    """Repeat k of every controller on one object shares its seed (a paired comparison)."""
+    return session_seed('closed_loop', obj, repeat, base)
+
+
+def closed_loop_stage(ctx: Context, models: dict) -> dict[tuple[str, str], list[str]]:
+    """Table III runs: {(object, controller): [trace paths]}."""
+    from tacforce_ros.experiments.scenes import zeroed_ft_scene
+    s = ctx.settings
+    code = code_digest('sim', 'hand', 'control', 'estimation/runtime', 'nodes/model_set',
+                       'experiments/closed_loop')
+    inputs = file_digest(controller_params_file(), config_dir() / 'commands' / f'{s.sequence}.yaml',
+                         config_dir() / 'params' / 'estimator.yaml')
+    jobs, traces = [], {}
+    for obj in s.objects:
+        scene = zeroed_ft_scene(f'closed_loop_{obj}', ctx.scene_folder())
+        for controller in CONTROLLERS:
+            model_config = None if controller == 'open_loop' else \
+                model_config_file(ctx, controller, models)
+            model_key = None if model_config is None else Path(models['index_tip'][controller]).stem
+            for repeat in range(s.repeats):
+                seed = closed_loop_seed(obj, repeat, s.seed)
+                key = digest({'scene': scene_digest(scene), 'seed': seed, 'model': model_key,
+                              'controller': controller, 'rate': s.control_rate, 'code': code,
+                              'inputs': inputs, 'hand': hand_digest()})
+                target = ctx.cache.path('closed_loop', key, '.npz')
+                traces.setdefault((obj, controller), []).append(str(target))
+                if ctx.cache.lookup('closed_loop', key, '.npz') is None:
+                    target.parent.mkdir(parents=True, exist_ok=True)
+                    jobs.append((str(target), job_closed_loop,
+                                 (str(scene), seed, controller,
+                                  None if model_config is None else str(model_config),
+                                  s.sequence, s.control_rate, str(target))))
+    ctx.log(f'stage closed loop: {sum(map(len, traces.values()))} runs, {len(jobs)} to simulate')
+    run_units(ctx, 'closed-loop runs', jobs)
+    return traces
+
+
+def load_trace(path: str):
+    from tacforce_ros.experiments.closed_loop import ClosedLoopTrace
+    with np.load(path) as npz:
+        return ClosedLoopTrace(**{k: npz[k] for k in ('t', 'f_d', 'f_hat', 'f_tilde')})
+
+
+def node_path_stage(ctx: Context, models: dict) -> dict:
+    """One calibration session and one closed-loop run (M3-lambda, spherical plate) through the
+    node graph, each compared with the direct path on the same scene and seed. Cached like the
+    other stages; a failure is recorded with its reason, never replaced by direct results."""
+    from tacforce_ros.control.command_sequence import ForceSequence
+    from tacforce_ros.experiments import node_path
+    from tacforce_ros.experiments.closed_loop import run_closed_loop
+    from tacforce_ros.experiments.scenes import zeroed_ft_scene
+    from tacforce_ros.nodes.model_set import load_model_set
+    from tacforce_ros.sim import load_scene
+    s = ctx.settings
+    if not s.node_path:
+        return {'ran': False, 'reason': 'switched off for this run (--quick or --no-node-path)'}
+    hand, kinematics = _hand()
+    calibration_scene = f'calibration_index_tip_{HELD_OUT_PLATE}'
+    loop_scene = zeroed_ft_scene('closed_loop_spherical', ctx.scene_folder())
+    model = models['index_tip']['M3-lambda']
+    key = digest({'scenes': [scene_digest(calibration_scene), scene_digest(loop_scene)],
+                  'model': Path(model).stem, 'code': code_digest(
+                      'nodes', 'tools/session', 'devices', 'recording', 'sim', 'control',
+                      'experiments/node_path', 'experiments/closed_loop'),
+                  'inputs': file_digest(*sorted((config_dir() / 'params').glob('*.yaml')),
+                                        config_dir() / 'commands' / f'{s.sequence}.yaml')})
+    cached = ctx.cache.load_json('node_path', key)
+    if cached is not None:
+        return cached
+    work = ctx.cache.path('node_path', key, '.d')
+    result: dict[str, Any] = {'ran': True, 'work_dir': str(work)}
+    started = time.perf_counter()
+    try:
+        ctx.log(f'stage node path: calibration session ({node_path.CALIBRATION_SECONDS:g} s wall)')
+        bag = node_path.run_session('calibration', calibration_scene, HELD_OUT_PLATE,
+                                    work / 'calibration', node_path.CALIBRATION_SECONDS)
+        result['calibration'] = node_path.compare_calibration(
+            bag, hand, kinematics, calibration_scene, load_scene(calibration_scene).seed, model,
+            s.static_force)
+        sequence = ForceSequence.load(s.sequence)
+        seed = load_scene(loop_scene).seed
+        models_set = load_model_set(model_config_file(ctx, 'M3-lambda', models), hand)
+        direct = run_closed_loop(hand, kinematics, loop_scene, seed, controller_config('M3-lambda'),
+                                 sequence, models_set, control_rate=s.control_rate,
+                                 tare_frames=tare_frames())
+        config = node_path.tared_model_config(model, models_set.estimator.tare('index_tip'), hand,
+                                              work / 'models')
+        ctx.log(f'stage node path: closed-loop run ({sequence.duration:g} s + start-up, wall)')
+        bag = node_path.run_session('closed_loop', str(loop_scene), HELD_OUT_PLATE,
+                                    work / 'closed_loop',
+                                    sequence.duration + node_path.START_MARGIN_S, config)
+        trace, offset = node_path.node_trace(bag, hand, kinematics, config, sequence, direct)
+        result['closed_loop'] = node_path.compare_closed_loop(trace, direct, offset)
+        np.savez(work / 'closed_loop_traces.npz',
+                 **{f'node_{k}': v for k, v in trace.arrays().items()},
+                 **{f'direct_{k}': v for k, v in direct.arrays().items()})
+    except (node_path.NodePathUnavailable, OSError, ValueError) as exc:
+        result.update(ran=False, reason=str(exc))
+        ctx.log(f'stage node path: did not complete: {exc}')
+        return result          # not cached: the next run tries again
+    ctx.timings['node path'] = time.perf_counter() - started
+    ctx.cache.store_json('node_path', key, result)
+    return result

@@ -1,0 +1,218 @@
+"""The report: one JSON document of every number the run produced, and Markdown with the paper's
+Table I, II and III layouts, our simulated numbers side by side with the paper's.
+
+Every number in the Markdown is formatted from the JSON by `cell()`; the paper's column comes
+from paper_reference.py only.
+"""
+from __future__ import annotations
+
+from typing import Any
+
+from tacforce_ros.experiments import paper_reference as paper
+
+MODEL_NAMES = {'M3-lambda': 'M3λ', 'M3-lambda-cv': 'M3λ (nested-CV λ)', 'open_loop': 'O.L.'}
+ARRAY_TITLES = {'index_tip': 'Curved array (index_tip)',
+                'index_middle': 'Flat array (index_middle)'}
+OBJECT_NUMBERS = {'spherical': 1, 'foam_brick': 2, 'softball': 3, 'abrasive_sponge': 4,
+                  'bleach_cleanser': 5}
+REDUCTION_TARGET_PERCENT = 70.0     # must-show: e~ with M3-lambda >= 70 % below open loop
+E_TRACK_TARGET_N = 0.1              # must-show: e_track with M3-lambda below 0.1 N
+
+
+def cell(mean: float | None, std: float | None = None, digits: int = 2) -> str:
+    """'m ± s' (or 'm', or '–' when there is no value)."""
+    if mean is None:
+        return '–'
+    return f'{mean:.{digits}f}' if std is None else f'{mean:.{digits}f} ± {std:.{digits}f}'
+
+
+def _percent(value: float | None) -> float | None:
+    return None if value is None else 100.0 * value
+
+
+def _pair(reference: dict, key: str) -> tuple[float | None, float | None]:
+    return reference.get(key, (None, None))
+
+
+def table_i(cv: dict, timing: dict) -> dict:
+    rows: dict[str, dict[str, Any]] = {}
+    for array, by_model in cv.items():
+        rows[array] = {}
+        for label, summary in by_model.items():
+            t = timing[array][label]
+            rows[array][label] = {
+                'sim': {'e_r_percent': _percent(summary['e_r_mean']),
+                        'e_r_std_percent': _percent(summary['e_r_std']),
+                        'e_hat': summary['e_hat_mean'], 'e_hat_std': summary['e_hat_std'],
+                        'mae_axis': summary['mae_axis'], 'n_parameters': summary['n_parameters'],
+                        'train_seconds_per_fold': summary['train_seconds'],
+                        'tau_single_ms': t['predict_one']['median_us'] / 1e3,
+                        'tau_full_hand_ms': t['full_hand_tick']['median_us'] / 1e3,
+                        'timing_us': t,
+                        'per_plate': [{k: f[k] for k in ('test_plate', 'e_r_mean', 'e_r_std',
+                                                         'e_hat_mean', 'e_hat_std', 'samples')}
+                                      for f in summary['per_fold']]},
+                'paper': paper.TABLE_I[array].get(label)}
+    return rows
+
+
+def table_ii(online: dict) -> dict:
+    return {label: {'sim': {'e_r_percent': _percent(online[label]['e_r_mean']),
+                            'e_r_std_percent': _percent(online[label]['e_r_std']),
+                            'e_hat': online[label]['e_hat_mean'],
+                            'e_hat_std': online[label]['e_hat_std'],
+                            'samples': online[label]['samples']},
+                    'paper': paper.TABLE_II[label]}
+            for label in paper.TABLE_II if label in online}
+
+
+def table_iii(closed: dict[tuple[str, str], dict]) -> list[dict]:
+    rows = []
+    for (obj, controller), m in closed.items():
+        rows.append({'object': obj, 'controller': controller,
+                     'row': f'({OBJECT_NUMBERS[obj]})-{MODEL_NAMES.get(controller, controller)}',
+                     'sim': {'e_r_percent': _percent(m['e_r_mean']),
+                             'e_r_std_percent': _percent(m['e_r_std']),
+                             'e_hat': m['e_hat_mean'], 'e_hat_std': m['e_hat_std'],
+                             'e_track': m['e_track_mean'], 'e_track_std': m['e_track_std'],
+                             'e_tilde': m['e_tilde_mean'], 'e_tilde_std': m['e_tilde_std'],
+                             'e_tilde_per_run': m['e_tilde_per_run'], 'runs': m['runs']},
+                     'paper': paper.TABLE_III.get((obj, controller))})
+    return rows
+
+
+def must_show(rows: list[dict]) -> dict:
+    by = {(r['object'], r['controller']): r['sim'] for r in rows}
+    open_loop, closed = by.get(('spherical', 'open_loop')), by.get(('spherical', 'M3-lambda'))
+    if open_loop is None or closed is None:
+        return {'evaluated': False}
+    reduction = 100.0 * (1.0 - closed['e_tilde'] / open_loop['e_tilde'])
+    return {'evaluated': True, 'e_tilde_open_loop': open_loop['e_tilde'],
+            'e_tilde_m3_lambda': closed['e_tilde'], 'e_tilde_reduction_percent': reduction,
+            'reduction_target_percent': REDUCTION_TARGET_PERCENT,
+            'paper_reduction_percent': paper.E_TILDE_REDUCTION_PERCENT,
+            'reduction_met': reduction >= REDUCTION_TARGET_PERCENT,
+            'e_track_m3_lambda': closed['e_track'], 'e_track_target_n': E_TRACK_TARGET_N,
+            'e_track_met': closed['e_track'] is not None and closed['e_track'] < E_TRACK_TARGET_N}
+
+
+# ---------------------------------------------------------------------------------- markdown
+
+def _sim_paper(sim_mean, sim_std, ref: tuple | None, digits: int) -> list[str]:
+    ref = ref or (None, None)
+    return [cell(sim_mean, sim_std, digits), cell(ref[0], ref[1], digits)]
+
+
+def markdown(doc: dict) -> str:
+    s, run = doc['settings'], doc['run']
+    lines = ['# Reproduction of the paper\'s experiments — SIMULATION', '',
+             f"**All numbers in the \"sim\" columns come from the simulated hand "
+             f"(tacforce_ros.sim), not from hardware.** The \"paper\" columns are the published "
+             f"values (tacforce_ros/experiments/paper_reference.py). Generated {run['date']}, "
+             f"code {run['code_version']}, wall time {run['wall_seconds']:.0f} s on "
+             f"{run['machine']['cpus']} CPUs with {run['machine']['jobs']} workers (load average "
+             f"{run['machine']['load_before'][0]:.1f} before, "
+             f"{run['machine']['load_after'][0]:.1f} after).", '',
+             '## Sizes of this run', '',
+             f"* calibration: {s['sessions_per_plate']} session(s) x {s['session_seconds']:g} s "
+             f"per plate and array (paper: 4 x 100 s), plates {', '.join(doc['plates'])}; "
+             f"online test {s['online_seconds']:g} s on the held-out spherical plate "
+             f"(paper: 200 s)",
+             f"* M4/M5: {s['epochs']} epochs (paper: 40), batch 256, lr 2.5e-4",
+             f"* closed loop: {len(s['objects'])} object(s) x {len(doc['controllers'])} "
+             f"controllers x {s['repeats']} run(s) x the {s['sequence']} sequence "
+             f"(paper: 5 objects, 5 runs); metrics over t = 16..70 s; control and estimation "
+             f"at {s['control_rate']:g} Hz",
+             f"* cache: {run['cache']['hits']} hits, {run['cache']['misses']} misses", '']
+    lines += ['## Which path produced which result', '']
+    lines += [f'* {item}' for item in doc['paths']] + ['']
+
+    lines += ['## Table I — offline benchmark, 5-fold leave-one-plate-out', '',
+              'τ single: one prediction of one array (the paper\'s τ); full hand: one tick of '
+              'the runtime estimator over 18 arrays of that kind.', '']
+    for array, by_model in doc['table_I'].items():
+        lines += [f'### {ARRAY_TITLES.get(array, array)}', '',
+                  '| Model | e_r [%] sim | e_r [%] paper | e_hat [N] sim | e_hat [N] paper '
+                  '| τ single [ms] sim | τ [ms] paper | full hand [ms] sim |',
+                  '|---|---|---|---|---|---|---|---|']
+        for label, row in by_model.items():
+            sim, ref = row['sim'], row['paper'] or {}
+            lines.append('| ' + ' | '.join(
+                [MODEL_NAMES.get(label, label)]
+                + _sim_paper(sim['e_r_percent'], sim['e_r_std_percent'], ref.get('e_r'), 1)
+                + _sim_paper(sim['e_hat'], sim['e_hat_std'], ref.get('e_hat'), 2)
+                + [cell(sim['tau_single_ms'], digits=3), cell(ref.get('tau_ms'), digits=3),
+                   cell(sim['tau_full_hand_ms'], digits=3)]) + ' |')
+        lines.append('')
+
+    lines += ['## Table II — online test, index fingertip on the held-out spherical plate', '',
+              f"Models retrained on all five training plates; {doc['online']['samples']} samples "
+              f"({doc['online']['seconds']:.0f} s).", '',
+              '| Model | e_r [%] sim | e_r [%] paper | e_hat [N] sim | e_hat [N] paper |',
+              '|---|---|---|---|---|']
+    for label, row in doc['table_II'].items():
+        sim, ref = row['sim'], row['paper']
+        lines.append('| ' + ' | '.join(
+            [MODEL_NAMES.get(label, label)]
+            + _sim_paper(sim['e_r_percent'], sim['e_r_std_percent'], ref['e_r'], 1)
+            + _sim_paper(sim['e_hat'], sim['e_hat_std'], ref['e_hat'], 2)) + ' |')
+    lines.append('')
+
+    lines += ['## Table III — closed-loop force control', '',
+              '(1) spherical plate, (2) foam brick, (3) softball, (4) abrasive sponge, '
+              '(5) bleach cleanser. Mean ± std over the samples of all runs in t = 16..70 s. '
+              'The F/T sensor is zeroed before each run (experiments/scenes.py).', '',
+              '| Exp. | e_r [%] sim | e_r [%] paper | e_hat [N] sim | e_hat [N] paper '
+              '| e_track [N] sim | e_track [N] paper | e~ [N] sim | e~ [N] paper |',
+              '|---|---|---|---|---|---|---|---|---|']
+    for row in doc['table_III']:
+        sim, ref = row['sim'], row['paper'] or {}
+        lines.append('| ' + ' | '.join(
+            [row['row']]
+            + _sim_paper(sim['e_r_percent'], sim['e_r_std_percent'], _pair(ref, 'e_r'), 2)
+            + _sim_paper(sim['e_hat'], sim['e_hat_std'], _pair(ref, 'e_hat'), 2)
+            + _sim_paper(sim['e_track'], sim['e_track_std'], _pair(ref, 'e_track'), 2)
+            + _sim_paper(sim['e_tilde'], sim['e_tilde_std'], _pair(ref, 'e_tilde'), 2)) + ' |')
+    lines.append('')
+
+    check = doc['must_show']
+    lines += ['## Closed loop against open loop (spherical plate)', '']
+    if check['evaluated']:
+        lines += [f"* e~ open loop {cell(check['e_tilde_open_loop'], digits=3)} N, closed loop "
+                  f"with M3λ {cell(check['e_tilde_m3_lambda'], digits=3)} N: reduction "
+                  f"{cell(check['e_tilde_reduction_percent'], digits=1)} % (target ≥ "
+                  f"{check['reduction_target_percent']:g} %, paper ≈ "
+                  f"{check['paper_reduction_percent']} %): "
+                  f"**{'met' if check['reduction_met'] else 'NOT met'}**",
+                  f"* e_track with M3λ {cell(check['e_track_m3_lambda'], digits=3)} N (target < "
+                  f"{check['e_track_target_n']:g} N): "
+                  f"**{'met' if check['e_track_met'] else 'NOT met'}**", '']
+    else:
+        lines += ['* not evaluated: this run has no open-loop and M3λ runs on the spherical '
+                  'plate', '']
+
+    lines += ['## Node graph against direct path', '']
+    node = doc['node_path']
+    if not node.get('ran'):
+        lines += [f"**The node path did not run**: {node.get('reason', 'unknown')}. Every "
+                  f"result above comes from the direct (in-process) path.", '']
+    else:
+        cal, loop = node['calibration'], node['closed_loop']
+        lines += ['| check | node graph | direct | difference | tolerance | agree |',
+                  '|---|---|---|---|---|---|',
+                  f"| calibration session: M3λ e_hat [N] | "
+                  f"{cell(cal['node']['e_hat_mean'], digits=3)}"
+                  f" | {cell(cal['direct']['e_hat_mean'], digits=3)} | "
+                  f"{cell(cal['difference_n'], digits=3)} | {cell(cal['tolerance_n'], digits=3)} | "
+                  f"{'yes' if cal['agree'] else 'NO'} |",
+                  f"| closed loop (1)-M3λ, one run: e~ [N] | "
+                  f"{cell(loop['node']['e_tilde_mean'], digits=3)} | "
+                  f"{cell(loop['direct']['e_tilde_mean'], digits=3)} | "
+                  f"{cell(loop['difference_n'], digits=3)} | {cell(loop['tolerance_n'], digits=3)}"
+                  f" | {'yes' if loop['agree'] else 'NO'} |", '',
+                  f"Tolerance: {doc['node_tolerance_reason']}", '']
+
+    lines += ['## Figures', ''] + [f'* [{name}]({name})' for name in doc['figures']] + ['']
+    lines += ['## Stage wall times [s]', '', '| stage | s |', '|---|---|']
+    lines += [f'| {k} | {v:.1f} |' for k, v in run['stage_seconds'].items()] + ['']
+    return '\n'.join(lines)

@@ -1,0 +1,148 @@
+"""The pieces of the reproduction: closed-loop metrics, cache keys, direct calibration sessions,
+the closed-loop runner's refusals and the node path's clock alignment."""
+import dataclasses
+import warnings
+
+import numpy as np
+import pytest
+import yaml
+from hypothesis import given
+from hypothesis import strategies as st
+
+from tacforce_ros.control.command_sequence import ForceSequence
+from tacforce_ros.experiments.cache import StageCache, digest, scene_digest
+from tacforce_ros.experiments.calibration_data import simulate_calibration
+from tacforce_ros.experiments.closed_loop import ClosedLoopTrace, run_closed_loop, trace_metrics
+from tacforce_ros.experiments.node_path import _free_ports, compare_closed_loop
+from tacforce_ros.experiments.pipeline import controller_config
+from tacforce_ros.experiments.scenes import zeroed_ft_scene
+from tacforce_ros.hand.description import load_hand
+from tacforce_ros.hand.kinematics import HandKinematics
+from tacforce_ros.sim import load_scene
+
+
+@pytest.fixture(scope='module')
+def hand():
+    return load_hand()
+
+
+@pytest.fixture(scope='module')
+def kinematics(hand):
+    return HandKinematics.for_hand(hand)
+
+
+def trace(t, f_d, f_tilde, f_hat=None):
+    n = len(t)
+    return ClosedLoopTrace(t=np.asarray(t, float), f_d=np.broadcast_to(f_d, (n, 3)).copy(),
+                           f_tilde=np.broadcast_to(f_tilde, (n, 3)).copy(),
+                           f_hat=np.full((n, 3), np.nan) if f_hat is None
+                           else np.broadcast_to(f_hat, (n, 3)).copy())
+
+
+def test_metrics_use_only_the_window_and_pool_the_repeats():
+    t = np.arange(0.0, 70.0, 0.01)
+    f_d = np.array([0.0, 0.0, -2.0])
+    early = np.where(t[:, None] < 16.0, 5.0, 0.0)          # huge errors before the window
+    runs = [trace(t, f_d, f_d + [0.3, 0.0, 0.0] + early, f_hat=f_d + [0.0, 0.0, 0.6]),
+            trace(t, f_d, f_d + [0.0, 0.0, 0.6] + early, f_hat=f_d + [0.0, 0.0, 0.6])]
+    m = trace_metrics(runs)
+    assert m['runs'] == 2 and m['samples'] == 2 * np.count_nonzero((t >= 16) & (t <= 70))
+    assert m['e_tilde_per_run'] == pytest.approx([0.1, 0.2])
+    assert m['e_tilde_mean'] == pytest.approx(0.15) and m['e_tilde_std'] == pytest.approx(0.05)
+    assert m['e_track_mean'] == pytest.approx(0.2)
+    # e_r counts only the axis with |f~| >= 0.5 N: z, |-1.4 - (-2)| / 2 on run 1, 0 on run 2.
+    assert m['e_r_mean'] == pytest.approx(0.15)
+
+
+def test_open_loop_traces_report_no_estimate_metrics():
+    t = np.arange(16.0, 70.0, 0.01)
+    m = trace_metrics([trace(t, [0.0, 0.0, -1.0], [0.0, 0.0, -1.3])])
+    assert m['e_hat_mean'] is None and m['e_track_mean'] is None and m['e_r_mean'] is None
+    assert m['estimate_coverage'] == 0.0 and m['e_tilde_mean'] == pytest.approx(0.1)
+
+
+@given(st.dictionaries(st.text(max_size=5), st.integers() | st.floats(allow_nan=False),
+                       max_size=6))
+def test_digest_ignores_key_order_and_sees_every_value(spec):
+    assert digest(spec) == digest(dict(reversed(list(spec.items()))))
+    assert digest({**spec, '__extra__': 1}) != digest(spec)
+
+
+def test_scene_digest_follows_the_scene_contents(tmp_path):
+    path = zeroed_ft_scene('closed_loop_spherical', tmp_path)
+    assert load_scene(path).effects['ft_noise']['force_bias_sigma'] == 0.0
+    zeroed = scene_digest(path)
+    assert zeroed != scene_digest('closed_loop_spherical')
+    assert zeroed_ft_scene('closed_loop_spherical', tmp_path) == path     # unchanged: same file
+    doc = yaml.safe_load(path.read_text())
+    doc['effects']['ft_noise']['force_sigma'] = 0.5
+    path.write_text(yaml.safe_dump(doc))
+    assert scene_digest(path) != zeroed
+
+
+def test_cache_entries_are_written_whole(tmp_path):
+    cache = StageCache(tmp_path)
+    assert cache.load_json('stage', 'k' * 64) is None and cache.misses == 1
+    cache.store_json('stage', 'k' * 64, {'a': [1, 2]})
+    assert cache.load_json('stage', 'k' * 64) == {'a': [1, 2]} and cache.hits == 1
+    assert not list(tmp_path.rglob('*.tmp'))
+
+
+def test_direct_calibration_session_is_seeded_and_windowed(hand, kinematics):
+    scene = 'calibration_index_tip_flat'
+    with warnings.catch_warnings():
+        warnings.simplefilter('ignore')
+        a = simulate_calibration(hand, kinematics, scene, 7, 6.0, start=2.0)
+        b = simulate_calibration(hand, kinematics, scene, 7, 6.0, start=2.0)
+        c = simulate_calibration(hand, kinematics, scene, 8, 6.0, start=2.0)
+    assert np.array_equal(a.X, b.X) and np.array_equal(a.F, b.F)
+    assert not np.array_equal(a.X, c.X)
+    assert a.array == 'index_tip' and a.X.shape[1:] == (30, 3) and set(a.plates) == {'flat'}
+    # 4 s of 100 Hz frames, fewer only by the frames the transport effect dropped.
+    assert 380 <= len(a.X) <= 401 and a.time[-1] <= 4.0 + 1e-9
+
+
+def test_closed_loop_runner_refuses_what_it_cannot_run(hand, kinematics):
+    sequence = ForceSequence.load('paper_70s')
+    with pytest.raises(ValueError, match='needs force models'):
+        run_closed_loop(hand, kinematics, 'closed_loop_spherical', 0,
+                        controller_config('M3-lambda'), sequence, None)
+    with pytest.raises(ValueError, match='must divide'):
+        run_closed_loop(hand, kinematics, 'closed_loop_spherical', 0,
+                        controller_config('open_loop'), sequence, None, control_rate=300.0)
+    assert controller_config('open_loop').k_i == (0.0, 0.0, 0.0)
+    assert dataclasses.replace(controller_config('open_loop'), k_i=controller_config(
+        'M3-lambda').k_i) == controller_config('M3-lambda')
+
+
+def test_short_open_loop_run_presses_the_plate(hand, kinematics):
+    sequence = ForceSequence.from_mapping({'frame_id': 'ft_sensor', 'segments': [
+        {'duration': 0.5, 'force': [0.0, 0.0, 0.0]},
+        {'duration': 1.5, 'force': [0.0, 0.0, -1.5]}]})
+    with warnings.catch_warnings():
+        warnings.simplefilter('ignore')
+        run = run_closed_loop(hand, kinematics, 'closed_loop_spherical', 3,
+                              controller_config('open_loop'), sequence, None)
+    assert len(run.t) == 200 and np.all(np.diff(run.t) > 0)
+    assert np.isnan(run.f_hat).all()
+    assert run.f_tilde[-20:, 2].mean() < -0.8       # pressing down on the plate, in {F}
+
+
+def test_node_comparison_reports_the_difference_against_the_tolerance():
+    t = np.arange(0.0, 70.0, 0.01)
+    f_d = np.array([0.0, 0.0, -2.0])
+    direct = trace(t, f_d, f_d + [0.0, 0.0, 0.3], f_hat=f_d)
+    near = compare_closed_loop(trace(t, f_d, f_d + [0.0, 0.0, 0.33], f_hat=f_d), direct, 1.5)
+    far = compare_closed_loop(trace(t, f_d, f_d + [0.0, 0.0, 0.6], f_hat=f_d), direct, 1.5)
+    assert near['agree'] and near['difference_n'] == pytest.approx(0.01)
+    assert not far['agree'] and far['difference_n'] == pytest.approx(0.1)
+    assert near['clock_offset_s'] == 1.5
+
+
+def test_free_ports_are_distinct_and_bindable():
+    import socket
+    ports = _free_ports(3)
+    assert len(set(ports)) == 3
+    for port in ports:
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as udp:
+            udp.bind(('127.0.0.1', port))

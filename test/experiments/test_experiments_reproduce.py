@@ -1,0 +1,132 @@
+"""reproduce --quick end to end: the Markdown tables say what the JSON says, the figures are
+images, and a second run comes entirely from the cache with the same results."""
+import json
+import re
+
+import numpy as np
+import pytest
+
+from tacforce_ros.experiments import paper_reference as paper
+from tacforce_ros.experiments.report import MODEL_NAMES
+from tacforce_ros.tools import reproduce
+
+NUMBER = re.compile(r'-?\d+(?:\.\d+)?')
+LABELS = {v: k for k, v in MODEL_NAMES.items()}
+
+
+@pytest.fixture(scope='module')
+def runs(tmp_path_factory):
+    out = tmp_path_factory.mktemp('reproduce')
+    assert reproduce.main(['--quick', '--out', str(out)]) == 0
+    first = json.loads((out / 'report.json').read_text())
+    first_md = (out / 'report.md').read_text()
+    assert reproduce.main(['--quick', '--out', str(out)]) == 0
+    second = json.loads((out / 'report.json').read_text())
+    return out, first, first_md, second
+
+
+def tables(markdown: str) -> dict[str, list[list[str]]]:
+    """Markdown tables by the heading above them: rows of cells, header and rule dropped."""
+    found, heading, current = {}, None, None
+    for line in markdown.splitlines():
+        if line.startswith('#'):
+            heading, current = line.lstrip('# ').strip(), None
+        elif line.startswith('|'):
+            if current is None:
+                current = found.setdefault(heading, [])
+                continue                       # header row
+            if not line.startswith('|---'):
+                current.append([c.strip() for c in line.strip('|').split('|')])
+        else:
+            current = None
+    return found
+
+
+def numbers(text: str) -> list[float]:
+    return [float(v) for v in NUMBER.findall(text)]
+
+
+def assert_shows(text: str, mean, std, digits: int) -> None:
+    """The cell shows mean (and std) to `digits` decimals, or '–' when there is none."""
+    if mean is None:
+        assert text == '–', text
+        return
+    shown = numbers(text)
+    expected = [mean] if std is None else [mean, std]
+    assert len(shown) == len(expected), text
+    assert np.allclose(shown, expected, atol=0.5 * 10 ** -digits + 1e-12), (text, expected)
+
+
+def test_markdown_tables_show_the_json_numbers(runs):
+    _, doc, md, _ = runs
+    by_heading = tables(md)
+    for array, rows in doc['table_I'].items():
+        heading = next(h for h in by_heading if h.endswith(f'({array})'))
+        shown = {LABELS.get(r[0], r[0]): r for r in by_heading[heading]}
+        assert set(shown) == set(rows)
+        for label, row in rows.items():
+            cells, sim, ref = shown[label], row['sim'], row['paper'] or {}
+            assert_shows(cells[1], sim['e_r_percent'], sim['e_r_std_percent'], 1)
+            assert_shows(cells[2], *(ref.get('e_r') or (None, None)), 1)
+            assert_shows(cells[3], sim['e_hat'], sim['e_hat_std'], 2)
+            assert_shows(cells[4], *(ref.get('e_hat') or (None, None)), 2)
+            assert_shows(cells[5], sim['tau_single_ms'], None, 3)
+            assert_shows(cells[6], ref.get('tau_ms'), None, 3)
+            assert_shows(cells[7], sim['tau_full_hand_ms'], None, 3)
+    table_ii = next(v for h, v in by_heading.items() if h.startswith('Table II'))
+    assert len(table_ii) == len(doc['table_II'])
+    for cells in table_ii:
+        row = doc['table_II'][LABELS.get(cells[0], cells[0])]
+        assert_shows(cells[1], row['sim']['e_r_percent'], row['sim']['e_r_std_percent'], 1)
+        assert_shows(cells[3], row['sim']['e_hat'], row['sim']['e_hat_std'], 2)
+        assert_shows(cells[4], *row['paper']['e_hat'], 2)
+    table_iii = next(v for h, v in by_heading.items() if h.startswith('Table III'))
+    assert [c[0] for c in table_iii] == [r['row'] for r in doc['table_III']]
+    for cells, row in zip(table_iii, doc['table_III']):
+        sim, ref = row['sim'], row['paper'] or {}
+        for k, key in enumerate(('e_r', 'e_hat', 'e_track', 'e_tilde')):
+            sim_key = 'e_r_percent' if key == 'e_r' else key
+            sim_std = 'e_r_std_percent' if key == 'e_r' else f'{key}_std'
+            assert_shows(cells[1 + 2 * k], sim[sim_key], sim[sim_std], 2)
+            assert_shows(cells[2 + 2 * k], *ref.get(key, (None, None)), 2)
+
+
+def test_report_holds_every_stage_and_labels_it_simulation(runs):
+    _, doc, md, _ = runs
+    assert 'SIMULATION' in md.splitlines()[0]
+    assert set(doc['table_I']) == {'index_tip', 'index_middle'}
+    assert all(len(rows) == len(doc['settings']['models']) for rows in doc['table_I'].values())
+    objects, controllers = doc['settings']['objects'], doc['controllers']
+    assert len(doc['table_III']) == len(objects) * len(controllers)
+    open_loop = [r for r in doc['table_III'] if r['controller'] == 'open_loop']
+    assert all(r['sim']['e_hat'] is None and r['sim']['e_tilde'] > 0 for r in open_loop)
+    closed = [r for r in doc['table_III'] if r['controller'] != 'open_loop']
+    assert all(r['sim']['e_track'] is not None for r in closed)
+    # The paper column is the reference module's, unchanged.
+    row = next(r for r in doc['table_III'] if r['row'] == '(1)-O.L.')
+    assert tuple(row['paper']['e_tilde']) == paper.TABLE_III[('spherical', 'open_loop')]['e_tilde']
+    # --quick skips the node graph and the report says so instead of showing numbers.
+    assert doc['node_path']['ran'] is False
+    assert 'The node path did not run' in md
+    check = doc['must_show']
+    assert check['evaluated'] and check['reduction_met'] == (
+        check['e_tilde_reduction_percent'] >= check['reduction_target_percent'])
+
+
+def test_figures_are_png_images(runs):
+    import matplotlib.image
+    out, doc, _, _ = runs
+    assert len(doc['figures']) == 3 + len(doc['settings']['objects'])
+    for name in doc['figures']:
+        path = out / name
+        assert path.read_bytes()[:8] == b'\x89PNG\r\n\x1a\n', name
+        image = matplotlib.image.imread(path)
+        assert image.ndim == 3 and min(image.shape[:2]) > 100 and np.ptp(image) > 0, name
+
+
+def test_second_run_comes_from_the_cache_with_the_same_results(runs):
+    _, first, _, second = runs
+    assert first['run']['cache']['misses'] > 0
+    assert second['run']['cache']['misses'] == 0 and second['run']['cache']['hits'] > 0
+    assert {k: v for k, v in first.items() if k != 'run'} == \
+        {k: v for k, v in second.items() if k != 'run'}

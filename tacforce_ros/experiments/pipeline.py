@@ -54,9 +54,8 @@ class Settings:
     @classmethod
     def quick(cls) -> Settings:
         """Small sizes for tests: every stage runs, on less data and fewer runs."""
-        return cls(sessions_per_plate=1, session_seconds=30.0, online_seconds=30.0, epochs=2,
-                   timing_repeats=200, objects=('spherical', 'foam_brick'), repeats=1,
-                   node_path=False)
+        return cls(sessions_per_plate=1, session_seconds=20.0, online_seconds=20.0, epochs=1,
+                   timing_repeats=100, objects=('spherical',), repeats=1, node_path=False)
 
 
 @dataclass
@@ -106,29 +105,40 @@ def job_calibration(scene: str, seed: int, seconds: float, target: str) -> str:
     return target
 
 
-def load_training(paths: list[str], static_force: float):
-    """(dataset, X, F, x_offset) of the joined sessions, offsets removed per session."""
+def job_training_set(paths: list[str], static_force: float, target: str) -> str:
+    """Join the sessions of one array, remove each session's offsets, store uncompressed (the
+    fits of every model load it; compressed session files would be unpacked once per fit)."""
     from tacforce_ros.estimation.dataset import CalibrationDataset, concatenate
     dataset = concatenate([CalibrationDataset.load(p) for p in paths])
-    return (dataset, *dataset.without_offsets(force_threshold=static_force))
+    X, F, offset = dataset.without_offsets(force_threshold=static_force)
+    tmp = Path(target).with_name(Path(target).name + '.tmp.npz')
+    np.savez(tmp, X=X, F=F, plates=dataset.plates.astype(str), x_offset=offset)
+    tmp.replace(target)
+    return target
 
 
-def job_cross_validation(array: str, kind: str, hyper: dict, paths: list[str],
-                         static_force: float) -> dict:
+def load_training(path: str) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(X, F, plates, x_offset) of a training set written by job_training_set."""
+    with np.load(path, allow_pickle=False) as npz:
+        return npz['X'], npz['F'], npz['plates'], npz['x_offset']
+
+
+def job_cross_validation(array: str, kind: str, hyper: dict, training_set: str) -> dict:
     from tacforce_ros.estimation.cross_validation import cross_validate
     hand, _ = _hand()
-    dataset, X, F, _ = load_training(paths, static_force)
-    return cross_validate(hand.array(array), kind, hyper, X, F, dataset.plates).summary()
+    X, F, plates, _ = load_training(training_set)
+    return cross_validate(hand.array(array), kind, hyper, X, F, plates).summary()
 
 
-def job_final_model(array: str, kind: str, hyper: dict, paths: list[str], static_force: float,
-                    provenance: dict, target: str) -> str:
+def job_final_model(array: str, kind: str, hyper: dict, training_set: str, provenance: dict,
+                    target: str) -> str:
     from tacforce_ros.estimation.model_io import save_model
     from tacforce_ros.estimation.training import fit_bundle
     hand, _ = _hand()
-    dataset, X, F, offset = load_training(paths, static_force)
-    provenance = {**provenance, 'plates': dataset.plate_names(), 'samples': int(X.shape[0])}
-    bundle = fit_bundle(hand.array(array), kind, hyper, X, F, dataset.plates, x_offset=offset,
+    X, F, plates, offset = load_training(training_set)
+    provenance = {**provenance, 'plates': list(dict.fromkeys(plates.tolist())),
+                  'samples': int(X.shape[0])}
+    bundle = fit_bundle(hand.array(array), kind, hyper, X, F, plates, x_offset=offset,
                         provenance=provenance)
     tmp = Path(target).with_name(Path(target).name + '.tmp')
     save_model(tmp, bundle)
@@ -242,6 +252,16 @@ def benchmark_stage(ctx: Context, layout: dict) -> tuple[dict, dict]:
     Returns ({array: {label: cv summary}}, {array: {label: model path}}).
     """
     s = ctx.settings
+    sets, set_jobs = {}, []
+    for array in ARRAYS:
+        paths = [p for plate in PLATES for p in layout[array][plate]]
+        key = digest({'data': sorted(Path(p).stem for p in paths),
+                      'static_force': s.static_force, 'code': code_digest('estimation')})
+        sets[array] = str(ctx.cache.path('training_set', key, '.npz'))
+        if ctx.cache.lookup('training_set', key, '.npz') is None:
+            Path(sets[array]).parent.mkdir(parents=True, exist_ok=True)
+            set_jobs.append((array, job_training_set, (paths, s.static_force, sets[array])))
+    run_units(ctx, 'training sets', set_jobs)
     cv_jobs, fit_jobs, cv, models, keys = [], [], {}, {}, {}
     for array in ARRAYS:
         paths = [p for plate in PLATES for p in layout[array][plate]]
@@ -252,8 +272,7 @@ def benchmark_stage(ctx: Context, layout: dict) -> tuple[dict, dict]:
             keys[name] = key
             cached = ctx.cache.load_json('cross_validation', key)
             if cached is None:
-                cv_jobs.append((name, job_cross_validation,
-                                (array, kind, hyper, paths, s.static_force)))
+                cv_jobs.append((name, job_cross_validation, (array, kind, hyper, sets[array])))
             else:
                 cv.setdefault(array, {})[label] = cached
             target = ctx.cache.path('models', key, '.npz')
@@ -263,9 +282,8 @@ def benchmark_stage(ctx: Context, layout: dict) -> tuple[dict, dict]:
                 provenance = {'dataset': f'reproduce cache {key[:24]}', 'date':
                               time.strftime('%Y-%m-%dT%H:%M:%S%z'), 'seed': s.seed,
                               'code_version': code_digest('estimation')[:12], 'metrics': None}
-                fit_jobs.append((name, job_final_model, (array, kind, hyper, paths,
-                                                         s.static_force, provenance,
-                                                         str(target))))
+                fit_jobs.append((name, job_final_model, (array, kind, hyper, sets[array],
+                                                         provenance, str(target))))
     ctx.log(f'stage benchmark: {len(cv_jobs)} cross-validations and {len(fit_jobs)} final fits '
             f'to run ({len(ARRAYS) * len(s.models)} each in all)')
     # Slow (torch) units first, so the pool does not end on one long job.
@@ -323,12 +341,12 @@ def timing_stage(ctx: Context, models: dict) -> dict:
 
 def online_stage(ctx: Context, layout: dict, models: dict) -> dict:
     """Table II: the final models on the held-out spherical session of the index fingertip."""
+    from tacforce_ros.estimation.dataset import CalibrationDataset
     from tacforce_ros.estimation.metrics import error_stats
     from tacforce_ros.estimation.model_io import load_model
-    from tacforce_ros.hand.description import load_hand
-    hand = load_hand()
-    dataset, X, F, _ = load_training(layout['index_tip'][HELD_OUT_PLATE],
-                                     ctx.settings.static_force)
+    hand, _ = _hand()
+    dataset = CalibrationDataset.load(layout['index_tip'][HELD_OUT_PLATE][0])
+    X, F, _ = dataset.without_offsets(force_threshold=ctx.settings.static_force)
     result = {'seconds': float(dataset.time[-1] - dataset.time[0]), 'samples': int(len(F))}
     for label in ONLINE_MODELS:
         bundle = load_model(models['index_tip'][label], hand.array('index_tip'))

@@ -118,7 +118,8 @@ def markdown(doc: dict) -> str:
              f"per plate and array (paper: 4 x 100 s), plates {', '.join(doc['plates'])}; "
              f"online test {s['online_seconds']:g} s on the held-out spherical plate "
              f"(paper: 200 s)",
-             f"* M4/M5: {s['epochs']} epochs (paper: 40), batch 256, lr 2.5e-4",
+             f"* M4/M5: {s['epochs']} epochs (paper: 40; fewer so the default run fits its "
+             f"20-minute budget on 2 shared cores), batch 256, lr 2.5e-4",
              f"* closed loop: {len(s['objects'])} object(s) x {len(doc['controllers'])} "
              f"controllers x {s['repeats']} run(s) x the {s['sequence']} sequence "
              f"(paper: 5 objects, 5 runs); metrics over t = 16..70 s; control and estimation "

@@ -115,8 +115,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--out', type=Path, default=DEFAULT_OUT,
                         help=f'output folder (default {DEFAULT_OUT})')
     parser.add_argument('--quick', action='store_true',
-                        help='small sizes: 1 x 30 s session per plate, 2 epochs, spherical and '
-                             'foam brick with 1 run each, no node path (~3 min)')
+                        help='small sizes: 1 x 20 s session per plate, 1 epoch, the spherical '
+                             'plate with 1 run per controller, no node path (~2 min)')
     parser.add_argument('--no-node-path', action='store_true',
                         help='skip the node-graph session and run (the report says so)')
     parser.add_argument('--jobs', type=int, default=min(2, os.cpu_count() or 1),

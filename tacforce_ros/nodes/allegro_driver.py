@@ -76,18 +76,23 @@ def _controller_parameters() -> tuple[ParamSpec, ...]:
 
 
 class JointVelocity:
-    """Finite-difference joint velocity on the caller's clock; holds the last value when two
-    samples share a time stamp (sim clock granularity)."""
+    """Joint velocity from positions: finite differences on the caller's clock, low-passed
+    (first order, `cutoff_hz`) because position counts and arrival stamps are both coarse (and
+    under sim time the clock ticks in 1 ms steps); samples sharing a time stamp are skipped."""
 
-    def __init__(self) -> None:
+    def __init__(self, cutoff_hz: float) -> None:
+        self.tau_s = 1.0 / (2.0 * np.pi * cutoff_hz)
         self._q: np.ndarray | None = None
         self._t_ns = 0
         self.qdot = np.zeros(N_JOINTS)
 
     def update(self, q: np.ndarray, t_ns: int) -> np.ndarray:
-        if self._q is not None and t_ns > self._t_ns:
-            self.qdot = (q - self._q) / ((t_ns - self._t_ns) * 1e-9)
-        if self._q is None or t_ns > self._t_ns:
+        if self._q is None:
+            self._q, self._t_ns = q, t_ns
+        elif t_ns > self._t_ns:
+            dt = (t_ns - self._t_ns) * 1e-9
+            alpha = dt / (self.tau_s + dt)
+            self.qdot = self.qdot + alpha * ((q - self._q) / dt - self.qdot)
             self._q, self._t_ns = q, t_ns
         return self.qdot
 
@@ -115,6 +120,8 @@ class AllegroDriver(TacforceNode):
         ParamSpec('estimate_array', 'index_tip', 'array whose estimate closes the loop'),
         ParamSpec('gravity', [0.0, 0.0, -9.81], 'gravity in the hand base frame (m/s^2), from '
                   'the mounting', range=(-20.0, 20.0)),
+        ParamSpec('velocity_cutoff_hz', 30.0, 'low-pass cutoff of the joint velocity (Hz)',
+                  range=(1.0, 150.0)),
         ParamSpec('others_kp', 1.0, 'stiffness holding the other fingers (N m/rad)',
                   range=(0.0, 10.0)),
         ParamSpec('others_kd', 0.03, 'damping of the other fingers (N m s/rad)',
@@ -134,7 +141,7 @@ class AllegroDriver(TacforceNode):
             self.controller = self._make_controller()
         self.joint_publisher = self.create_publisher(JointState, TOPIC_JOINTS,
                                                      publisher_qos(TOPIC_JOINTS))
-        self.velocity = JointVelocity()
+        self.velocity = JointVelocity(p['velocity_cutoff_hz'])
         self._joints: tuple[np.ndarray, np.ndarray, int] | None = None   # q, qdot, node ns
         self._q_hold: np.ndarray | None = None
         self._tau = np.zeros(N_JOINTS)

@@ -59,6 +59,8 @@ class Estimator(TacforceNode):
                   range=(0.0, 100.0)),
         ParamSpec('marker_scale', 0.02, 'arrow length per newton (m/N)', range=(1e-5, 1.0)),
         ParamSpec('tare_frames', 50, 'frames averaged by ~/tare', range=(1, 10000)),
+        ParamSpec('tare_at_start', True, 'tare on the first tare_frames frames (the arrays '
+                  'must be untouched at start-up); false keeps the model files\' offsets'),
     )
 
     def __init__(self) -> None:
@@ -90,7 +92,10 @@ class Estimator(TacforceNode):
         self._last_frame_ns: int | None = None     # node clock at the last frame's arrival
         self._last_force = np.zeros((len(self.names), 3))
         self._last_stamp = stamp(0)
-        self._tare_buffer: list[np.ndarray] | None = None
+        # Offsets drift with temperature and differ from the calibration day's (paper IV-A):
+        # estimates are published only once the start-up tare is done.
+        self._tare_buffer: list[np.ndarray] | None = [] if p['tare_at_start'] else None
+        self._tared = not p['tare_at_start']
         self.rejected = 0
         self.get_logger().info(
             f'{len(self.names)} arrays with models ('
@@ -111,6 +116,8 @@ class Estimator(TacforceNode):
             return
         if self._tare_buffer is not None:
             self._collect_tare(counts)
+        if not self._tared:
+            return
         estimate = self.models.estimate(counts)
         header_stamp = msg.header.stamp
         array_msg = ForceEstimateArray()
@@ -168,8 +175,9 @@ class Estimator(TacforceNode):
             self.models.set_tare(frames)
         except ValueError as exc:
             self.get_logger().error(f'tare refused, offsets unchanged: {exc}')
-            return
-        self.get_logger().info(f'tare done from {len(frames)} frames')
+        else:
+            self.get_logger().info(f'tare done from {len(frames)} frames')
+        self._tared = True
 
     # --- markers ---------------------------------------------------------------------------
 

@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from tacforce_ros.estimation.model_io import ModelFileError, load_model
+from tacforce_ros.estimation.model_io import ModelFileError, load_model, save_model
 from tacforce_ros.estimation.runtime import HandEstimate, RuntimeEstimator
 from tacforce_ros.hand.description import HandDescription
 
@@ -80,3 +80,31 @@ def load_model_set(path: str | Path, hand: HandDescription) -> ModelSet:
     return ModelSet(estimator=estimator, arrays=modelled,
                     skipped=tuple(a.name for a in hand.arrays if a.name not in models),
                     taxels=taxels, kinds=estimator.kinds)
+
+
+def write_synthetic_model_set(folder: str | Path, hand: HandDescription,
+                              use: dict[str, Path] | None = None) -> Path:
+    """A models YAML with an M3 model per array fitted on SYNTHETIC data (estimation/synthetic),
+    for tests and benchmarks that need a real model file on every array but not accuracy;
+    `use` names existing model files for some arrays. Returns the YAML path."""
+    from tacforce_ros.estimation.synthetic import synthetic_dataset
+    from tacforce_ros.estimation.training import fit_bundle
+
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    models = {}
+    for k, array in enumerate(hand.arrays):
+        if use and array.name in use:
+            models[array.name] = str(use[array.name])
+            continue
+        data = synthetic_dataset(array, plates=('flat', 'button'), seconds=4.0, seed=k)
+        rest = data.X[:20].mean(axis=0)       # the recordings start at rest
+        provenance = {'dataset': ['synthetic'], 'plates': ['flat', 'button'],
+                      'samples': int(data.X.shape[0]), 'date': '', 'seed': k,
+                      'code_version': 'synthetic', 'metrics': None}
+        bundle = fit_bundle(array, 'M3', {}, data.X - rest, data.F, data.plates,
+                            x_offset=rest, provenance=provenance)
+        models[array.name] = save_model(folder / f'{array.name}_M3.npz', bundle).name
+    path = folder / 'models.yaml'
+    path.write_text(yaml.safe_dump({'models': models}))
+    return path

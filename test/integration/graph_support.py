@@ -8,13 +8,7 @@ import sys
 import time
 from pathlib import Path
 
-import numpy as np
-import yaml
-
-from tacforce_ros.estimation.model_io import save_model
-from tacforce_ros.estimation.synthetic import synthetic_dataset
-from tacforce_ros.estimation.training import fit_bundle
-from tacforce_ros.hand.description import HandDescription
+from tacforce_ros.nodes.model_set import write_synthetic_model_set as synthetic_model_set
 from tacforce_ros.nodes.session_plan import NodeLaunch, SessionArgs, plan
 from tacforce_ros.tools.session import start_nodes, stop_nodes
 
@@ -61,29 +55,6 @@ def graph_nodes(args: SessionArgs) -> list[NodeLaunch]:
     return plan(args)
 
 
-def synthetic_model_set(folder: Path, hand: HandDescription,
-                        use: dict[str, Path] | None = None) -> Path:
-    """A models YAML with an M3 model per array fitted on synthetic data (accuracy does not
-    matter here, only that every array has a real model file); `use` replaces some."""
-    folder.mkdir(parents=True, exist_ok=True)
-    models = {}
-    for k, array in enumerate(hand.arrays):
-        if use and array.name in use:
-            models[array.name] = str(use[array.name])
-            continue
-        data = synthetic_dataset(array, plates=('flat', 'button'), seconds=4.0, seed=k)
-        rest = data.X[:20].mean(axis=0)
-        provenance = {'dataset': ['synthetic'], 'plates': ['flat', 'button'],
-                      'samples': int(data.X.shape[0]), 'date': 'test', 'seed': k,
-                      'code_version': 'test', 'metrics': None}
-        bundle = fit_bundle(array, 'M3', {}, data.X - rest, data.F, data.plates, x_offset=rest,
-                            provenance=provenance)
-        models[array.name] = save_model(folder / f'{array.name}_M3.npz', bundle).name
-    path = folder / 'models.yaml'
-    path.write_text(yaml.safe_dump({'models': models}))
-    return path
-
-
 def wait_until(done, timeout: float, spin=None) -> bool:
     deadline = time.monotonic() + timeout
     while not done() and time.monotonic() < deadline:
@@ -91,5 +62,5 @@ def wait_until(done, timeout: float, spin=None) -> bool:
     return bool(done())
 
 
-__all__ = ['Graph', 'free_ports', 'graph_nodes', 'np', 'session_args', 'synthetic_model_set',
+__all__ = ['Graph', 'free_ports', 'graph_nodes', 'session_args', 'synthetic_model_set',
            'unique_domain_id', 'wait_until', 'with_overrides']

@@ -297,7 +297,8 @@ def benchmark_stage(ctx: Context, layout: dict) -> tuple[dict, dict]:
             array, label = name[3:].split('/')
             ctx.cache.store_json('cross_validation', keys[name[3:]], value)
             cv.setdefault(array, {})[label] = value
-    return cv, models
+    # Rows in the settings' model order, whatever order the units finished in.
+    return {a: {label: cv[a][label] for label in s.models} for a in ARRAYS}, models
 
 
 def timing_stage(ctx: Context, models: dict) -> dict:

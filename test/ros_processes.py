@@ -1,6 +1,7 @@
 """Start installed executables and helper scripts as real processes for ROS 2 tests."""
 from __future__ import annotations
 
+import contextlib
 import os
 import subprocess
 import sys
@@ -73,3 +74,16 @@ def call_service(node, srv_type, name: str, request, timeout: float = 20.0):
         return future.result()
     finally:
         node.destroy_client(client)
+
+
+@contextlib.contextmanager
+def rclpy_node(name: str, domain_id: int):
+    """An rclpy context on `domain_id` with one node, shut down on exit."""
+    import rclpy
+    rclpy.init(domain_id=domain_id)
+    node = rclpy.create_node(name)
+    try:
+        yield node
+    finally:
+        node.destroy_node()
+        rclpy.shutdown()

@@ -16,7 +16,8 @@ from tacforce_ros.nodes.common import EXIT_BAD_PARAMETERS, EXIT_OK, subscriber_q
 from tacforce_ros.paths import config_dir
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from ros_processes import executable, spin_until, start, stop, unique_domain_id  # noqa: E402
+from ros_processes import (executable, rclpy_node, spin_until, start, stop,  # noqa: E402
+                           unique_domain_id)
 
 pytestmark = pytest.mark.ros
 DOMAIN = unique_domain_id(offset=37)
@@ -30,13 +31,8 @@ RATE_HZ = 50      # given as an integer on purpose: a float parameter must accep
 
 @pytest.fixture(scope='module')
 def ros_node():
-    rclpy.init(domain_id=DOMAIN)
-    node = rclpy.create_node('command_player_test')
-    try:
+    with rclpy_node('command_player_test', DOMAIN) as node:
         yield node
-    finally:
-        node.destroy_node()
-        rclpy.shutdown()
 
 
 @pytest.fixture

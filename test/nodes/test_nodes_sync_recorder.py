@@ -21,8 +21,8 @@ from tacforce_ros.nodes.common import EXIT_OK, publisher_qos, subscriber_qos
 from tacforce_ros.paths import config_dir
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from ros_processes import (call_service, executable, spin_until, start, stop,  # noqa: E402
-                           unique_domain_id)
+from ros_processes import (call_service, executable, rclpy_node, spin_until, start,  # noqa: E402
+                           stop, unique_domain_id)
 
 pytestmark = pytest.mark.ros
 DOMAIN = unique_domain_id(offset=53)
@@ -34,13 +34,8 @@ HAND = load_hand()
 
 @pytest.fixture(scope='module')
 def ros_node():
-    rclpy.init(domain_id=DOMAIN)
-    node = rclpy.create_node('sync_recorder_test')
-    try:
+    with rclpy_node('sync_recorder_test', DOMAIN) as node:
         yield node
-    finally:
-        node.destroy_node()
-        rclpy.shutdown()
 
 
 class Streams:

@@ -83,8 +83,11 @@ def test_third_party_sees_every_array_wrench_at_100_hz(graph, hand):
             node.destroy_subscription(sub)
     for array in hand.arrays:
         t = np.asarray(stamps[array.name]) * 1e-9
-        rate = (t.size - 1) / (t[-1] - t[0])
-        assert 90.0 < rate < 110.0, (array.name, rate)      # 100 Hz in simulated time
+        # 100 Hz in simulated time: the typical period is 10 ms, and a best-effort subscriber
+        # on a loaded machine may lose a few messages, not many.
+        period = np.median(np.diff(t))
+        received = t.size / ((t[-1] - t[0]) * 100.0 + 1.0)
+        assert 0.009 < period < 0.011 and received > 0.8, (array.name, period, received)
         assert frames[array.name] == {array.frame_id}
 
 

@@ -1,0 +1,81 @@
+"""Estimator model lists: arrays without a model are skipped (the others estimate exactly as
+their model files do), unknown arrays and broken entries are refused with the reason."""
+import numpy as np
+import pytest
+import yaml
+
+from tacforce_ros.estimation.model_io import load_model
+from tacforce_ros.hand.description import load_hand
+from tacforce_ros.nodes.model_set import (ModelConfigError, load_model_set,
+                                          write_synthetic_model_set)
+
+
+@pytest.fixture(scope='module')
+def hand():
+    return load_hand()
+
+
+@pytest.fixture(scope='module')
+def full_set(tmp_path_factory, hand):
+    return write_synthetic_model_set(tmp_path_factory.mktemp('models'), hand)
+
+
+def subset(full_set, names, tmp_path):
+    models = yaml.safe_load(full_set.read_text())['models']
+    path = tmp_path / 'subset.yaml'
+    path.write_text(yaml.safe_dump({'models': {n: str(full_set.parent / models[n])
+                                               for n in names}}))
+    return path
+
+
+def test_skipped_arrays_leave_the_others_unchanged(full_set, hand, tmp_path):
+    names = ['index_tip', 'palm_center', 'thumb_distal']       # scattered over the flat order
+    models = load_model_set(subset(full_set, names, tmp_path), hand)
+    assert [a.name for a in models.arrays] == [a.name for a in hand.arrays if a.name in names]
+    assert set(models.skipped) == {a.name for a in hand.arrays} - set(names)
+    counts = np.random.default_rng(1).uniform(15000, 30000, (hand.n_taxels, 3))
+    estimate = models.estimate(counts)
+    for k, array in enumerate(models.arrays):
+        bundle = load_model(full_set.parent / f'{array.name}_M3.npz', array)
+        expected = bundle.predict(counts[array.flat_indices][None])[0]
+        np.testing.assert_allclose(estimate.force[k], expected, rtol=1e-9, atol=1e-9)
+    assert estimate.valid.all()
+
+
+def test_tare_takes_full_hand_frames(full_set, hand, tmp_path):
+    models = load_model_set(subset(full_set, ['index_tip', 'ring_middle'], tmp_path), hand)
+    rest = np.random.default_rng(2).uniform(15000, 30000, (hand.n_taxels, 3))
+    models.set_tare(np.repeat(rest[None], 5, axis=0))
+    # At the tared rest the models see zero input: their output is the force mean (no contact).
+    zero_input = models.estimate(rest).force
+    shifted = models.estimate(rest + 50.0).force
+    assert not np.allclose(zero_input, shifted)
+    np.testing.assert_allclose(models.estimator.tare('index_tip'),
+                               rest[hand.array('index_tip').flat_indices])
+
+
+def test_wrong_shapes_are_flagged_not_raised(full_set, hand):
+    models = load_model_set(full_set, hand)
+    estimate = models.estimate(np.zeros((10, 3)))
+    assert not estimate.valid.any() and 'shape' in estimate.status[0]
+
+
+@pytest.mark.parametrize('doc, message', [
+    ({'models': {'index_knuckle': 'x.npz'}}, 'unknown arrays'),
+    ({'models': {}}, 'non-empty'),
+    ({'model': {'index_tip': 'x.npz'}}, 'non-empty'),
+    ({'models': {'index_tip': 'missing.npz'}}, 'models.index_tip'),
+])
+def test_bad_lists_are_refused(doc, message, hand, tmp_path):
+    path = tmp_path / 'models.yaml'
+    path.write_text(yaml.safe_dump(doc))
+    with pytest.raises(ModelConfigError, match=message):
+        load_model_set(path, hand)
+
+
+def test_a_model_for_another_array_is_refused(full_set, hand, tmp_path):
+    path = tmp_path / 'swapped.yaml'
+    path.write_text(yaml.safe_dump({'models': {'index_tip': str(full_set.parent
+                                                                / 'middle_tip_M3.npz')}}))
+    with pytest.raises(ModelConfigError, match="models.index_tip: .*'middle_tip'"):
+        load_model_set(path, hand)

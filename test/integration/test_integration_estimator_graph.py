@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import rclpy
+from rclpy.qos import QoSProfile, ReliabilityPolicy
 from geometry_msgs.msg import WrenchStamped
 from std_srvs.srv import SetBool
 from tacforce_msgs.msg import ControllerState, ForceEstimateArray, TactileHand
@@ -71,8 +72,11 @@ def test_third_party_sees_every_array_wrench_at_100_hz(graph, hand):
             frames[name].add(msg.header.frame_id)
         return receive
 
+    # A reliable subscriber with a deep queue (the publishers are reliable): what it misses,
+    # the estimator did not publish; a best-effort Python probe on a loaded machine loses some.
+    qos = QoSProfile(depth=200, reliability=ReliabilityPolicy.RELIABLE)
     subs = [node.create_subscription(WrenchStamped, f'/tactile/{a.name}/wrench',
-                                     receiver(a.name), subscriber_qos(f'/tactile/{a.name}/wrench'))
+                                     receiver(a.name), qos)
             for a in hand.arrays]
     try:
         assert wait_until(lambda: all(len(s) > 300 for s in stamps.values()), 60.0,
@@ -83,11 +87,10 @@ def test_third_party_sees_every_array_wrench_at_100_hz(graph, hand):
             node.destroy_subscription(sub)
     for array in hand.arrays:
         t = np.asarray(stamps[array.name]) * 1e-9
-        # 100 Hz in simulated time: the typical period is 10 ms, and a best-effort subscriber
-        # on a loaded machine may lose a few messages, not many.
+        # 100 Hz in simulated time: the typical period is 10 ms, and hardly a frame is lost.
         period = np.median(np.diff(t))
         received = t.size / ((t[-1] - t[0]) * 100.0 + 1.0)
-        assert 0.009 < period < 0.011 and received > 0.8, (array.name, period, received)
+        assert 0.009 < period < 0.011 and received > 0.9, (array.name, period, received)
         assert frames[array.name] == {array.frame_id}
 
 

@@ -10,7 +10,6 @@ slopes of these sessions (a few N/s) is a few hundredths of a newton.
 """
 from __future__ import annotations
 
-import dataclasses
 import os
 import socket
 import subprocess
@@ -146,31 +145,14 @@ def compare_calibration(bag: Path, hand: HandDescription, kinematics: HandKinema
     return result
 
 
-def tared_model_config(model_path: str, tare: np.ndarray, hand: HandDescription,
-                       folder: Path) -> Path:
-    """The model with `tare` as its default tare, and an estimator model list naming it.
-
-    The estimator node tares only on request (~/tare); the node run starts from the tare the
-    direct run took on the same simulated hand at rest (same scene and seed), as an operator
-    tares before a run.
-    """
-    import yaml
-
-    from tacforce_ros.estimation.model_io import load_model, save_model
-    bundle = load_model(model_path, hand.array('index_tip'))
-    folder.mkdir(parents=True, exist_ok=True)
-    model = save_model(folder / 'index_tip_tared.npz', dataclasses.replace(bundle, x_offset=tare))
-    config = folder / 'models_tared.yaml'
-    config.write_text(yaml.safe_dump({'models': {'index_tip': model.name}}))
-    return config
-
-
 def node_trace(bag: Path, hand: HandDescription, kinematics: HandKinematics, model_config: Path,
-               sequence, reference: ClosedLoopTrace) -> tuple[ClosedLoopTrace, float]:
+               sequence, reference: ClosedLoopTrace, tare_frames: int
+               ) -> tuple[ClosedLoopTrace, float]:
     """The node run as a trace on the sequence's clock, and the clock offset used.
 
-    The bag carries the raw streams; f_hat is the same model set applied to the recorded frames
-    (the estimator node's output is not recorded). The command player starts its clock at its
+    The bag carries the raw streams; f_hat is the same model set applied to the recorded frames,
+    tared as the estimator node tares (its first `tare_frames` frames; the estimator's output is
+    not recorded). The command player starts its clock at its
     first tick, which the bag does not record: the offset is the delay of the first press
     (|f~_z| > ONSET_N after f_d leaves zero) against the direct run's.
     """
@@ -190,6 +172,7 @@ def node_trace(bag: Path, hand: HandDescription, kinematics: HandKinematics, mod
 
     offset = onset(t_ft, force) - onset(reference.t, reference.f_tilde)
     models = load_model_set(model_config, hand)
+    models.set_tare(frames[:tare_frames])
     array = hand.array('index_tip')
     q_at = joints[np.clip(np.searchsorted(t_q, t_tac), 0, len(t_q) - 1)]
     f_hat = np.stack([kinematics.rotation_between(q, array.frame_id, hand.ft_frame)

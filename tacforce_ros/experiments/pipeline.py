@@ -449,17 +449,16 @@ def node_path_stage(ctx: Context, models: dict) -> dict:
             s.static_force)
         sequence = ForceSequence.load(s.sequence)
         seed = load_scene(loop_scene).seed
-        models_set = load_model_set(model_config_file(ctx, 'M3-lambda', models), hand)
+        config = model_config_file(ctx, 'M3-lambda', models)
         direct = run_closed_loop(hand, kinematics, loop_scene, seed, controller_config('M3-lambda'),
-                                 sequence, models_set, control_rate=s.control_rate,
-                                 tare_frames=tare_frames())
-        config = node_path.tared_model_config(model, models_set.estimator.tare('index_tip'), hand,
-                                              work / 'models')
+                                 sequence, load_model_set(config, hand),
+                                 control_rate=s.control_rate, tare_frames=tare_frames())
         ctx.log(f'stage node path: closed-loop run ({sequence.duration:g} s + start-up, wall)')
         bag = node_path.run_session('closed_loop', str(loop_scene), HELD_OUT_PLATE,
                                     work / 'closed_loop',
                                     sequence.duration + node_path.START_MARGIN_S, config)
-        trace, offset = node_path.node_trace(bag, hand, kinematics, config, sequence, direct)
+        trace, offset = node_path.node_trace(bag, hand, kinematics, config, sequence, direct,
+                                             tare_frames())
         result['closed_loop'] = node_path.compare_closed_loop(trace, direct, offset)
         np.savez(work / 'closed_loop_traces.npz',
                  **{f'node_{k}': v for k, v in trace.arrays().items()},

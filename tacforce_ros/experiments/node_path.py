@@ -128,8 +128,11 @@ def compare_calibration(bag: Path, hand: HandDescription, kinematics: HandKinema
     from tacforce_ros.estimation.model_io import load_model
     from tacforce_ros.experiments.calibration_data import simulate_calibration
     bundle = load_model(model_path, hand.array('index_tip'))
-    tactile_time = [_seconds(m.header.stamp) for _, _, m in
-                    bagio.read_messages(bag, [bagio.TOPIC_TACTILE])]
+    # Frames stamped 0 were stamped before the first /clock: they say nothing about the window.
+    tactile_time = [t for t in (_seconds(m.header.stamp) for _, _, m in
+                                bagio.read_messages(bag, [bagio.TOPIC_TACTILE])) if t > 0.0]
+    if not tactile_time:
+        raise NodePathUnavailable(f'{bag}: no tactile frame stamped in simulated time')
     start, stop = min(tactile_time), max(tactile_time)
     node, dropped = dataset_from_bag(bag, hand, kinematics)
     direct = simulate_calibration(hand, kinematics, scene, seed, stop, start=start)

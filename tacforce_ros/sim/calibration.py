@@ -58,7 +58,7 @@ class CalibrationSimulator:
     def reset(self, seed: int | None = None) -> None:
         self.seed = self.scene.seed if seed is None else int(seed)
         self._rng = np.random.default_rng([self.seed, 0])
-        self.sensor.reset(self.seed)
+        self.sensor.reset(self.seed, self.scene.sensor_seed)
         self.step_index = 0
         self._schedule: Schedule | None = None
         self._block_start = 0

@@ -104,7 +104,7 @@ class ClosedLoopSimulator:
 
     def reset(self, seed: int | None = None) -> None:
         self.seed = self.scene.seed if seed is None else int(seed)
-        self.sensor.reset(self.seed)
+        self.sensor.reset(self.seed, self.scene.sensor_seed)
         # The rig is placed against the NOMINAL hand: model errors then show as they do in
         # the lab, where the plate sits where the nominal model says the fingertip touches.
         nominal, _ = self._compile(edit=False)

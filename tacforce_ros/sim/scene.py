@@ -51,12 +51,15 @@ class Scene:
     duration: float                 # s
     tactile_rate: float             # Hz (uSkin: 100)
     physics_rate: float             # Hz; calibration scenes: = tactile_rate
-    seed: int
+    seed: int                       # session: noise, drift, operator, transport
     effects: dict[str, dict[str, Any]]   # enabled effects, in YAML order, with their parameters
     operator: dict[str, Any] = field(default_factory=dict)   # calibration: operator model
     finger: dict[str, Any] = field(default_factory=dict)     # closed loop: pose, tip geometry
     soft_object: SoftObject | None = None
     path: Path | None = None
+    # The physical hand: per-taxel gains, baselines, coupling, actuator and link tolerances.
+    # One hand is one sensor_seed, shared by every scene unless a scene names another.
+    sensor_seed: int = 0
 
     @property
     def dt(self) -> float:
@@ -210,6 +213,7 @@ def load_scene(name_or_path: str | Path) -> Scene:
                                      - round(physics_rate / tactile_rate)) > 1e-9:
         raise SceneError(f'{where}: field "physics_rate" must be a multiple of tactile_rate')
     seed = _get(raw, 'seed', int, where)
+    sensor_seed = _get(raw, 'sensor_seed', int, where) if 'sensor_seed' in raw else 0
     return Scene(
         name=path.stem, kind=kind, array=_get(raw, 'array', str, where),
         plate=_plate(raw, where), duration=_positive(raw, 'duration', where),
@@ -217,4 +221,4 @@ def load_scene(name_or_path: str | Path) -> Scene:
         effects=_effects(raw, where),
         operator=_get(raw, 'operator', dict, where) if kind == 'calibration' else {},
         finger=_finger(raw, where) if kind == 'closed_loop' else {},
-        soft_object=_soft_object(raw, where), path=path)
+        soft_object=_soft_object(raw, where), path=path, sensor_seed=sensor_seed)

@@ -52,10 +52,11 @@ class TactileSensor:
                                  physics_dt=frame_dt if physics_dt is None else physics_dt,
                                  params=ResponseParams.nominal(hand.n_taxels))
 
-    def reset(self, seed: int) -> None:
+    def reset(self, seed: int, sensor_seed: int) -> None:
+        """Session draws from `seed`; the hand's physical parameters from `sensor_seed`."""
         ctx = self.ctx
         ctx.params = ResponseParams.nominal(ctx.n_taxels)
-        self.pipeline.reset(seed, ctx)
+        self.pipeline.reset(seed, ctx, sensor_seed)
         self.pipeline.run('response', ctx)
         ctx.idle_counts = counts_from_loads(np.zeros((ctx.n_taxels, 3)), ctx.params,
                                             slice(None))

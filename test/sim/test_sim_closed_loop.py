@@ -99,7 +99,7 @@ def test_actuator_effects_clamp_throttle_and_scale(hand):
     pipeline = Pipeline.from_scene({'actuator_limits': {'time_constant': 0.01},
                                     'torque_gain_error': {}})
     ctx = type('Ctx', (), {'physics_dt': 0.002})()
-    pipeline.reset(0, ctx)
+    pipeline.reset(0, ctx, sensor_seed=0)
     limits, gain = pipeline.effects
     state = StepState(t=0.0, contact=None, torque=np.full(16, 0.2))
     pipeline.run('torque', state)

@@ -23,6 +23,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
+HAND_STREAM = 1   # tag of the hand's random streams (see Pipeline.reset)
 STAGES = ('model', 'response', 'taxel_force', 'local_force', 'counts', 'wrench', 'torque',
           'delivery')
 
@@ -32,8 +33,13 @@ class Effect:
     """Base of all effects. Subclasses set `name` and define some `on_<stage>(state)` hooks."""
     name: ClassVar[str] = ''
 
+    def draw_hand(self, rng: np.random.Generator, ctx: Any) -> None:
+        """Draw the parameters of the physical hand and its sensors (taxel gains, baselines,
+        actuator constants, link tolerances): fixed per sensor seed, the same in every session."""
+
     def reset(self, rng: np.random.Generator, ctx: Any) -> None:
-        """Draw per-run randomness and size buffers; ctx is the simulator's EffectContext."""
+        """Draw what differs between sessions (noise, drift, state) and size buffers; ctx is the
+        simulator's EffectContext."""
 
 
 class Pipeline:
@@ -50,11 +56,15 @@ class Pipeline:
     def from_scene(cls, effects: dict[str, dict[str, Any]]) -> Pipeline:
         return cls([EFFECTS[name](**params) for name, params in effects.items()])
 
-    def reset(self, seed: int, ctx: Any) -> None:
+    def reset(self, seed: int, ctx: Any, sensor_seed: int) -> None:
+        """The hand's physical parameters from `sensor_seed`, the session's draws from `seed`."""
         # One independent stream per effect (keyed by its name), so switching one effect on
-        # does not change the random draws of any other.
+        # does not change the random draws of any other; the hand's streams carry a tag so they
+        # never coincide with a session's, even when both seeds are equal.
         for effect in self.effects:
-            effect.reset(np.random.default_rng([seed, zlib.crc32(effect.name.encode())]), ctx)
+            key = zlib.crc32(effect.name.encode())
+            effect.draw_hand(np.random.default_rng([sensor_seed, key, HAND_STREAM]), ctx)
+            effect.reset(np.random.default_rng([seed, key]), ctx)
 
     def run(self, stage: str, state: Any) -> None:
         for hook in self.hooks[stage]:

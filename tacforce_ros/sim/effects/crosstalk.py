@@ -15,13 +15,13 @@ class Crosstalk(Effect):
     # estimate (the paper raises inter-array interference as an open issue, section II).
     coupling: float = 0.03
 
-    def reset(self, rng: np.random.Generator, ctx) -> None:
+    def draw_hand(self, rng: np.random.Generator, ctx) -> None:
         self._source = ctx.rows
         names = ctx.array.neighbours
         self._targets = (np.concatenate([ctx.hand.array(n).flat_indices for n in names])
                          if names else np.zeros(0, np.int64))
         # Taxels nearer the shared edge couple more; without a cross-array geometry a fixed
-        # random weight per taxel stands in for that distance.
+        # random weight per taxel (a property of the hand) stands in for that distance.
         self._weights = self.coupling * rng.uniform(0.2, 1.0, (len(self._targets), 1))
         self._ctx = ctx   # rest counts are final only after the response stage
 

@@ -20,13 +20,15 @@ class KinematicMismatch(Effect):
     tip_thickness: float = 0.004   # m, added to the fingertip contact radius
     link_sigma: float = 0.0005     # m, per link origin
 
-    def reset(self, rng: np.random.Generator, ctx) -> None:
-        self._rng = rng
+    def draw_hand(self, rng: np.random.Generator, ctx) -> None:
+        # Origins of the finger's links after its base link (3 links and the tip): the
+        # tolerances of this hand's assembly.
+        self._link_errors = rng.normal(0.0, self.link_sigma, (4, 3))
 
     def on_model(self, world) -> None:
         world.tip_radius_extra += self.tip_thickness
-        for body in world.finger_bodies()[1:]:
-            body.pos = np.asarray(body.pos) + self._rng.normal(0.0, self.link_sigma, 3)
+        for body, error in zip(world.finger_bodies()[1:], self._link_errors, strict=True):
+            body.pos = np.asarray(body.pos) + error
 
 
 EFFECT = KinematicMismatch

@@ -19,7 +19,7 @@ class TaxelVariation(Effect):
     gain_sigma: float = 0.2              # relative, lognormal
     coupling_sigma: float = 0.08         # off-diagonal load mixing
 
-    def reset(self, rng: np.random.Generator, ctx) -> None:
+    def draw_hand(self, rng: np.random.Generator, ctx) -> None:
         n = ctx.n_taxels
         self._baseline = np.column_stack([
             32768.0 + rng.uniform(-self.baseline_xy_spread, self.baseline_xy_spread, (n, 2)),

@@ -21,14 +21,17 @@ class TemperatureDrift(Effect):
     remanence_coefficient: float = -0.0012   # 1/K
     offset_drift_sigma: float = 8.0          # counts/K
 
+    def draw_hand(self, rng: np.random.Generator, ctx) -> None:
+        # Each taxel's thermistor offset and Hall-chip drift coefficient belong to the chip.
+        self._offset = rng.normal(0.0, self.taxel_offset_sigma, ctx.n_taxels)
+        self._drift = rng.normal(0.0, self.offset_drift_sigma, (ctx.n_taxels, 3))
+
     def reset(self, rng: np.random.Generator, ctx) -> None:
         self._rng = rng
         self._decay = float(np.exp(-ctx.dt / self.time_constant))
         self._array_of = ctx.array_of_taxel
         n_arrays = int(self._array_of.max()) + 1
         self._wander = rng.normal(0.0, self.sigma, n_arrays)
-        self._offset = rng.normal(0.0, self.taxel_offset_sigma, ctx.n_taxels)
-        self._drift = rng.normal(0.0, self.offset_drift_sigma, (ctx.n_taxels, 3))
 
     def on_counts(self, state) -> None:
         innovation = self.sigma * np.sqrt(1.0 - self._decay ** 2)

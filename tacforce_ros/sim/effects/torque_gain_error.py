@@ -16,7 +16,7 @@ class TorqueGainError(Effect):
     low: float = 0.80
     high: float = 0.95
 
-    def reset(self, rng: np.random.Generator, ctx) -> None:
+    def draw_hand(self, rng: np.random.Generator, ctx) -> None:
         self.gain = rng.uniform(self.low, self.high, 16)
 
     def on_torque(self, state) -> None:

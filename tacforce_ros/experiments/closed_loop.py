@@ -8,6 +8,7 @@ is held over the physics steps in between, as the Allegro firmware holds the las
 """
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -43,13 +44,15 @@ class ClosedLoopTrace:
 def run_closed_loop(hand: HandDescription, kinematics: HandKinematics, scene: str | Path,
                     seed: int, config: ForceControllerConfig, sequence: ForceSequence,
                     models: ModelSet | None, control_rate: float = 100.0,
-                    tare_frames: int = 50, tare_start: float = 10.0) -> ClosedLoopTrace:
+                    tare_frames: int = 50, settle_seconds: float = 2.0) -> ClosedLoopTrace:
     """Play `sequence` once. `models` None runs without an estimator (open loop only).
 
-    The estimator is tared on `tare_frames` frames from `tare_start` s, while f_d is still zero
-    and the finger has settled on the plate (the model's default tare comes from other sessions,
-    whose simulated taxel baselines differ). Until then the controller has no estimate: its
-    watchdog holds the finger's position.
+    As a lab run: the finger first holds its start pose clear of the plate for
+    `settle_seconds` (gravity compensation and the PD of the law, no force terms); over the last
+    `tare_frames` tactile frames of that hold the F/T sensor is zeroed (its mean is the bias the
+    Net F/T's bias command removes) and the estimator is tared (the model's own tare comes from
+    other sessions). Then the controller runs the sequence from t = 0, its q_d bringing the
+    fingertip into contact.
     """
     controller = ForceController(config, kinematics)
     if models is None and not controller.open_loop:
@@ -62,7 +65,15 @@ def run_closed_loop(hand: HandDescription, kinematics: HandKinematics, scene: st
                          f'{1.0 / sim.dt:g} Hz')
     row = None if models is None else [a.name for a in models.arrays].index(scene.array)
     joints = kinematics.finger_joints(config.finger)
+    settle_ticks = int(round(settle_seconds * control_rate))
+    if settle_ticks < tare_frames:
+        raise ValueError(f'settle_seconds {settle_seconds} s holds fewer than the '
+                         f'{tare_frames} frames the tare needs at {control_rate:g} Hz')
+    hold = ForceController(dataclasses.replace(config, k_i=(0.0, 0.0, 0.0),
+                                               q_d=tuple(sim.pose)), kinematics)
     tare: list[np.ndarray] = []
+    wrenches: list[np.ndarray] = []
+    ft_zero = np.zeros(3)
     q = qdot = None
     q_time = estimate_time = -np.inf
     f_hat = np.full(3, np.nan)
@@ -70,26 +81,35 @@ def run_closed_loop(hand: HandDescription, kinematics: HandKinematics, scene: st
     ticks = int(round(sequence.duration * control_rate))
     log = {key: np.full((ticks, 3), np.nan) for key in ('f_d', 'f_hat', 'f_tilde')}
     log_t = np.zeros(ticks)
-    for tick in range(ticks):
+    start = settle_ticks / control_rate
+    for tick in range(-settle_ticks, ticks):
         frame = None
         for _ in range(every):
             sample = sim.step(torque)
             if sample.tactile_fresh and sample.delivered['tactile']:
                 frame = sample.taxel_counts
-        t = sample.t    # closed-loop samples are stamped at the end of their step
+        t = sample.t - start    # closed-loop samples are stamped at the end of their step
         if q is None:   # the first state, even if its message was dropped (then it is stale)
             q, qdot = sample.q, sample.qdot
         if sample.delivered['joints']:
             q, qdot, q_time = sample.q, sample.qdot, t
-        if models is not None and frame is not None and t >= tare_start:
-            if len(tare) < tare_frames:    # the estimator node tares on its first frames
-                tare.append(frame.astype(np.float64))
-                if len(tare) == tare_frames:
-                    models.set_tare(np.stack(tare))
-            else:
-                estimate = models.estimate(frame)
-                if estimate.valid[row]:
-                    f_hat, estimate_time = estimate.force[row], t
+        if tick < 0:
+            if tick >= -tare_frames:
+                wrenches.append(sample.ft_wrench[:3])
+                if models is not None and frame is not None:
+                    tare.append(frame.astype(np.float64))
+            tau, _ = hold.update(t, q, qdot, f_hat, np.inf, t - q_time, np.zeros(3))
+            torque = np.zeros(16)
+            torque[joints] = tau
+            continue
+        if tick == 0:
+            ft_zero = np.mean(wrenches, axis=0)
+            if models is not None:
+                models.set_tare(np.stack(tare))
+        if models is not None and frame is not None:
+            estimate = models.estimate(frame)
+            if estimate.valid[row]:
+                f_hat, estimate_time = estimate.force[row], t
         f_d = sequence.force_at(t)
         tau, state = controller.update(t, q, qdot, f_hat, t - estimate_time, t - q_time, f_d)
         torque = np.zeros(16)
@@ -98,7 +118,7 @@ def run_closed_loop(hand: HandDescription, kinematics: HandKinematics, scene: st
         log['f_d'][tick] = f_d
         if state.estimate_fresh:
             log['f_hat'][tick] = state.estimated_force
-        log['f_tilde'][tick] = sample.ft_wrench[:3]
+        log['f_tilde'][tick] = sample.ft_wrench[:3] - ft_zero
     return ClosedLoopTrace(t=log_t, **log)
 
 

@@ -69,9 +69,6 @@ class Context:
     log: Callable[[str], None] = print
     timings: dict[str, float] = field(default_factory=dict)
 
-    def scene_folder(self) -> Path:
-        return self.out / 'scenes'
-
 
 # ---------------------------------------------------------------------------------- workers
 
@@ -374,7 +371,6 @@ def closed_loop_seed(obj: str, repeat: int, base: int) -> int:
 
 def closed_loop_stage(ctx: Context, models: dict) -> dict[tuple[str, str], list[str]]:
     """Table III runs: {(object, controller): [trace paths]}."""
-    from tacforce_ros.experiments.scenes import zeroed_ft_scene
     s = ctx.settings
     code = code_digest('sim', 'hand', 'control', 'estimation/runtime', 'nodes/model_set',
                        'experiments/closed_loop')
@@ -382,7 +378,7 @@ def closed_loop_stage(ctx: Context, models: dict) -> dict[tuple[str, str], list[
                          config_dir() / 'params' / 'estimator.yaml')
     jobs, traces = [], {}
     for obj in s.objects:
-        scene = zeroed_ft_scene(f'closed_loop_{obj}', ctx.scene_folder())
+        scene = f'closed_loop_{obj}'
         for controller in CONTROLLERS:
             model_config = None if controller == 'open_loop' else \
                 model_config_file(ctx, controller, models)
@@ -397,7 +393,7 @@ def closed_loop_stage(ctx: Context, models: dict) -> dict[tuple[str, str], list[
                 if ctx.cache.lookup('closed_loop', key, '.npz') is None:
                     target.parent.mkdir(parents=True, exist_ok=True)
                     jobs.append((str(target), job_closed_loop,
-                                 (str(scene), seed, controller,
+                                 (scene, seed, controller,
                                   None if model_config is None else str(model_config),
                                   s.sequence, s.control_rate, str(target))))
     ctx.log(f'stage closed loop: {sum(map(len, traces.values()))} runs, {len(jobs)} to simulate')
@@ -418,7 +414,6 @@ def node_path_stage(ctx: Context, models: dict) -> dict:
     from tacforce_ros.control.command_sequence import ForceSequence
     from tacforce_ros.experiments import node_path
     from tacforce_ros.experiments.closed_loop import run_closed_loop
-    from tacforce_ros.experiments.scenes import zeroed_ft_scene
     from tacforce_ros.nodes.model_set import load_model_set
     from tacforce_ros.sim import load_scene
     s = ctx.settings
@@ -426,7 +421,7 @@ def node_path_stage(ctx: Context, models: dict) -> dict:
         return {'ran': False, 'reason': 'switched off for this run (--quick or --no-node-path)'}
     hand, kinematics = _hand()
     calibration_scene = f'calibration_index_tip_{HELD_OUT_PLATE}'
-    loop_scene = zeroed_ft_scene('closed_loop_spherical', ctx.scene_folder())
+    loop_scene = 'closed_loop_spherical'
     model = models['index_tip']['M3-lambda']
     key = digest({'scenes': [scene_digest(calibration_scene), scene_digest(loop_scene)],
                   'model': Path(model).stem, 'code': code_digest(
@@ -454,7 +449,7 @@ def node_path_stage(ctx: Context, models: dict) -> dict:
                                  sequence, load_model_set(config, hand),
                                  control_rate=s.control_rate, tare_frames=tare_frames())
         ctx.log(f'stage node path: closed-loop run ({sequence.duration:g} s + start-up, wall)')
-        bag = node_path.run_session('closed_loop', str(loop_scene), HELD_OUT_PLATE,
+        bag = node_path.run_session('closed_loop', loop_scene, HELD_OUT_PLATE,
                                     work / 'closed_loop',
                                     sequence.duration + node_path.START_MARGIN_S, config)
         trace, offset = node_path.node_trace(bag, hand, kinematics, config, sequence, direct,

@@ -57,7 +57,8 @@ class ClosedLoopSimulator:
         finger = scene.finger
         self.finger = finger.get('name', 'index')
         self.joints = FINGER_JOINTS[self.finger]
-        self.pose = np.asarray(finger['pose'], np.float64)
+        self.pose = np.asarray(finger['pose'], np.float64)          # start pose
+        self.contact_pose = np.asarray(finger.get('contact_pose', finger['pose']), np.float64)
         others = np.ones(16, bool)
         others[self.joints] = False
         self.held = np.flatnonzero(others)
@@ -72,13 +73,13 @@ class ClosedLoopSimulator:
 
     # ------------------------------------------------------------------ model
 
-    def _q0(self) -> np.ndarray:
+    def _q(self, finger_pose: np.ndarray) -> np.ndarray:
         q = np.empty(16)
-        q[self.joints] = self.pose
+        q[self.joints] = finger_pose
         q[self.held] = self.held_pose
         return q
 
-    def _compile(self, edit: bool) -> tuple[mujoco.MjModel, ModelBuild]:
+    def _compile(self) -> tuple[mujoco.MjModel, ModelBuild]:
         spec = mujoco.MjSpec.from_file(str(self.hand.urdf_path))
         spec.option.timestep = self.dt
         spec.option.integrator = mujoco.mjtIntegrator.mjINT_IMPLICITFAST
@@ -98,31 +99,28 @@ class ClosedLoopSimulator:
             if body.name.startswith('link_') and int(body.name[5:].split('.')[0]) in self.held:
                 body.gravcomp = 1.0
         build = ModelBuild(spec, self.finger)
-        if edit:
-            self.pipeline.run('model', build)
+        self.pipeline.run('model', build)
         return spec.compile(), build
 
     def reset(self, seed: int | None = None) -> None:
         self.seed = self.scene.seed if seed is None else int(seed)
         self.sensor.reset(self.seed, self.scene.sensor_seed)
-        # The rig is placed against the NOMINAL hand: model errors then show as they do in
-        # the lab, where the plate sits where the nominal model says the fingertip touches.
-        nominal, _ = self._compile(edit=False)
-        self.model, build = self._compile(edit=True)
+        self.model, build = self._compile()
         self.data = mujoco.MjData(self.model)
         self.tip = self.model.body(build.tip_body).id
         self.radius = self.tip_radius + build.tip_radius_extra
         self.offset = build.contact_offset
         self.s0 = self.model.body(self.sensor.array.frame_id).id
         ft = self.model.body(self.hand.ft_frame).id
-        q0 = self._q0()
-        nominal_data = mujoco.MjData(nominal)
-        nominal_data.qpos[:] = q0
-        mujoco.mj_kinematics(nominal, nominal_data)
-        tip_centre = nominal_data.xpos[self.tip].copy()
-        self.r_base_f = nominal_data.xmat[ft].reshape(3, 3).copy()
+        # The lab places the rig so the plate just touches the (real) fingertip at the contact
+        # pose; the finger starts at its start pose, clear of the plate when the two differ.
+        self.data.qpos[:] = self._q(self.contact_pose)
+        mujoco.mj_kinematics(self.model, self.data)
+        rot = self.data.xmat[self.tip].reshape(3, 3)
+        tip_centre = self.data.xpos[self.tip] + rot @ self.offset
+        self.r_base_f = self.data.xmat[ft].reshape(3, 3).copy()
         self.up = self.r_base_f[:, 2]          # plate/object surface normal, towards the finger
-        surface = tip_centre - self.tip_radius * self.up   # nominal contact point
+        surface = tip_centre - self.radius * self.up   # where the tip touches at contact pose
         obj = self.scene.soft_object
         if obj is None:
             self.plate_centre = surface - self.scene.plate.radius * self.up
@@ -133,7 +131,7 @@ class ClosedLoopSimulator:
         self.obj = obj
         self.obj_x = self.obj_v = 0.0              # object compression and its rate
         self.anchor: np.ndarray | None = None      # stick point of the tangential spring
-        self.data.qpos[:] = q0
+        self.data.qpos[:] = self._q(self.pose)
         mujoco.mj_forward(self.model, self.data)
         self.step_index = 0
         self._jac = np.zeros((3, self.model.nv))

@@ -17,6 +17,7 @@ from tacforce_ros.paths import config_dir
 KINDS = ('calibration', 'closed_loop')
 FINGER_FIELDS = {'pose': 4, 'others': 12, 'others_kp': 0, 'others_kd': 0, 'tip_radius': 0,
                  'skin_stiffness': 0, 'skin_damping': 0}   # closed loop; value = list length
+OPTIONAL_FINGER_FIELDS = {'contact_pose': 4}   # default: `pose` (the finger starts in contact)
 PLATE_SHAPES = ('sphere', 'cylinder', 'plane')
 
 
@@ -187,7 +188,8 @@ def _effects(raw: dict, where: str) -> dict[str, dict[str, Any]]:
 
 def _finger(raw: dict, where: str) -> dict[str, Any]:
     finger = _get(raw, 'finger', dict, where)
-    for key, length in FINGER_FIELDS.items():
+    fields = {**FINGER_FIELDS, **{k: n for k, n in OPTIONAL_FINGER_FIELDS.items() if k in finger}}
+    for key, length in fields.items():
         sub = f'{where}: finger'
         if length:
             value = _get(finger, key, list, sub)

@@ -38,10 +38,10 @@ PATHS = [
     'controller over DDS, real time): one calibration session on the spherical plate and one '
     'closed-loop run (M3λ, spherical plate), compared below with the direct path on the same '
     'scene and seed.',
-    'Tare: the direct path tares the estimator on 50 frames from t = 10 s, once the finger has '
-    'settled on the plate (the closed-loop scenes start in contact); the estimator node tares '
-    'on its first 50 frames at start-up (estimator.yaml tare_at_start), as does the offline '
-    'estimate of the node run.',
+    'Tare: closed-loop runs start with the fingertip clear of the plate; the direct path holds '
+    'that start pose 2 s and zeroes the F/T sensor and tares the estimator on its last 50 '
+    'frames, out of contact; the estimator node tares on its first 50 frames at start-up '
+    '(estimator.yaml tare_at_start), as does the offline estimate of the node run.',
 ]
 NODE_TOLERANCE_REASON = (
     f"{AGREEMENT_N['calibration_e_hat']} N on e_hat and {AGREEMENT_N['closed_loop_e_tilde']} N "

@@ -15,10 +15,8 @@ from tacforce_ros.experiments.calibration_data import simulate_calibration
 from tacforce_ros.experiments.closed_loop import ClosedLoopTrace, run_closed_loop, trace_metrics
 from tacforce_ros.experiments.node_path import _free_ports, compare_closed_loop
 from tacforce_ros.experiments.pipeline import controller_config
-from tacforce_ros.experiments.scenes import zeroed_ft_scene
 from tacforce_ros.hand.description import load_hand
 from tacforce_ros.hand.kinematics import HandKinematics
-from tacforce_ros.sim import load_scene
 
 
 @pytest.fixture(scope='module')
@@ -69,15 +67,14 @@ def test_digest_ignores_key_order_and_sees_every_value(spec):
 
 
 def test_scene_digest_follows_the_scene_contents(tmp_path):
-    path = zeroed_ft_scene('closed_loop_spherical', tmp_path)
-    assert load_scene(path).effects['ft_noise']['force_bias_sigma'] == 0.0
-    zeroed = scene_digest(path)
-    assert zeroed != scene_digest('closed_loop_spherical')
-    assert zeroed_ft_scene('closed_loop_spherical', tmp_path) == path     # unchanged: same file
-    doc = yaml.safe_load(path.read_text())
-    doc['effects']['ft_noise']['force_sigma'] = 0.5
-    path.write_text(yaml.safe_dump(doc))
-    assert scene_digest(path) != zeroed
+    path = tmp_path / 'variant.yaml'
+    path.write_text(yaml.safe_dump({'extends': 'closed_loop_spherical'}))
+    same = scene_digest(path)
+    assert scene_digest(path) == same
+    for change in ({'effects': {'ft_noise': {'force_sigma': 0.5}}}, {'sensor_seed': 3},
+                   {'finger': {'contact_pose': [0.0, 0.6, 0.6, 0.7]}}):
+        path.write_text(yaml.safe_dump({'extends': 'closed_loop_spherical', **change}))
+        assert scene_digest(path) != same, change
 
 
 def test_cache_entries_are_written_whole(tmp_path):
@@ -125,6 +122,8 @@ def test_short_open_loop_run_presses_the_plate(hand, kinematics):
                               controller_config('open_loop'), sequence, None)
     assert len(run.t) == 200 and np.all(np.diff(run.t) > 0)
     assert np.isnan(run.f_hat).all()
+    # Zeroed and tared clear of the plate: the F/T reads noise until the finger arrives.
+    assert np.abs(run.f_tilde[:3]).max() < 0.15
     assert run.f_tilde[-20:, 2].mean() < -0.8       # pressing down on the plate, in {F}
 
 

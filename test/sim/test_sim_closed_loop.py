@@ -2,30 +2,42 @@
 import dataclasses
 import warnings
 
+import mujoco
 import numpy as np
 import pytest
 
+from tacforce_ros.control.force_controller import ForceControllerConfig
 from tacforce_ros.hand.kinematics import HandKinematics
+from tacforce_ros.paths import config_dir
 from tacforce_ros.sim import load_scene, make_simulator
 from tacforce_ros.sim.effects import Pipeline
 from tacforce_ros.sim.effects.actuator_limits import FINGER_CLAMP, THUMB_CLAMP
 from tacforce_ros.sim.sample import StepState
 
 F_DESIRED = np.array([0.0, 0.0, -2.0])   # N in {F}: press down on the plate
-KD, KP = 0.01, 0.05                      # joint damping and posture terms of the paper's law
+# The project's joint gains (config/params/force_controller.yaml, the one file every path reads).
+GAINS = ForceControllerConfig.from_yaml(config_dir() / 'params' / 'force_controller.yaml')
+KD, KP = np.asarray(GAINS.k_d), np.asarray(GAINS.k_p)
 
 
-def simulator(hand, name, effects=None, seed=None):
+def simulator(hand, name, effects=None, seed=None, at_contact=True):
+    """The scene's simulator; `at_contact` starts the finger at the contact pose (plate just
+    touching) instead of clear of it, so the force terms act from the first step."""
     scene = load_scene(name)
     if effects is not None:
         scene = dataclasses.replace(scene, effects=effects)
+    if at_contact:
+        scene = dataclasses.replace(scene, finger={**scene.finger,
+                                                   'pose': scene.finger['contact_pose']})
     with warnings.catch_warnings():
         warnings.simplefilter('ignore')
         return make_simulator(scene, hand, seed=seed)
 
 
 def open_loop(sim, seconds, jacobian_and_gravity):
-    """tau = J^T f_d + tau_g - K_d qdot - K_p (q - q_d) for the index finger; the samples."""
+    """tau = J^T f_d + tau_g - K_d qdot - K_p (q - q_d) for the index finger, every physics
+    step, with q_d at the contact pose (the P term is zero there: the force terms alone press).
+    Returns the samples."""
     f_base = sim.r_base_f @ F_DESIRED
     fingers = sim.joints
     samples = []
@@ -34,7 +46,7 @@ def open_loop(sim, seconds, jacobian_and_gravity):
         jac, gravity = jacobian_and_gravity(sim, q)
         tau = np.zeros(16)
         tau[fingers] = (jac.T @ f_base + gravity - KD * qdot[fingers]
-                        - KP * (q[fingers] - sim.pose))
+                        - KP * (q[fingers] - sim.contact_pose))
         samples.append(sim.step(tau))
     return samples
 
@@ -113,3 +125,17 @@ def test_actuator_effects_clamp_throttle_and_scale(hand):
     assert np.array_equal(hot, clamp > 0.35)
     assert np.allclose(state.torque[hot], 0.5 * clamp[hot] * gain.gain[hot])
     assert np.allclose(state.torque[~hot], clamp[~hot] * gain.gain[~hot])
+
+
+def test_finger_starts_clear_and_the_rig_touches_the_simulated_tip_at_the_contact_pose(hand):
+    sim = simulator(hand, 'closed_loop_spherical', seed=1, at_contact=False)
+
+    def depth():
+        centre = sim.data.xpos[sim.tip] + sim.data.xmat[sim.tip].reshape(3, 3) @ sim.offset
+        return sim._penetration(centre, sim._normal(centre))
+
+    assert depth() < -0.003                        # a gap of millimetres at the start pose
+    assert not sim.step().in_contact
+    sim.data.qpos[sim.joints] = sim.contact_pose   # with every model error of this hand
+    mujoco.mj_kinematics(sim.model, sim.data)
+    assert depth() == pytest.approx(0.0, abs=1e-9)

@@ -207,7 +207,9 @@ class AllegroDriver(TacforceNode):
     # --- inputs (joint callback runs in the driver's thread) --------------------------------
 
     def _on_joints(self, sample: JointSample) -> None:
-        now = self.now_ns()
+        now = self.stamp_ns()
+        if now is None:
+            return      # before the first /clock under use_sim_time: no valid stamp yet
         q = sample.positions
         qdot = self.velocity.update(q, now).copy()
         if self._q_hold is None:

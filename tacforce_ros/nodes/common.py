@@ -62,6 +62,7 @@ TOPIC_QOS = {
     '/ft_sensor/wrench': SENSOR,
     '/joint_states': SENSOR,
     '/tactile/estimates': SENSOR,
+    '/sim/contact_force': SENSOR,
     '/calibration/sample': RELIABLE,
     '/force_controller/desired': RELIABLE,
     '/force_controller/state': RELIABLE,
@@ -160,6 +161,8 @@ class TacforceNode(Node):
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(self.NODE_NAME, **kwargs)
+        self.samples_before_clock = 0
+        self._clock_seen = False
         self._specs = {spec.name: spec for spec in self.PARAMETERS}
         self.params = self._declare_checked()
         self.add_on_set_parameters_callback(self._check_change)
@@ -202,6 +205,21 @@ class TacforceNode(Node):
     def now_ns(self) -> int:
         """Node clock time (sim time when use_sim_time is true), integer nanoseconds."""
         return self.get_clock().now().nanoseconds
+
+    def stamp_ns(self) -> int | None:
+        """now_ns() for stamping a sample, or None while the clock is not valid yet: under
+        use_sim_time it reads 0 until the first /clock, and a sample stamped 0 would pose as the
+        oldest of the session. Drivers drop such samples; they are counted, and logged once."""
+        now = self.now_ns()
+        if now <= 0:
+            self.samples_before_clock += 1
+            return None
+        if not self._clock_seen:
+            self._clock_seen = True
+            if self.samples_before_clock:
+                self.get_logger().info(f'clock valid at {now * 1e-9:.3f} s; dropped '
+                                       f'{self.samples_before_clock} samples that came before it')
+        return now
 
     def on_shutdown(self) -> None:
         """Leave hardware and files safe; called once by run_node before the node is destroyed."""

@@ -81,9 +81,11 @@ class FtBridge(TacforceNode):
         self.status.driver = self.client
 
     def _publish(self, sample: WrenchSample) -> None:
+        now = self.stamp_ns()
+        if now is None:
+            return      # before the first /clock under use_sim_time: no valid stamp yet
         w = sample.wrench
-        self.publisher.publish(wrench_stamped(self.now_ns(), self.params['frame_id'],
-                                              w[:3], w[3:]))
+        self.publisher.publish(wrench_stamped(now, self.params['frame_id'], w[:3], w[3:]))
 
     def _on_bias(self, request: Trigger.Request, response: Trigger.Response
                  ) -> Trigger.Response:

@@ -3,7 +3,10 @@
 Subscribes to /tactile/raw, /ft_sensor/wrench and /joint_states; while recording it writes
 the three raw streams and the synchronised /calibration/sample stream (approximate time,
 `queue_size` and `slop`; the sample carries the selected array's TactileArray), which it also
-publishes. Bag layout and session metadata: docs/CONTRACTS.md. The bag is split every
+publishes. It also writes, as they arrive, the closed-loop streams when a graph publishes them:
+/force_controller/desired (f_d), /force_controller/state (the controller's every tick) and the
+simulator's ground truth /sim/contact_force, so a closed-loop bag carries command, estimate and
+truth on the one clock. Bag layout and session metadata: docs/CONTRACTS.md. The bag is split every
 `split_seconds` (wall time), so a recorder killed with SIGKILL leaves a bag readable up to the
 last split. Services: ~/start (tacforce_msgs/srv/StartRecording; empty fields take the
 parameters) and ~/stop (std_srvs/Trigger).
@@ -19,22 +22,29 @@ import sys
 import time
 from pathlib import Path
 
-from geometry_msgs.msg import WrenchStamped
+from geometry_msgs.msg import Vector3Stamped, WrenchStamped
 from rclpy.clock import Clock, ClockType
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
-from tacforce_msgs.msg import CalibrationSample, TactileHand
+from tacforce_msgs.msg import CalibrationSample, ControllerState, TactileHand
 from tacforce_msgs.srv import StartRecording
 
-from tacforce_ros.bagio import (TOPIC_JOINTS, TOPIC_SAMPLE, TOPIC_TACTILE, TOPIC_TYPES,
-                                TOPIC_WRENCH, BagError, CalibrationBagWriter, calibration_sample,
-                                session_metadata, typestore)
+from tacforce_ros.bagio import (TOPIC_JOINTS, TOPIC_SAMPLE, TOPIC_SIM_CONTACT, TOPIC_TACTILE,
+                                TOPIC_TYPES, TOPIC_WRENCH, BagError, CalibrationBagWriter,
+                                calibration_sample, session_metadata, typestore)
 from tacforce_ros.hand.description import HandConfigError, load_hand
 from tacforce_ros.nodes.common import (ParameterError, ParamSpec, TacforceNode, publisher_qos,
                                        run_node, subscriber_qos)
 from tacforce_ros.recording.synchroniser import ApproximateTimeSynchroniser
 
 INPUTS = (TOPIC_TACTILE, TOPIC_WRENCH, TOPIC_JOINTS)   # synchroniser input order
+TOPIC_DESIRED = '/force_controller/desired'
+TOPIC_CONTROLLER_STATE = '/force_controller/state'
+# Written as received, outside the samples: present only when the graph publishes them.
+PASSTHROUGH = {TOPIC_DESIRED: (Vector3Stamped, 'geometry_msgs/msg/Vector3Stamped'),
+               TOPIC_CONTROLLER_STATE: (ControllerState, 'tacforce_msgs/msg/ControllerState'),
+               TOPIC_SIM_CONTACT: (WrenchStamped, TOPIC_TYPES[TOPIC_SIM_CONTACT])}
+BAG_TOPICS = {**TOPIC_TYPES, **{topic: name for topic, (_, name) in PASSTHROUGH.items()}}
 # Best-effort like every sensor consumer, but a deep history: a busy CPU must not cost samples
 # (depth 5 lost ~20 % here under load); 200 = 2 s of tactile frames, 0.2 s of wrench at 1 kHz.
 RECORDER_DEPTH = 200
@@ -56,6 +66,9 @@ class SyncRecorder(TacforceNode):
         ParamSpec('plate', '', 'push-plate or object (button, flat, fillet, convex, edge, ...)'),
         ParamSpec('operator_notes', '', 'free text stored in the session metadata'),
         ParamSpec('source', 'lab', 'where the data comes from', choices=('lab', 'sim')),
+        ParamSpec('scene', '', 'simulation: the scene sim_world runs (session metadata)'),
+        ParamSpec('seed', -1, 'simulation: the simulator seed for the session metadata; -1 = '
+                  'the scene\'s own (stored empty)', range=(-1, 2**31 - 1)),
         ParamSpec('hand_config', '', 'hand description YAML; empty = the default hand'),
         ParamSpec('autostart', False, 'start recording at start-up with the parameters above'),
     )
@@ -80,6 +93,9 @@ class SyncRecorder(TacforceNode):
         for index, (topic, msg_type) in enumerate(zip(
                 INPUTS, (TactileHand, WrenchStamped, JointState))):
             self.create_subscription(msg_type, topic, self._callback(index, topic),
+                                     subscriber_qos(topic, depth=RECORDER_DEPTH), raw=True)
+        for topic, (msg_type, _) in PASSTHROUGH.items():
+            self.create_subscription(msg_type, topic, self._passthrough(topic),
                                      subscriber_qos(topic, depth=RECORDER_DEPTH), raw=True)
         self.create_service(StartRecording, '~/start', self._on_start)
         self.create_service(Trigger, '~/stop', self._on_stop)
@@ -111,17 +127,20 @@ class SyncRecorder(TacforceNode):
         while path.exists():
             path, n = folder / f'{stem}_{n}', n + 1
         meta = session_metadata(array=array, plate=plate, hand_side=self.hand.side,
-                                operator_notes=notes, source=self.params['source'])
+                                operator_notes=notes, source=self.params['source'],
+                                scene=self.params['scene'],
+                                seed=self.params['seed'] if self.params['seed'] >= 0 else '')
         try:
             folder.mkdir(parents=True, exist_ok=True)
             self.writer = CalibrationBagWriter(path, meta, started_ns=self.now_ns(),
-                                               split_seconds=self.params['split_seconds'])
+                                               split_seconds=self.params['split_seconds'],
+                                               topics=BAG_TOPICS)
         except (OSError, BagError) as exc:
             return False, f'cannot create bag {path}: {exc}'
         self.sync = ApproximateTimeSynchroniser(len(INPUTS), self.params['queue_size'],
                                                 self.params['slop'])
         self._array_name = array
-        self._counts = dict.fromkeys(INPUTS + (TOPIC_SAMPLE,), 0)
+        self._counts = dict.fromkeys((*INPUTS, TOPIC_SAMPLE, *PASSTHROUGH), 0)
         self._missing_array = self._undecodable = 0
         self.get_logger().info(f'recording {array} on {plate or "?"} into {path}')
         return True, str(path)
@@ -179,6 +198,12 @@ class SyncRecorder(TacforceNode):
             matched = self.sync.add(index, stamp, msg)
             if matched is not None:
                 self._write_sample(*matched)
+        return receive
+
+    def _passthrough(self, topic: str):
+        def receive(data: bytes) -> None:
+            if self.writer is not None:
+                self._write(topic, data)
         return receive
 
     def _write(self, topic: str, data: bytes) -> None:

@@ -8,15 +8,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 import rclpy
-from geometry_msgs.msg import WrenchStamped
+from geometry_msgs.msg import Vector3Stamped, WrenchStamped
 from rclpy.time import Time
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
-from tacforce_msgs.msg import CalibrationSample, TactileArray, TactileHand
+from tacforce_msgs.msg import CalibrationSample, ControllerState, TactileArray, TactileHand
 from tacforce_msgs.srv import StartRecording
 
 from tacforce_ros import bagio
 from tacforce_ros.hand.description import load_hand
+from tacforce_ros.nodes import sync_recorder
 from tacforce_ros.nodes.common import EXIT_OK, publisher_qos, subscriber_qos
 from tacforce_ros.paths import config_dir
 
@@ -229,6 +230,61 @@ def test_sigterm_closes_the_bag_completely(ros_node, streams, tmp_path):
     topics = [topic for topic, _, _ in bagio.read_messages(bag)]
     assert topics.count(bagio.TOPIC_TACTILE) >= 0.8 * len(streams.published[bagio.TOPIC_TACTILE])
     assert 'closed' in output
+
+def test_closed_loop_streams_are_recorded_when_published(ros_node, tmp_path):
+    """f_d, the controller state and the simulator's ground truth go into the bag as sent,
+    with the scene and seed in the metadata."""
+    proc = recorder(tmp_path, '-p', 'autostart:=true', '-p', 'source:=sim',
+                    '-p', "scene:='closed_loop_spherical'", '-p', 'seed:=7')
+    topics = {sync_recorder.TOPIC_DESIRED: Vector3Stamped,
+              sync_recorder.TOPIC_CONTROLLER_STATE: ControllerState,
+              bagio.TOPIC_SIM_CONTACT: WrenchStamped}
+    pubs = {t: ros_node.create_publisher(m, t, publisher_qos(t)) for t, m in topics.items()}
+    sent = {t: [] for t in topics}
+    try:
+        assert spin_until(ros_node, lambda: all(p.get_subscription_count() for p in
+                                                 pubs.values()), 20.0), 'recorder never subscribed'
+        for k in range(50):
+            stamp = Time(nanoseconds=(k + 1) * 10 * MS).to_msg()
+            desired = Vector3Stamped()
+            desired.header.stamp, desired.header.frame_id = stamp, HAND.ft_frame
+            desired.vector.z = -0.04 * k
+            state = ControllerState(finger='index', mode='closed_loop', q=[0.1 * k] * 4)
+            state.header.stamp = stamp
+            state.desired_force.z = desired.vector.z
+            truth = WrenchStamped()
+            truth.header.stamp = stamp
+            truth.wrench.force.z = 0.05 * k
+            for topic, msg in ((sync_recorder.TOPIC_DESIRED, desired),
+                               (sync_recorder.TOPIC_CONTROLLER_STATE, state),
+                               (bagio.TOPIC_SIM_CONTACT, truth)):
+                pubs[topic].publish(msg)
+                sent[topic].append(k)
+            spin_until(ros_node, lambda: False, 0.01)
+        spin_until(ros_node, lambda: False, 0.5)
+    finally:
+        output = stop(proc)
+        for pub in pubs.values():
+            ros_node.destroy_publisher(pub)
+    assert proc.returncode == EXIT_OK, output
+    (bag,) = tmp_path.iterdir()
+    meta = bagio.read_session_metadata(bag)
+    assert (meta['scene'], meta['seed'], meta['source']) == ('closed_loop_spherical', '7', 'sim')
+    got = {t: [] for t in topics}
+    for topic, _, msg in bagio.read_messages(bag, list(topics)):
+        got[topic].append(msg)
+    # Reliable topics arrive whole and in order; the best-effort truth may lose a few.
+    desired_z = [m.vector.z for m in got[sync_recorder.TOPIC_DESIRED]]
+    np.testing.assert_allclose(desired_z, [-0.04 * k for k in range(50)])
+    states = got[sync_recorder.TOPIC_CONTROLLER_STATE]
+    assert [stamp_ns(m.header) for m in states] == [(k + 1) * 10 * MS for k in range(50)]
+    assert all(m.mode == 'closed_loop' and len(m.q) == 4 for m in states)
+    truth = got[bagio.TOPIC_SIM_CONTACT]
+    assert len(truth) >= 40
+    for msg in truth:
+        k = stamp_ns(msg.header) // (10 * MS) - 1
+        assert msg.wrench.force.z == pytest.approx(0.05 * k)
+
 
 # Last in the module: the killed process's DDS endpoints linger until their lease expires.
 def test_killed_recorder_leaves_a_bag_readable_up_to_the_last_split(ros_node, streams, tmp_path):

@@ -58,6 +58,7 @@ class SessionArgs:
     model_config: str = ''             # estimator models YAML; empty: the params file's
     out: str = 'bags'                  # bag folder of the recorder
     real_time_factor: float = 1.0
+    seed: int = -1                     # simulator seed; -1: the scene's own
     xela_port: int = XELA_PORT
     netft_port: int = NETFT_PORT
     can_port: int = CAN_PORT
@@ -91,6 +92,8 @@ def plan(args: SessionArgs) -> list[NodeLaunch]:
     """The nodes of one session, in start order (the clock source first)."""
     if args.mode not in MODES:
         raise PlanError(f'mode: {args.mode!r} is not one of {list(MODES)}')
+    if args.seed < -1:
+        raise PlanError(f'seed: {args.seed} must be >= 0, or -1 for the scene\'s own')
     if args.hand_side not in HAND_SIDES:
         raise PlanError(f'hand_side: {args.hand_side!r} is not one of {list(HAND_SIDES)}')
     hand = hand_config(args.hand_side)
@@ -101,7 +104,8 @@ def plan(args: SessionArgs) -> list[NodeLaunch]:
     nodes: list[NodeLaunch] = []
     if args.sim:
         nodes.append(NodeLaunch('sim_world', (params_file('sim_world'),), {
-            'scene': args.scene_name(), 'real_time_factor': float(args.real_time_factor),
+            'scene': args.scene_name(), 'seed': args.seed,
+            'real_time_factor': float(args.real_time_factor),
             'xela_port': args.xela_port, 'netft_port': args.netft_port,
             'can_port': args.can_port, **hand_param},
             ready_port=args.can_port))    # the emulators bind before the CAN one
@@ -133,5 +137,6 @@ def plan(args: SessionArgs) -> list[NodeLaunch]:
     # Both modes keep the raw streams (closed loop: the F/T reading is the reference).
     nodes.append(NodeLaunch('sync_recorder', (params_file('sync_recorder'),), {
         **common, **hand_param, 'output_dir': args.out, 'array': args.array,
-        'plate': args.plate, 'source': 'sim' if args.sim else 'lab', 'autostart': True}))
+        'plate': args.plate, 'source': 'sim' if args.sim else 'lab', 'autostart': True,
+        **({'scene': args.scene_name(), 'seed': args.seed} if args.sim else {})}))
     return nodes

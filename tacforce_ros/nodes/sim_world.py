@@ -8,6 +8,12 @@ dt / `real_time_factor` wall seconds; torques the hand emulator receives drive c
 scenes (calibration scenes follow their operator model and ignore torques). The emulators send
 at their device rates times `real_time_factor`, so every rate holds in simulated time.
 
+In closed-loop scenes simulated time starts when the hand's servos are first switched on (the
+allegro_driver's start-up ends with SYSTEM_ON), with `start_with_servos`: the scene's t = 0 is
+then the moment a controller can act, as in the in-process path, instead of the finger falling
+limp while the other nodes start. Until then the emulators serve the initial state and /clock
+is silent, so nodes on sim time stamp nothing.
+
 With `publish_clock` it is the /clock source (rosgraph_msgs/Clock, simulated time, every
 1/`clock_rate_hz` simulated seconds); it runs on wall time itself. /sim/contact_force carries the
 simulator's ground truth (WrenchStamped in the array frame {S0}) at the tactile rate. Service
@@ -27,8 +33,8 @@ from std_srvs.srv import SetBool
 
 from tacforce_ros.bagio import TOPIC_SIM_CONTACT
 from tacforce_ros.hand.description import HandConfigError, load_hand
-from tacforce_ros.nodes.common import (SENSOR_PUBLISHER_QOS, ParameterError, ParamSpec,
-                                       TacforceNode, run_node)
+from tacforce_ros.nodes.common import (ParameterError, ParamSpec, TacforceNode, publisher_qos,
+                                       run_node)
 from tacforce_ros.nodes.messages import stamp, wrench_stamped
 from tacforce_ros.sim import SceneError, make_simulator
 from tacforce_ros.sim.emulators.allegro import AllegroEmulator
@@ -63,6 +69,8 @@ class SimWorld(TacforceNode):
         ParamSpec('can_port', 29536, 'socketcand (Allegro CAN) emulator TCP port on 127.0.0.1 '
                   '(0: any)', range=(0, 65535)),
         ParamSpec('hand_config', '', 'hand description YAML; empty = the default hand'),
+        ParamSpec('start_with_servos', True, 'closed-loop scenes: simulated time starts when '
+                  'the hand\'s servos are first switched on (false: at start-up)'),
     )
 
     def __init__(self) -> None:
@@ -87,7 +95,7 @@ class SimWorld(TacforceNode):
         self.clock_publisher = (self.create_publisher(Clock, '/clock', CLOCK_QOS)
                                 if p['publish_clock'] else None)
         self.truth_publisher = self.create_publisher(WrenchStamped, TOPIC_SIM_CONTACT,
-                                                     SENSOR_PUBLISHER_QOS)
+                                                     publisher_qos(TOPIC_SIM_CONTACT))
         # The emulator may poll at twice the frame rate: _tactile_frame waits for the next fresh
         # simulated frame, so the simulator (not the wall clock) sets the tactile rate.
         self.xela = XelaServerEmulator(self._tactile_frame, port=p['xela_port'],
@@ -133,6 +141,11 @@ class SimWorld(TacforceNode):
         return self.sim.step(self._torques if self.takes_torques else None)
 
     def _run(self) -> None:
+        if self.takes_torques and self.params['start_with_servos']:
+            while not self.allegro.servo_on:
+                if self._stop.wait(0.005):
+                    return
+            self.get_logger().info('servos on: simulated time starts')
         pacer = Pacer(self.params['real_time_factor'] / self.sim.dt)
         steps = 0
         while pacer.wait(self._stop):

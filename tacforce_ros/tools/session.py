@@ -139,6 +139,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument('--out', default='bags', help='folder for bags and node logs')
     parser.add_argument('--real-time-factor', type=float, default=1.0,
                         help='simulated seconds per wall second (sim only)')
+    parser.add_argument('--seed', type=int, default=-1,
+                        help='simulator seed (sim only; default -1: the scene\'s own)')
     parser.add_argument('--duration', type=float, default=None,
                         help='stop after this many wall seconds (default: until Ctrl-C)')
     parser.add_argument('--grace', type=float, default=10.0,
@@ -153,7 +155,8 @@ def main(argv: list[str] | None = None) -> None:
     sys.exit(run(SessionArgs(mode=a.mode, sim=not a.hardware, hand_side=a.hand_side,
                              array=a.array, plate=a.plate, scene=a.scene,
                              model_config=a.model, out=a.out,
-                             real_time_factor=a.real_time_factor, xela_port=a.ports[0],
+                             real_time_factor=a.real_time_factor, seed=a.seed,
+                             xela_port=a.ports[0],
                              netft_port=a.ports[1], can_port=a.ports[2]),
                  a.duration, a.grace))
 

@@ -61,3 +61,17 @@ def test_bad_choices_are_refused(field, value, message):
     args = {'mode': 'calibration', field: value}
     with pytest.raises(PlanError, match=message):
         plan(SessionArgs(**args))
+
+
+def test_seed_reaches_the_simulator_and_the_session_metadata():
+    nodes = {n.executable: n for n in plan(SessionArgs(mode='closed_loop', seed=11))}
+    assert nodes['sim_world'].overrides['seed'] == 11
+    recorder = nodes['sync_recorder'].overrides
+    assert (recorder['seed'], recorder['scene']) == (11, 'closed_loop_spherical')
+    hardware = {n.executable: n for n in plan(SessionArgs(mode='closed_loop', sim=False))}
+    assert 'seed' not in hardware['sync_recorder'].overrides
+
+
+def test_negative_seed_other_than_the_scene_default_is_refused():
+    with pytest.raises(PlanError, match='seed'):
+        plan(SessionArgs(mode='closed_loop', seed=-2))

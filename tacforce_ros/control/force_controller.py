@@ -67,16 +67,19 @@ class ControllerConfigError(ValueError):
 
 @dataclass(frozen=True)
 class ForceControllerConfig:
-    """Gains and limits of one finger's controller (SI units; vectors are per axis / per joint)."""
+    """Gains and limits of one finger's controller (SI units; vectors are per axis / per joint).
+
+    The defaults repeat config/params/force_controller.yaml (where each value is argued), the
+    file every path loads; a test keeps the two equal."""
 
     finger: str = 'index'
     base_frame: str = 'hand_root'
     force_frame: str = 'ft_sensor'          # frame of f_d and of the integral ({F} in the paper)
     estimate_frame: str = ''                # frame of f_hat, e.g. uskin_index_tip; '' = force_frame
     k_i: tuple[float, ...] = (2.0, 2.0, 2.0)            # 1/s, diagonal; all zero = open loop
-    k_p: tuple[float, ...] = (0.5, 0.5, 0.5, 0.5)       # Nm/rad, diagonal
-    k_d: tuple[float, ...] = (0.02, 0.02, 0.02, 0.02)   # Nm s/rad, diagonal
-    q_d: tuple[float, ...] = (0.0, 0.6, 0.6, 0.6)       # rad, finger's position target
+    k_p: tuple[float, ...] = (0.25, 0.5, 0.12, 0.03)          # Nm/rad, diagonal
+    k_d: tuple[float, ...] = (0.012, 0.025, 0.006, 0.0015)    # Nm s/rad, diagonal
+    q_d: tuple[float, ...] = (0.0, 0.7, 0.7, 0.7)             # rad, finger's position target
     torque_cap: float = 0.35                # Nm, paper: above it the actuators throttle
     integral_rate_limit: float = 1.0        # N: |e_f| per axis clipped to this before integrating
     integral_limit: float = 2.0             # N s per axis

@@ -274,3 +274,12 @@ def test_parameter_file_loads_and_unknown_keys_are_refused(tmp_path):
     assert dataclasses.replace(cfg, k_i=(0.0, 0.0, 0.0)).k_i == (0.0, 0.0, 0.0)
     with pytest.raises(ControllerConfigError, match='kp'):
         ForceControllerConfig.from_mapping({'kp': [1, 1, 1, 1]})
+
+
+def test_class_defaults_are_the_project_parameter_file():
+    """One source of gains: the node's declared defaults may not drift from the file."""
+    from tacforce_ros.paths import config_dir
+    project = ForceControllerConfig.from_yaml(config_dir() / 'params' / 'force_controller.yaml')
+    # Only the estimate frame differs: the class default is the force frame itself (no turn).
+    assert project.estimate_frame == 'uskin_index_tip'
+    assert dataclasses.replace(project, estimate_frame='') == ForceControllerConfig()

@@ -1,21 +1,29 @@
 """bench_ros: the ROS layer's speed over real DDS, as JSON (--out) plus a table.
 
 1. latency: tactile frame in -> all 18 WrenchStamped out through the estimator node (a model on
-   every array), at 100 Hz: median and p99 of (arrival of the frame's last wrench - its stamp);
+   every array), at 100 Hz: median and p99 of (reception of the frame's last wrench - the
+   frame's stamp), split into the estimator's part (its first and last wrench publish times);
 2. sustained input: frames published at each --rates value for --seconds; ForceEstimateArray
    messages received vs frames sent (drops), and the rate achieved;
 3. controller loop: allegro_driver (force control) against sim_world's hand emulator, periods
    of /force_controller/state stamps at 100 Hz and 333 Hz: mean, p99 |period - nominal|.
 
-All nodes run as separate processes on their own DDS domain (ROS_AUTOMATIC_DISCOVERY_RANGE
-LOCALHOST); the probe node is this process. Wall clock throughout (no sim time). Every run
-stops its nodes with SIGINT. Numbers depend on the machine's load: compare within one run.
+The probe measures the estimator, not itself: it publishes frames serialized in advance (only
+the stamp is written per frame), takes every message serialized (no Python message objects),
+and times each by the rmw's own reception and source timestamps (taken by the DDS layer as the
+sample arrives or leaves, not when Python gets to it); its readers are reliable with histories
+deep enough for a whole run, so a busy probe delays samples but loses none (the estimator's
+publishers are reliable too). All nodes run as separate processes on their own DDS domain
+(ROS_AUTOMATIC_DISCOVERY_RANGE LOCALHOST); the probe node is this process. Wall clock
+throughout (no sim time). Every run stops its nodes with SIGINT. Numbers depend on the
+machine's load (the JSON records the load average): compare within one run.
 """
 from __future__ import annotations
 
 import argparse
 import json
 import os
+import struct
 import tempfile
 import time
 from pathlib import Path
@@ -29,13 +37,36 @@ from tacforce_ros.tools.session import start_nodes, stop_nodes
 
 LATENCY_TARGET_P99_MS = 2.0
 RATE_TARGET_HZ = 1000.0
+# Every serialized message starts with a 4-byte encapsulation header and then std_msgs/Header,
+# whose stamp (int32 sec, uint32 nanosec) comes first.
+_STAMP = struct.Struct('<iI')
+_STAMP_AT = 4
 
 
-def _percentiles(values_ms: list[float]) -> dict[str, float]:
+def _stamp_of(raw: bytes) -> int:
+    sec, nanosec = _STAMP.unpack_from(raw, _STAMP_AT)
+    return sec * 1_000_000_000 + nanosec
+
+
+def _percentiles(values_ms) -> dict[str, float]:
     a = np.asarray(values_ms, dtype=np.float64)
     return {'n': int(a.size), 'median_ms': float(np.median(a)) if a.size else float('nan'),
             'p99_ms': float(np.percentile(a, 99)) if a.size else float('nan'),
             'max_ms': float(a.max()) if a.size else float('nan')}
+
+
+def _cpu_seconds(pid: int) -> float:
+    """User + system CPU time of a process so far (Linux /proc; all its threads)."""
+    fields = Path(f'/proc/{pid}/stat').read_text().rsplit(')', 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf('SC_CLK_TCK')
+
+
+def _probe_qos(depth: int):
+    """Reliable reader with a history for a whole run: a busy probe delays, never drops."""
+    from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth,
+                      reliability=ReliabilityPolicy.RELIABLE,
+                      durability=DurabilityPolicy.VOLATILE)
 
 
 class Probe:
@@ -57,37 +88,47 @@ class Probe:
         self.rclpy.shutdown()
 
 
-def bench_estimator(probe: Probe, hand, rates: list[float], seconds: float) -> dict:
+def bench_estimator(probe: Probe, hand, rates: list[float], seconds: float, pid: int) -> dict:
+    """`pid`: the estimator's process, whose CPU time per frame is reported too."""
     from geometry_msgs.msg import WrenchStamped
+    from rclpy.serialization import serialize_message
     from tacforce_msgs.msg import ForceEstimateArray, TactileHand
-    from tacforce_ros.nodes.common import publisher_qos, subscriber_qos
-    from tacforce_ros.nodes.messages import stamp_ns, tactile_hand
+    from tacforce_ros.nodes.common import publisher_qos
+    from tacforce_ros.nodes.messages import tactile_hand
 
     node = probe.node
     publisher = node.create_publisher(TactileHand, '/tactile/raw', publisher_qos('/tactile/raw'))
     n_arrays = len(hand.arrays)
-    arrivals: dict[int, list[int]] = {}
+    depth = int(max(rates + [100.0]) * seconds) + 100
+    # frame stamp -> [(reception, source) ns of each wrench]; estimate stamps as received
+    wrenches: dict[int, list[tuple[int, int]]] = {}
     estimates: list[int] = []
 
-    def on_wrench(msg: WrenchStamped) -> None:
-        arrivals.setdefault(stamp_ns(msg.header.stamp), []).append(time.time_ns())
+    def on_wrench(raw: bytes, info) -> None:
+        wrenches.setdefault(_stamp_of(raw), []).append(
+            (info['received_timestamp'], info['source_timestamp']))
 
     wrench_subs = [node.create_subscription(WrenchStamped, f'/tactile/{a.name}/wrench',
-                                            on_wrench, subscriber_qos(f'/tactile/{a.name}/wrench'))
+                                            on_wrench, _probe_qos(depth), raw=True)
                    for a in hand.arrays]
     node.create_subscription(ForceEstimateArray, '/tactile/estimates',
-                             lambda m: estimates.append(stamp_ns(m.header.stamp)),
-                             subscriber_qos('/tactile/estimates'))
+                             lambda raw: estimates.append(_stamp_of(raw)), _probe_qos(depth),
+                             raw=True)
+    # A few distinct frames, serialized once: per send only the stamp is written.
     rng = np.random.default_rng(0)
     base = rng.uniform(15000, 30000, size=(hand.n_taxels, 3))
+    frames = [bytearray(serialize_message(tactile_hand(
+        0, hand, np.clip(base + rng.normal(0, 3, base.shape), 0, 65535).astype(np.uint16),
+        None, 0.0, k))) for k in range(16)]
 
     def send(count: int, rate: float) -> list[int]:
         sent, period = [], 1.0 / rate
         next_t = time.monotonic()
         for k in range(count):
-            counts = np.clip(base + rng.normal(0, 3, base.shape), 0, 65535).astype(np.uint16)
-            now = time.time_ns()
-            publisher.publish(tactile_hand(now, hand, counts, None, now * 1e-9, k + 1))
+            frame = frames[k % len(frames)]
+            now = time.time_ns()    # the rmw's timestamps are wall clock too
+            _STAMP.pack_into(frame, _STAMP_AT, *divmod(now, 1_000_000_000))
+            publisher.publish(bytes(frame))
             sent.append(now)
             next_t += period
             # Spin while waiting: the probe also receives meanwhile.
@@ -98,42 +139,51 @@ def bench_estimator(probe: Probe, hand, rates: list[float], seconds: float) -> d
     # Warm-up until the estimator answers (discovery, tare on the first frames).
     send(100, 100.0)
     probe.spin_for(2.0, until=lambda: len(estimates) > 0)
-    arrivals.clear()
+    probe.spin_for(0.5)
+    wrenches.clear()
     estimates.clear()
+    cpu = _cpu_seconds(pid)
     sent = send(int(100.0 * seconds), 100.0)
+    cpu = _cpu_seconds(pid) - cpu
     probe.spin_for(1.0)
-    complete = [max(arrivals[s]) - s for s in sent if len(arrivals.get(s, ())) == n_arrays]
-    latency = _percentiles([ns * 1e-6 for ns in complete])
-    latency.update(frames=len(sent), complete=len(complete), rate_hz=100.0)
-    # The rate test counts ForceEstimateArray only: 18 more Python subscriptions in the probe
-    # would make the probe, not the estimator, the bottleneck.
+    complete = [(s, wrenches[s]) for s in sent if len(wrenches.get(s, ())) == n_arrays]
+    ms = 1e-6
+    latency = _percentiles([(max(r for r, _ in w) - s) * ms for s, w in complete])
+    latency.update(
+        frames=len(sent), complete=len(complete), rate_hz=100.0,
+        cpu_ms_per_frame=cpu * 1e3 / len(sent),
+        # frame stamp -> first wrench leaves the estimator: transport in, wake-up, decode,
+        # estimate; first -> last wrench leaves: the 18 publishes
+        to_first_publish=_percentiles([(min(o for _, o in w) - s) * ms for s, w in complete]),
+        publish_span=_percentiles([(max(o for _, o in w) - min(o for _, o in w)) * ms
+                                   for _, w in complete]))
+    # The rate test counts ForceEstimateArray only: it is published after the 18 wrenches of
+    # its frame, so each one received is a frame the estimator handled in full.
     for sub in wrench_subs:
         node.destroy_subscription(sub)
     sustained = []
     for rate in rates:
         estimates.clear()
-        t0 = time.monotonic()
+        t0, cpu = time.monotonic(), _cpu_seconds(pid)
         sent = send(int(rate * seconds), rate)
-        elapsed = time.monotonic() - t0
+        elapsed, cpu = time.monotonic() - t0, _cpu_seconds(pid) - cpu
         probe.spin_for(1.0)
         got = len(set(estimates) & set(sent))
         # Estimates carry their frame's stamp; "stale" ones (stamped with the node clock) do not
         # match a sent frame and are not counted.
         sustained.append({'rate_hz': rate, 'achieved_send_hz': len(sent) / elapsed,
-                          'frames': len(sent), 'estimates': got, 'drops': len(sent) - got})
+                          'frames': len(sent), 'estimates': got, 'drops': len(sent) - got,
+                          'cpu_ms_per_frame': cpu * 1e3 / len(sent)})
     return {'latency': latency, 'sustained': sustained}
 
 
 def bench_controller(probe: Probe, rate: float, seconds: float) -> dict:
     from tacforce_msgs.msg import ControllerState
-    from tacforce_ros.nodes.common import subscriber_qos
-    from tacforce_ros.nodes.messages import stamp_ns
 
     stamps: list[int] = []
     sub = probe.node.create_subscription(
-        ControllerState, '/force_controller/state',
-        lambda m: stamps.append(stamp_ns(m.header.stamp)),
-        subscriber_qos('/force_controller/state'))
+        ControllerState, '/force_controller/state', lambda raw: stamps.append(_stamp_of(raw)),
+        _probe_qos(int(rate * (seconds + 30.0))), raw=True)
     probe.spin_for(30.0, until=lambda: len(stamps) > 10)
     stamps.clear()
     probe.spin_for(seconds)
@@ -148,19 +198,65 @@ def bench_controller(probe: Probe, rate: float, seconds: float) -> dict:
 
 
 def table(result: dict) -> str:
-    lat = result['estimator']['latency']
-    lines = ['| measurement | value | target |', '|---|---|---|',
-             f"| tactile -> 18 wrenches latency, median (100 Hz, {lat['complete']}/"
-             f"{lat['frames']} frames complete) | {lat['median_ms']:.2f} ms | |",
-             f"| tactile -> 18 wrenches latency, p99 | {lat['p99_ms']:.2f} ms | "
-             f"<= {LATENCY_TARGET_P99_MS:g} ms |"]
-    for s in result['estimator']['sustained']:
-        lines.append(f"| input {s['rate_hz']:g} Hz (sent at {s['achieved_send_hz']:.0f} Hz): "
-                     f"drops | {s['drops']} of {s['frames']} | 0 at >= {RATE_TARGET_HZ:g} Hz |")
-    for c in result['controller']:
+    lines = ['| measurement | value | target |', '|---|---|---|']
+    if 'estimator' in result:
+        lat = result['estimator']['latency']
+        first, span = lat['to_first_publish'], lat['publish_span']
+        lines += [
+            f"| tactile -> 18 wrenches latency, median (100 Hz, {lat['complete']}/"
+            f"{lat['frames']} frames complete) | {lat['median_ms']:.2f} ms | |",
+            f"| tactile -> 18 wrenches latency, p99 (max) | {lat['p99_ms']:.2f} ms "
+            f"({lat['max_ms']:.2f} ms) | <= {LATENCY_TARGET_P99_MS:g} ms |",
+            f"| of which frame -> first wrench sent, median / p99 | {first['median_ms']:.2f} / "
+            f"{first['p99_ms']:.2f} ms | |",
+            f"| of which first -> last wrench sent, median / p99 | {span['median_ms']:.2f} / "
+            f"{span['p99_ms']:.2f} ms | |",
+            f"| estimator CPU time per frame at 100 Hz (all its threads) | "
+            f"{lat['cpu_ms_per_frame']:.2f} ms | well under 1 ms |"]
+        for s in result['estimator']['sustained']:
+            lines.append(f"| input {s['rate_hz']:g} Hz (sent at {s['achieved_send_hz']:.0f} Hz):"
+                         f" drops (CPU per frame) | {s['drops']} of {s['frames']} "
+                         f"({s['cpu_ms_per_frame']:.2f} ms) | 0 at >= {RATE_TARGET_HZ:g} Hz |")
+    for c in result.get('controller', []):
         lines.append(f"| controller {c['rate_hz']:g} Hz: mean period / jitter p99 | "
                      f"{c['mean_period_ms']:.2f} ms / {c['jitter_p99_ms']:.2f} ms | |")
+    load = result['load_average']
+    lines.append(f"| load average (1 min) before / after, {result['cpus']} CPUs | "
+                 f"{load['before'][0]:.2f} / {load['after'][0]:.2f} | |")
     return '\n'.join(lines)
+
+
+def run_estimator(probe: Probe, hand, args: argparse.Namespace, env: dict, tmp: Path) -> dict:
+    models = write_synthetic_model_set(tmp / 'models', hand)
+    procs = start_nodes([NodeLaunch('estimator', (params_file('estimator'),), {
+        'model_config': str(models), 'tare_at_start': False, 'marker_rate_hz': 0.0})],
+        tmp / 'logs', 30.0, env)
+    try:
+        return bench_estimator(probe, hand, args.rates, args.seconds, procs[0][1].pid)
+    finally:
+        codes = stop_nodes(procs, grace=10.0)
+        if any(codes.values()):
+            print((tmp / 'logs' / 'estimator.log').read_text()[-2000:])
+
+
+def run_controller(probe: Probe, args: argparse.Namespace, env: dict, tmp: Path) -> list[dict]:
+    out = []
+    xela, netft, can = args.ports
+    for rate in (100.0, 1000.0 / 3.0):
+        procs = start_nodes([
+            NodeLaunch('sim_world', (params_file('sim_world'),), {
+                'publish_clock': False, 'xela_port': xela, 'netft_port': netft,
+                'can_port': can}, ready_port=can),
+            NodeLaunch('allegro_driver', (params_file('allegro_driver'),
+                                          params_file('force_controller')), {
+                'interface': 'socketcand', 'channel': 'can0', 'host': '127.0.0.1',
+                'port': can, 'rtr_requests': False, 'control_rate_hz': rate})],
+            tmp / 'logs', 30.0, env)
+        try:
+            out.append(bench_controller(probe, rate, args.seconds))
+        finally:
+            stop_nodes(procs, grace=10.0)
+    return out
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -170,6 +266,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument('--seconds', type=float, default=3.0, help='per measurement')
     parser.add_argument('--rates', type=float, nargs='+', default=[200.0, 500.0, 1000.0],
                         help='input rates of the sustained-rate test (Hz)')
+    parser.add_argument('--parts', nargs='+', default=['estimator', 'controller'],
+                        choices=['estimator', 'controller'], help='what to measure')
     parser.add_argument('--domain', type=int, default=90 + os.getpid() % 10,
                         help='ROS_DOMAIN_ID of the benchmark graph')
     parser.add_argument('--ports', type=int, nargs=3, default=[25101, 25102, 25103],
@@ -181,38 +279,18 @@ def main(argv: list[str] | None = None) -> None:
     os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
     env = dict(os.environ)
     hand = load_hand()
-    result: dict = {'seconds': args.seconds}
+    result: dict = {'seconds': args.seconds, 'cpus': os.cpu_count(),
+                    'load_average': {'before': os.getloadavg()}}
     probe = Probe(args.domain)
     try:
         with tempfile.TemporaryDirectory() as tmp:
-            models = write_synthetic_model_set(Path(tmp) / 'models', hand)
-            procs = start_nodes([NodeLaunch('estimator', (params_file('estimator'),), {
-                'model_config': str(models), 'tare_at_start': False,
-                'marker_rate_hz': 0.0})], Path(tmp) / 'logs', 30.0, env)
-            try:
-                result['estimator'] = bench_estimator(probe, hand, args.rates, args.seconds)
-            finally:
-                codes = stop_nodes(procs, grace=10.0)
-                if any(codes.values()):
-                    print((Path(tmp) / 'logs' / 'estimator.log').read_text()[-2000:])
-            result['controller'] = []
-            xela, netft, can = args.ports
-            for rate in (100.0, 1000.0 / 3.0):
-                procs = start_nodes([
-                    NodeLaunch('sim_world', (params_file('sim_world'),), {
-                        'publish_clock': False, 'xela_port': xela, 'netft_port': netft,
-                        'can_port': can}, ready_port=can),
-                    NodeLaunch('allegro_driver', (params_file('allegro_driver'),
-                                                  params_file('force_controller')), {
-                        'interface': 'socketcand', 'channel': 'can0', 'host': '127.0.0.1',
-                        'port': can, 'rtr_requests': False, 'control_rate_hz': rate})],
-                    Path(tmp) / 'logs', 30.0, env)
-                try:
-                    result['controller'].append(bench_controller(probe, rate, args.seconds))
-                finally:
-                    stop_nodes(procs, grace=10.0)
+            if 'estimator' in args.parts:
+                result['estimator'] = run_estimator(probe, hand, args, env, Path(tmp))
+            if 'controller' in args.parts:
+                result['controller'] = run_controller(probe, args, env, Path(tmp))
     finally:
         probe.close()
+    result['load_average']['after'] = os.getloadavg()
     text = table(result)
     print(text)
     if args.out is not None:

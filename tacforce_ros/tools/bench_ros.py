@@ -61,11 +61,13 @@ def _cpu_seconds(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf('SC_CLK_TCK')
 
 
-def _probe_qos(depth: int):
-    """Reliable reader with a history for a whole run: a busy probe delays, never drops."""
+def _probe_qos(depth: int, reliable: bool = True):
+    """A reader with a history for a whole run: a busy probe delays samples, never overwrites
+    them. Reliable: nothing lost in transport either (the publisher then also handles acks)."""
     from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
     return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth,
-                      reliability=ReliabilityPolicy.RELIABLE,
+                      reliability=(ReliabilityPolicy.RELIABLE if reliable
+                                   else ReliabilityPolicy.BEST_EFFORT),
                       durability=DurabilityPolicy.VOLATILE)
 
 
@@ -88,8 +90,11 @@ class Probe:
         self.rclpy.shutdown()
 
 
-def bench_estimator(probe: Probe, hand, rates: list[float], seconds: float, pid: int) -> dict:
-    """`pid`: the estimator's process, whose CPU time per frame is reported too."""
+def bench_estimator(probe: Probe, hand, rates: list[float], seconds: float, pid: int,
+                    wrench_reliable: bool) -> dict:
+    """`pid`: the estimator's process, whose CPU time per frame is reported too;
+    `wrench_reliable`: the probe reads the 18 wrench topics reliably (else best-effort, as the
+    project's sensor-data subscribers do)."""
     from geometry_msgs.msg import WrenchStamped
     from rclpy.serialization import serialize_message
     from tacforce_msgs.msg import ForceEstimateArray, TactileHand
@@ -109,7 +114,8 @@ def bench_estimator(probe: Probe, hand, rates: list[float], seconds: float, pid:
             (info['received_timestamp'], info['source_timestamp']))
 
     wrench_subs = [node.create_subscription(WrenchStamped, f'/tactile/{a.name}/wrench',
-                                            on_wrench, _probe_qos(depth), raw=True)
+                                            on_wrench, _probe_qos(depth, wrench_reliable),
+                                            raw=True)
                    for a in hand.arrays]
     node.create_subscription(ForceEstimateArray, '/tactile/estimates',
                              lambda raw: estimates.append(_stamp_of(raw)), _probe_qos(depth),

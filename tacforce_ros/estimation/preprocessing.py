@@ -92,23 +92,36 @@ def project_force(force: np.ndarray, rotations: np.ndarray, atol: float = 1e-6) 
 
 def static_mask(force: np.ndarray, taxels: np.ndarray, fs: float = SAMPLE_RATE_HZ,
                 force_threshold: float = 0.3, activity_threshold: float = 15.0,
-                min_duration: float = 0.5, margin: float = 0.2) -> np.ndarray:
-    """Samples inside static no-contact segments: (N,) bool.
+                min_duration: float = 0.5, margin: float = 0.2,
+                rest_share: float = 0.1) -> np.ndarray:
+    """Samples inside static no-contact segments: (N,) bool. taxels: (N, n, 3) counts.
 
-    Static = force magnitude below `force_threshold` [N] AND tactile activity below
-    `activity_threshold` [counts, rms over channels of the deviation from the rest reading],
-    held for at least `min_duration` [s] after dropping `margin` [s] at both ends of each run
-    (the onset and release of a press are below the thresholds but not at rest). The rest reading is the median over low-force samples,
-    so a press with a still-zero force reading (F/T lag) does not count as rest.
+    The no-contact reference comes from the recording itself, so an un-zeroed F/T bias of any
+    size does not hide the rests. Compression moves every taxel's Z count the same way (uSkin:
+    up, PROTOCOLS.md section 1), so the summed Z of the released samples sits at one end of its
+    range, tightly (noise only), while presses spread over the other side: the `rest_share` of
+    samples at the tight end are released ones (the operator rests between presses; the paper's
+    sessions rest about a quarter of the time). Their median is the rest reading of the taxels
+    and of the F/T sensor. Static = force within `force_threshold` [N] of the F/T's rest reading
+    AND tactile activity below `activity_threshold` [counts, rms over channels of the deviation
+    from the taxels' rest], held for at least `min_duration` [s] after dropping `margin` [s] at
+    both ends of each run (the onset and release of a press are below the thresholds but not at
+    rest).
     """
     force = np.asarray(force, dtype=np.float64)
-    taxels = np.asarray(taxels, dtype=np.float64).reshape(force.shape[0], -1)
-    low_force = np.linalg.norm(force, axis=1) < force_threshold
-    if not low_force.any():
-        return low_force
-    rest = np.median(taxels[low_force], axis=0)
-    activity = np.sqrt(np.mean((taxels - rest) ** 2, axis=1))
-    candidate = low_force & (activity < activity_threshold)
+    taxels = np.asarray(taxels, dtype=np.float64)
+    if taxels.ndim != 3 or taxels.shape[2] != 3 or taxels.shape[0] != force.shape[0]:
+        raise ValueError(f'need taxels (N, n, 3) matching force (N, 3), got {taxels.shape} and '
+                         f'{force.shape}')
+    if not 0.0 < rest_share < 0.5:
+        raise ValueError(f'rest_share {rest_share} must lie in (0, 0.5)')
+    released = _released(taxels[:, :, 2].sum(axis=1), rest_share)
+    flat = taxels.reshape(force.shape[0], -1)
+    rest = np.median(flat[released], axis=0)
+    force_rest = np.median(force[released], axis=0)
+    activity = np.sqrt(np.mean((flat - rest) ** 2, axis=1))
+    candidate = ((np.linalg.norm(force - force_rest, axis=1) < force_threshold)
+                 & (activity < activity_threshold))
     min_len = max(1, int(round(min_duration * fs)))
     trim = int(round(margin * fs))
     mask = np.zeros_like(candidate)
@@ -116,6 +129,15 @@ def static_mask(force: np.ndarray, taxels: np.ndarray, fs: float = SAMPLE_RATE_H
         if stop - start - 2 * trim >= min_len:
             mask[start + trim:stop - trim] = True
     return mask
+
+
+def _released(compression: np.ndarray, share: float) -> np.ndarray:
+    """(N,) bool: the `share` of samples at the tight end of the summed-Z distribution."""
+    low, low_edge, high_edge, high = np.quantile(
+        compression, [0.005, share, 1.0 - share, 0.995])
+    if low_edge - low <= high - high_edge:
+        return compression <= low_edge
+    return compression >= high_edge
 
 
 def _runs(flags: np.ndarray) -> list[tuple[int, int]]:

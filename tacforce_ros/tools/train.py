@@ -107,7 +107,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--no-cv', action='store_true', help='skip leave-one-plate-out CV')
     parser.add_argument('--seed', type=int, default=0, help='seed of the random models (M4, M5)')
     parser.add_argument('--static-force', type=float, default=0.3,
-                        help='static segments: force magnitude below this [N] (default 0.3)')
+                        help='static segments: force within this of the F/T no-contact '
+                             'reading [N] (default 0.3)')
     parser.add_argument('--static-activity', type=float, default=15.0,
                         help='static segments: rms taxel deviation from rest below this [counts]')
     parser.add_argument('--static-seconds', type=float, default=0.5,

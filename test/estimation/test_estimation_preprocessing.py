@@ -1,7 +1,7 @@
 """Pipeline steps 1-5: low-pass, resampling, projection, static offsets, standardisation."""
 import numpy as np
 import pytest
-from hypothesis import given
+from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
@@ -111,13 +111,67 @@ def test_static_segments_need_low_force_and_quiet_taxels():
 
 def test_no_static_segment_is_refused_clearly():
     rng = np.random.default_rng(5)
-    force, taxels, _ = recording(rng)
-    force[:, 2] += 2.0          # always pressed
+    n, baseline = 1000, rng.uniform(1e4, 3e4, (4, 3))
+    # Always pressed: the load keeps changing and never rests long enough to pass for a release.
+    load = 2.0 + np.sin(np.linspace(0.0, 10.0 * np.pi, n))
+    force = np.column_stack([np.zeros(n), np.zeros(n), load])
+    taxels = baseline + 200.0 * load[:, None, None] + rng.normal(0, 2.0, (n, 4, 3))
     with pytest.raises(StaticSegmentError, match='no static'):
         static_offsets(force, taxels)
     sessions = np.zeros(len(force), dtype=int)
     with pytest.raises(StaticSegmentError, match='session 0'):
         remove_offsets(force, taxels, sessions)
+
+
+@settings(max_examples=30, deadline=None)
+@given(bias=st.lists(st.floats(-1.5, 1.5), min_size=3, max_size=3),
+       presses=st.lists(st.tuples(st.integers(150, 500), st.integers(70, 200),
+                                  st.floats(0.3, 3.5)), min_size=2, max_size=6),
+       seed=st.integers(0, 2 ** 16))
+def test_static_segments_found_whatever_the_ft_bias(bias, presses, seed):
+    """Operator-like sessions (presses of 1.5-5 s, releases of 0.7-2 s) read through an F/T
+    with an un-zeroed bias up to 1.5 N per axis: every static sample is a released one, and
+    the offsets are the bias and the taxel baselines."""
+    rng = np.random.default_rng(seed)
+    load = np.concatenate([np.r_[np.sin(np.linspace(0, np.pi, press)) * peak, np.zeros(pause)]
+                           for press, pause, peak in presses] + [np.zeros(100)])
+    n = len(load)
+    baseline = rng.uniform(1e4, 3e4, (6, 3))
+    force = np.asarray(bias) + np.outer(load, [0.2, -0.1, 1.0]) + rng.normal(0, 0.03, (n, 3))
+    taxels = baseline + 200.0 * load[:, None, None] + rng.normal(0, 2.0, (n, 6, 3))
+    mask = static_mask(force, taxels, fs=FS)
+    # Released = below the activity threshold's resolution (15 counts at 200 counts/N).
+    assert mask.any() and not mask[load > 0.075].any()
+    offsets = static_offsets(force, taxels)
+    np.testing.assert_allclose(offsets.force, bias, atol=0.03)
+    np.testing.assert_allclose(offsets.taxels, baseline, atol=1.5)
+
+
+def test_static_segments_of_a_simulated_session_with_a_large_ft_bias():
+    """Named case: 30 s of the simulated operator on the index fingertip, F/T bias ~0.5 N per
+    axis (the 0.3 N absolute threshold found no rest in such sessions)."""
+    import dataclasses
+    import warnings
+
+    from tacforce_ros.hand.description import load_hand
+    from tacforce_ros.sim import load_scene, make_simulator
+    hand = load_hand()
+    scene = load_scene('calibration_index_tip_flat')
+    scene = dataclasses.replace(scene, effects={**scene.effects, 'ft_noise': {
+        'force_bias_sigma': 0.5, 'drift_per_sqrt_s': 0.0}})
+    with warnings.catch_warnings():
+        warnings.simplefilter('ignore')
+        sim = make_simulator(scene, hand, seed=11)
+    rows = hand.array('index_tip').flat_indices
+    samples = [sim.step() for _ in range(3000)]
+    force = np.array([s.ft_wrench[:3] for s in samples])
+    taxels = np.array([s.taxel_counts[rows] for s in samples], np.float64)
+    touching = np.array([s.in_contact for s in samples])
+    bias = next(e for e in sim.pipeline.effects if e.name == 'ft_noise')._bias[:3]
+    assert np.linalg.norm(bias) > 0.3                  # beyond the old absolute threshold
+    mask = static_mask(force, taxels)
+    assert mask.sum() > 300 and not (mask & touching).any()
+    np.testing.assert_allclose(static_offsets(force, taxels).force, bias, atol=0.02)
 
 
 def test_offsets_are_removed_per_session():

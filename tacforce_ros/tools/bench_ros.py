@@ -238,7 +238,8 @@ def run_estimator(probe: Probe, hand, args: argparse.Namespace, env: dict, tmp: 
         'model_config': str(models), 'tare_at_start': False, 'marker_rate_hz': 0.0})],
         tmp / 'logs', 30.0, env)
     try:
-        return bench_estimator(probe, hand, args.rates, args.seconds, procs[0][1].pid)
+        return bench_estimator(probe, hand, args.rates, args.seconds, procs[0][1].pid,
+                               args.reliable_wrenches)
     finally:
         codes = stop_nodes(procs, grace=10.0)
         if any(codes.values()):
@@ -274,6 +275,9 @@ def main(argv: list[str] | None = None) -> None:
                         help='input rates of the sustained-rate test (Hz)')
     parser.add_argument('--parts', nargs='+', default=['estimator', 'controller'],
                         choices=['estimator', 'controller'], help='what to measure')
+    parser.add_argument('--reliable-wrenches', action='store_true',
+                        help='read the 18 wrench topics reliably (default: best-effort, the '
+                        'sensor-data QoS of the project\'s own subscribers)')
     parser.add_argument('--domain', type=int, default=90 + os.getpid() % 10,
                         help='ROS_DOMAIN_ID of the benchmark graph')
     parser.add_argument('--ports', type=int, nargs=3, default=[25101, 25102, 25103],
@@ -286,6 +290,7 @@ def main(argv: list[str] | None = None) -> None:
     env = dict(os.environ)
     hand = load_hand()
     result: dict = {'seconds': args.seconds, 'cpus': os.cpu_count(),
+                    'reliable_wrenches': args.reliable_wrenches,
                     'load_average': {'before': os.getloadavg()}}
     probe = Probe(args.domain)
     try:

@@ -9,6 +9,7 @@ which sends zero-length data frames instead. The TEMPERATURE frame layout is unc
 """
 from __future__ import annotations
 
+import logging
 import math
 import struct
 import time
@@ -41,6 +42,30 @@ FIRMWARE_TORQUE_LIMITS = np.array([0.3125, 0.5625, 0.375, 0.2375] * 3
 POSE = struct.Struct('<4h')
 PERIOD = struct.Struct('<3H')
 HAND_INFO = struct.Struct('<HHBbB')     # hw version, fw version, side, board temp C, status
+
+
+class PartialReadFilter(logging.Filter):
+    """Drops python-can's socketcand "Got incomplete message => waiting for more data": one
+    TCP read ending mid-frame, which the client keeps and completes with the next read (no frame
+    is lost: test/devices/test_devices_socketcand_fragments.py). At 1333 frames/s it was
+    hundreds of log lines a minute. Its other warnings (discarded data) still pass; `suppressed`
+    counts what was dropped."""
+
+    MESSAGE = 'Got incomplete message => waiting for more data'
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.suppressed = 0
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        if record.getMessage() == self.MESSAGE:
+            self.suppressed += 1
+            return False
+        return True
+
+
+PARTIAL_READS = PartialReadFilter()
+SOCKETCAND_LOGGER = 'can.interfaces.socketcand.socketcand'
 
 
 class AllegroError(RuntimeError):
@@ -139,6 +164,8 @@ class AllegroV4Driver(PollingDriver[JointSample]):
         self.torque_limits = np.asarray(config.torque_limits, dtype=np.float64)
         if self.torque_limits.shape != (N_JOINTS,) or np.any(self.torque_limits <= 0):
             raise ValueError('torque_limits must be 16 positive values [Nm]')
+        if config.interface == 'socketcand':
+            logging.getLogger(SOCKETCAND_LOGGER).addFilter(PARTIAL_READS)   # once: same object
         self.bus = bus if bus is not None else can.Bus(interface=config.interface,
                                                        channel=config.channel,
                                                        **config.bus_kwargs)

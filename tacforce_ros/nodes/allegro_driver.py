@@ -10,7 +10,12 @@ every complete FINGER_POSE cycle (333 Hz at `position_period_ms` = 3).
 /force_controller/desired (geometry_msgs/Vector3Stamped, in force_controller.force_frame),
 f_hat from /tactile/estimates (the entry of `estimate_array`; invalid or missing entries count as
 stale). K_i = 0 is the open-loop baseline. The other fingers hold the pose they had at start-up
-(gravity + PD, `others_kp`/`others_kd`). The controller's watchdog ramps the force terms to a
+(gravity + PD, `others_kp`/`others_kd`). The force controller engages on the first desired
+force once (closed loop) a valid estimate has arrived, i.e. once the estimator has tared: until
+then the finger holds the pose it had at start-up with the law's own PD and gravity terms and no
+force terms (k_i = 0, q_d = that pose, reported as mode "hold"), so a session starts as a lab
+run does: clear of the plate, the estimator tared, then q_d brings the tip into contact. The
+controller's watchdog ramps the force terms to a
 position hold when the estimate goes stale and the whole torque to zero when the joint stream
 does; every tick is published as tacforce_msgs/ControllerState on /force_controller/state.
 `control` = off (calibration sessions) only publishes joint states and never commands torque.
@@ -18,6 +23,7 @@ On shutdown the driver stops the stream, sends zero torque and switches the serv
 """
 from __future__ import annotations
 
+import dataclasses
 import sys
 from dataclasses import fields
 
@@ -28,8 +34,8 @@ from sensor_msgs.msg import JointState
 from tacforce_msgs.msg import ControllerState, ForceEstimateArray
 
 from tacforce_ros.bagio import TOPIC_JOINTS
-from tacforce_ros.control.force_controller import (ControllerConfigError, ForceController,
-                                                   ForceControllerConfig)
+from tacforce_ros.control.force_controller import (MODE_HOLD, ControllerConfigError,
+                                                   ForceController, ForceControllerConfig)
 from tacforce_ros.devices.allegro import (N_JOINTS, AllegroConfig, AllegroError, AllegroV4Driver,
                                           JointSample)
 from tacforce_ros.hand.description import HandConfigError, load_hand
@@ -126,6 +132,8 @@ class AllegroDriver(TacforceNode):
                   range=(0.0, 10.0)),
         ParamSpec('others_kd', 0.03, 'damping of the other fingers (N m s/rad)',
                   range=(0.0, 1.0)),
+        ParamSpec('clock_timeout', 30.0, 'use_sim_time: longest wait for the first /clock '
+                  'before the hand is opened (s, wall)', range=(0.1, 600.0)),
     ) + STATUS_PARAMETERS + _controller_parameters()
 
     def __init__(self) -> None:
@@ -145,9 +153,14 @@ class AllegroDriver(TacforceNode):
         self._joints: tuple[np.ndarray, np.ndarray, int] | None = None   # q, qdot, node ns
         self._q_hold: np.ndarray | None = None
         self._tau = np.zeros(N_JOINTS)
-        self._desired = np.zeros(3)
+        self._desired: np.ndarray | None = None      # None until the first command
+        self._start_hold: ForceController | None = None  # holds the start pose until engaged
+        self._engaged = False
         self._estimate: tuple[np.ndarray, int] | None = None     # f_hat, stamp ns
         self.refused_commands = 0
+        # Servos on (the end of the hand's start-up) only once this node can stamp and time:
+        # in simulation that is when simulated time starts, so control acts from its first step.
+        self.wait_for_clock(p['clock_timeout'])
         try:
             self.driver = AllegroV4Driver(self._driver_config())
         except (AllegroError, can.CanError, OSError, ValueError) as exc:
@@ -252,8 +265,23 @@ class AllegroDriver(TacforceNode):
         estimate = self._estimate
         f_hat, f_age = ((estimate[0], (now - estimate[1]) * 1e-9) if estimate is not None
                         else (np.full(3, np.nan), float('inf')))
-        tau_finger, state = self.controller.update(now * 1e-9, q, qdot, f_hat, f_age,
-                                                   (now - q_ns) * 1e-9, self._desired)
+        if not self._engaged:
+            self._engaged = self._desired is not None and (
+                self.controller.open_loop or estimate is not None)
+            if self._engaged:
+                self.get_logger().info(f'force control engaged at {now * 1e-9:.3f} s')
+        if self._engaged:
+            controller, desired = self.controller, self._desired
+        else:
+            if self._start_hold is None:
+                self._start_hold = ForceController(dataclasses.replace(
+                    self.controller.config, k_i=(0.0, 0.0, 0.0),
+                    q_d=tuple(q[self.controller.joints])), self.kin)
+            controller, desired = self._start_hold, np.zeros(3)
+        tau_finger, state = controller.update(now * 1e-9, q, qdot, f_hat, f_age,
+                                              (now - q_ns) * 1e-9, desired)
+        if not self._engaged and state.force_gain == 1.0:
+            state.mode = MODE_HOLD
         tau = state.hold_gain * self._hold_others(q, qdot)
         tau[self.controller.joints] = tau_finger
         self.driver.set_torques(tau)

@@ -3,7 +3,9 @@
 Publishes geometry_msgs/Vector3Stamped at `rate_hz` on the node clock (sim time when
 use_sim_time is true), from start-up (`autostart`) or from a call to ~/start (std_srvs/Trigger;
 a call while playing restarts the sequence). After the last segment it publishes the final value
-once and stops, unless `loop` is true.
+once and stops, unless `loop` is true. The sequence's t = 0 waits until `min_subscribers`
+subscriptions listen on the topic (a session: the controller and the recorder), so neither
+misses its start to a late start-up.
 """
 from __future__ import annotations
 
@@ -30,6 +32,8 @@ class CommandPlayer(TacforceNode):
         ParamSpec('frame_id', '', 'frame of the published forces; empty = the sequence\'s own'),
         ParamSpec('loop', False, 'start over at the end of the sequence'),
         ParamSpec('autostart', True, 'start playing at start-up; else wait for ~/start'),
+        ParamSpec('min_subscribers', 1, 'start the sequence once this many subscriptions '
+                  'listen on the desired-force topic', range=(0, 100)),
     )
 
     def __init__(self) -> None:
@@ -67,6 +71,11 @@ class CommandPlayer(TacforceNode):
 
     def _tick(self) -> None:
         now = self.get_clock().now()
+        if self._start_requested and (self.publisher.get_subscription_count()
+                                      < self.params['min_subscribers']):
+            self.get_logger().info(f'waiting for {self.params["min_subscribers"]} subscribers '
+                                   f'on {TOPIC_DESIRED}', throttle_duration_sec=5.0)
+            return
         if self._start_requested:
             self._start_requested = False
             self._started_ns = now.nanoseconds

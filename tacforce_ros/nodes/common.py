@@ -29,6 +29,7 @@ import argparse
 import signal
 import sys
 import threading
+import time
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -220,6 +221,24 @@ class TacforceNode(Node):
                 self.get_logger().info(f'clock valid at {now * 1e-9:.3f} s; dropped '
                                        f'{self.samples_before_clock} samples that came before it')
         return now
+
+    def wait_for_clock(self, timeout: float) -> None:
+        """Under use_sim_time, spin this node until its clock reads simulated time (the first
+        /clock arrived); RuntimeError after `timeout` wall seconds. Returns at once otherwise."""
+        if not self.get_parameter('use_sim_time').value:
+            return
+        executor = SingleThreadedExecutor()
+        executor.add_node(self)
+        deadline = time.monotonic() + timeout
+        try:
+            while self.now_ns() <= 0:
+                if time.monotonic() > deadline:
+                    raise RuntimeError(f'no /clock within {timeout:g} s (use_sim_time is true: '
+                                       'is the simulator running?)')
+                executor.spin_once(timeout_sec=0.05)
+        finally:
+            executor.remove_node(self)
+            executor.shutdown()
 
     def on_shutdown(self) -> None:
         """Leave hardware and files safe; called once by run_node before the node is destroyed."""

@@ -132,8 +132,9 @@ def plan(args: SessionArgs) -> list[NodeLaunch]:
                                 (params_file('allegro_driver'), params_file('force_controller')),
                                 {**common, **hand_param, **sim_devices['allegro'],
                                  'control': 'force', 'estimate_array': args.array}))
+        # The sequence starts once the controller and the recorder both listen.
         nodes.append(NodeLaunch('command_player', (params_file('command_player'),),
-                                dict(common)))
+                                {**common, 'min_subscribers': 2}))
     # Both modes keep the raw streams (closed loop: the F/T reading is the reference).
     nodes.append(NodeLaunch('sync_recorder', (params_file('sync_recorder'),), {
         **common, **hand_param, 'output_dir': args.out, 'array': args.array,

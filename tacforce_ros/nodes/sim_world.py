@@ -12,7 +12,8 @@ In closed-loop scenes simulated time starts when the hand's servos are first swi
 allegro_driver's start-up ends with SYSTEM_ON), with `start_with_servos`: the scene's t = 0 is
 then the moment a controller can act, as in the in-process path, instead of the finger falling
 limp while the other nodes start. Until then the emulators serve the initial state and /clock
-is silent, so nodes on sim time stamp nothing.
+repeats the initial time (about 20 times a wall second), so every node's clock is valid, and
+the driver, which opens the hand only once its clock is, acts from the first simulated step.
 
 With `publish_clock` it is the /clock source (rosgraph_msgs/Clock, simulated time, every
 1/`clock_rate_hz` simulated seconds); it runs on wall time itself. /sim/contact_force carries the
@@ -142,7 +143,12 @@ class SimWorld(TacforceNode):
 
     def _run(self) -> None:
         if self.takes_torques and self.params['start_with_servos']:
+            frozen = Clock(clock=stamp(int(round(self._latest.t * 1e9))))
+            waited = 0
             while not self.allegro.servo_on:
+                if self.clock_publisher is not None and waited % 10 == 0:
+                    self.clock_publisher.publish(frozen)
+                waited += 1
                 if self._stop.wait(0.005):
                     return
             self.get_logger().info('servos on: simulated time starts')

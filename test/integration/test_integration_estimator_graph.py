@@ -14,12 +14,12 @@ import numpy as np
 import pytest
 import rclpy
 from rclpy.qos import QoSProfile, ReliabilityPolicy
-from geometry_msgs.msg import WrenchStamped
+from geometry_msgs.msg import Vector3Stamped, WrenchStamped
 from std_srvs.srv import SetBool
 from tacforce_msgs.msg import ControllerState, ForceEstimateArray, TactileHand
 
 from tacforce_ros.hand.description import load_hand
-from tacforce_ros.nodes.common import subscriber_qos
+from tacforce_ros.nodes.common import publisher_qos, subscriber_qos
 from tacforce_ros.nodes.messages import stamp_ns
 from tacforce_ros.paths import config_dir
 
@@ -107,9 +107,16 @@ def test_stale_tactile_stream_makes_the_controller_safe_within_100_ms(graph):
             node.create_subscription(ControllerState, '/force_controller/state', states.append,
                                      subscriber_qos('/force_controller/state'))]
     pause = node.create_client(SetBool, '/sim_world/pause_tactile')
+    # The controller engages on the first command: f_d = 0 (published until it is heard).
+    command = node.create_publisher(Vector3Stamped, '/force_controller/desired',
+                                    publisher_qos('/force_controller/desired'))
+
+    def commanding():
+        command.publish(Vector3Stamped())
+        spin(node)
     try:
         assert wait_until(lambda: states and states[-1].mode == 'closed_loop'
-                          and states[-1].estimate_fresh, 60.0, lambda: spin(node)), \
+                          and states[-1].estimate_fresh, 60.0, commanding), \
             ([s.mode for s in states[-5:]], running.logs())
         assert pause.wait_for_service(timeout_sec=10.0)
         future = pause.call_async(SetBool.Request(data=True))
@@ -145,3 +152,4 @@ def test_stale_tactile_stream_makes_the_controller_safe_within_100_ms(graph):
         for sub in subs:
             node.destroy_subscription(sub)
         node.destroy_client(pause)
+        node.destroy_publisher(command)

@@ -120,6 +120,26 @@ def test_waits_for_the_start_service_when_not_autostarting(ros_node, sequence_fi
     assert proc.returncode == EXIT_OK, output
 
 
+def test_sequence_waits_for_its_subscribers(ros_node, sequence_file):
+    received, sub, proc = play(ros_node, sequence_file, '-p', 'min_subscribers:=2')
+    second = None
+    try:
+        assert spin_until(ros_node, lambda: sub.get_publisher_count() > 0, 20.0)
+        spin_until(ros_node, lambda: False, 1.0)
+        assert received == [], 'played with one subscriber of the two it waits for'
+        second = ros_node.create_subscription(Vector3Stamped, '/force_controller/desired',
+                                              lambda msg: None,
+                                              subscriber_qos('/force_controller/desired'))
+        assert spin_until(ros_node, lambda: len(received) >= 5, 20.0)
+    finally:
+        output = stop(proc)
+        ros_node.destroy_subscription(sub)
+        if second is not None:
+            ros_node.destroy_subscription(second)
+    # The sequence started from its beginning once both listened.
+    assert received[0].vector.z == 0.0 and 'waiting for 2 subscribers' in output, output
+
+
 @pytest.mark.parametrize('override, words', [
     ('rate_hz:=-1', ['rate_hz', '-1', 'outside']),
     ('sequence:=no_such_sequence', ['sequence', 'no_such_sequence']),

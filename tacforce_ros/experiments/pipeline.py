@@ -437,7 +437,8 @@ def node_path_stage(ctx: Context, models: dict) -> dict:
     try:
         ctx.log(f'stage node path: calibration session ({node_path.CALIBRATION_SECONDS:g} s wall)')
         bag = node_path.run_session('calibration', calibration_scene, HELD_OUT_PLATE,
-                                    work / 'calibration', node_path.CALIBRATION_SECONDS)
+                                    work / 'calibration', node_path.CALIBRATION_SECONDS,
+                                    seed=load_scene(calibration_scene).seed)
         result['calibration'] = node_path.compare_calibration(
             bag, hand, kinematics, calibration_scene, load_scene(calibration_scene).seed, model,
             s.static_force)
@@ -448,11 +449,11 @@ def node_path_stage(ctx: Context, models: dict) -> dict:
                                  sequence, load_model_set(config, hand),
                                  control_rate=s.control_rate, tare_frames=tare_frames())
         ctx.log(f'stage node path: closed-loop run ({sequence.duration:g} s + start-up, wall)')
-        bag = node_path.run_session('closed_loop', loop_scene, HELD_OUT_PLATE,
-                                    work / 'closed_loop',
-                                    sequence.duration + node_path.START_MARGIN_S, config)
-        trace, offset = node_path.node_trace(bag, hand, kinematics, config, sequence, direct,
-                                             tare_frames())
+        bag = node_path.run_session(
+            'closed_loop', loop_scene, HELD_OUT_PLATE, work / 'closed_loop',
+            node_path.closed_loop_session_seconds(sequence.duration), config, seed=seed,
+            real_time_factor=node_path.CLOSED_LOOP_REAL_TIME_FACTOR)
+        trace, offset = node_path.node_trace(bag, sequence, tare_frames())
         result['closed_loop'] = node_path.compare_closed_loop(trace, direct, offset)
         np.savez(work / 'closed_loop_traces.npz',
                  **{f'node_{k}': v for k, v in trace.arrays().items()},

@@ -17,7 +17,8 @@ from tacforce_ros.paths import config_dir
 from tacforce_ros.sim.emulators.xela_server import XelaServerEmulator
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from ros_processes import executable, rclpy_node, spin_until, start, stop, unique_domain_id  # noqa: E402
+from ros_processes import (executable, rclpy_node, spin_until, start, stop,  # noqa: E402
+                           unique_domain_id)
 
 pytestmark = pytest.mark.ros
 DOMAIN = unique_domain_id(offset=61)

@@ -26,6 +26,7 @@ ARGUMENTS = {
     'model': ('', 'estimator models YAML; empty: config/models/default.yaml'),
     'out': ('bags', 'folder for the recorded bags'),
     'real_time_factor': ('1.0', 'simulated seconds per wall second (sim only)'),
+    'seed': ('-1', 'simulator seed (sim only); -1: the scene\'s own'),
 }
 
 
@@ -36,6 +37,7 @@ def _nodes(context, mode: str):
                        plate=value['plate'], scene=value['scene'],
                        model_config=value['model'], out=value['out'],
                        real_time_factor=float(value['real_time_factor']),
+                       seed=int(value['seed']),
                        xela_port=XELA_PORT, netft_port=NETFT_PORT, can_port=CAN_PORT)
     actions, delay = [], 0.0
     for node in plan(args):

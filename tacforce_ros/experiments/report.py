@@ -212,8 +212,15 @@ def markdown(doc: dict) -> str:
                   f"{cell(loop['node']['e_tilde_mean'], digits=3)} | "
                   f"{cell(loop['direct']['e_tilde_mean'], digits=3)} | "
                   f"{cell(loop['difference_n'], digits=3)} | {cell(loop['tolerance_n'], digits=3)}"
-                  f" | {'yes' if loop['agree'] else 'NO'} |", '',
-                  f"Tolerance: {doc['node_tolerance_reason']}", '']
+                  f" | {'yes' if loop['difference_n'] <= loop['tolerance_n'] else 'NO'} |"]
+        if 'e_track_difference_n' in loop:
+            track, track_tolerance = loop['e_track_difference_n'], loop['e_track_tolerance_n']
+            lines += [f"| closed loop (1)-M3λ, one run: e_track [N] | "
+                      f"{cell(loop['node']['e_track_mean'], digits=3)} | "
+                      f"{cell(loop['direct']['e_track_mean'], digits=3)} | "
+                      f"{cell(track, digits=3)} | {cell(track_tolerance, digits=3)} | "
+                      f"{'yes' if track <= track_tolerance else 'NO'} |"]
+        lines += ['', f"Tolerance: {doc['node_tolerance_reason']}", '']
 
     lines += ['## Figures', ''] + [f'* [{name}]({name})' for name in doc['figures']] + ['']
     lines += ['## Stage wall times [s]', '', '| stage | s |', '|---|---|']

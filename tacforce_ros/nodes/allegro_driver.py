@@ -15,9 +15,9 @@ force once (closed loop) a valid estimate has arrived, i.e. once the estimator h
 then the finger holds the pose it had at start-up with the law's own PD and gravity terms and no
 force terms (k_i = 0, q_d = that pose, reported as mode "hold"), so a session starts as a lab
 run does: clear of the plate, the estimator tared, then q_d brings the tip into contact. The
-controller's watchdog ramps the force terms to a
-position hold when the estimate goes stale and the whole torque to zero when the joint stream
-does; every tick is published as tacforce_msgs/ControllerState on /force_controller/state.
+controller's watchdog ramps the force terms to a position hold when the estimate goes stale and
+the whole torque to zero when the joint stream does; every tick is published as
+tacforce_msgs/ControllerState on /force_controller/state.
 `control` = off (calibration sessions) only publishes joint states and never commands torque.
 On shutdown the driver stops the stream, sends zero torque and switches the servos off.
 """
@@ -265,19 +265,7 @@ class AllegroDriver(TacforceNode):
         estimate = self._estimate
         f_hat, f_age = ((estimate[0], (now - estimate[1]) * 1e-9) if estimate is not None
                         else (np.full(3, np.nan), float('inf')))
-        if not self._engaged:
-            self._engaged = self._desired is not None and (
-                self.controller.open_loop or estimate is not None)
-            if self._engaged:
-                self.get_logger().info(f'force control engaged at {now * 1e-9:.3f} s')
-        if self._engaged:
-            controller, desired = self.controller, self._desired
-        else:
-            if self._start_hold is None:
-                self._start_hold = ForceController(dataclasses.replace(
-                    self.controller.config, k_i=(0.0, 0.0, 0.0),
-                    q_d=tuple(q[self.controller.joints])), self.kin)
-            controller, desired = self._start_hold, np.zeros(3)
+        controller, desired = self._acting_controller(q, estimate is not None, now)
         tau_finger, state = controller.update(now * 1e-9, q, qdot, f_hat, f_age,
                                               (now - q_ns) * 1e-9, desired)
         if not self._engaged and state.force_gain == 1.0:
@@ -287,6 +275,23 @@ class AllegroDriver(TacforceNode):
         self.driver.set_torques(tau)
         self._tau = tau
         self.state_publisher.publish(self._state_message(now, state, q, qdot))
+
+    def _acting_controller(self, q: np.ndarray, have_estimate: bool, now: int
+                           ) -> tuple[ForceController, np.ndarray]:
+        """This tick's controller and f_d: the force controller once engaged (a command came
+        and, closed loop, a tared estimate), else the start-pose hold with f_d = 0."""
+        if not self._engaged:
+            self._engaged = self._desired is not None and (self.controller.open_loop
+                                                           or have_estimate)
+            if self._engaged:
+                self.get_logger().info(f'force control engaged at {now * 1e-9:.3f} s')
+        if self._engaged:
+            return self.controller, self._desired
+        if self._start_hold is None:
+            self._start_hold = ForceController(dataclasses.replace(
+                self.controller.config, k_i=(0.0, 0.0, 0.0),
+                q_d=tuple(q[self.controller.joints])), self.kin)
+        return self._start_hold, np.zeros(3)
 
     def _hold_others(self, q: np.ndarray, qdot: np.ndarray) -> np.ndarray:
         p = self.params

@@ -35,16 +35,21 @@ class ModelSet:
     taxels: np.ndarray             # flat indices (of the full frame) the sub-hand reads
     kinds: tuple[str, ...]
 
+    def __post_init__(self) -> None:
+        # Every array modelled: the sub-hand is the hand, and the per-tick gather is skipped.
+        self._whole_hand = not self.skipped
+
     def estimate(self, counts: np.ndarray) -> HandEstimate:
         """Full-hand flat counts (n_taxels, 3) -> estimates of the modelled arrays."""
         counts = np.asarray(counts)
-        if counts.ndim != 2 or counts.shape[0] <= int(self.taxels[-1]):
-            return self.estimator.estimate(counts)     # its own message names the shape
+        if self._whole_hand or counts.ndim != 2 or counts.shape[0] <= int(self.taxels[-1]):
+            return self.estimator.estimate(counts)     # its own message names a wrong shape
         return self.estimator.estimate(counts[self.taxels])
 
     def set_tare(self, frames: np.ndarray) -> None:
         """Tare every modelled array from full-hand no-contact frames (T, n_taxels, 3)."""
-        self.estimator.set_tare(np.asarray(frames)[:, self.taxels])
+        frames = np.asarray(frames)
+        self.estimator.set_tare(frames if self._whole_hand else frames[:, self.taxels])
 
 
 def load_model_set(path: str | Path, hand: HandDescription) -> ModelSet:

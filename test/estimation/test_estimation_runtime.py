@@ -1,8 +1,11 @@
 """Runtime estimator: one batched pass for the whole hand, agreeing with each bundle alone."""
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
-from tacforce_ros.estimation.runtime import RuntimeEstimator
+from tacforce_ros.estimation.runtime import (RuntimeEstimator, destandardised_batch,
+                                            folded_linear_batch)
 from tacforce_ros.estimation.synthetic import synthetic_dataset
 from tacforce_ros.estimation.training import fit_bundle
 
@@ -148,3 +151,23 @@ def test_torch_trained_kinds_mix_with_linear_ones(hand, hand_data):
     for k, (array, bundle) in enumerate(zip(hand.arrays, bundles)):
         expected = bundle.predict(frame[array.flat_indices][None])[0]
         np.testing.assert_allclose(result.force[k], expected, rtol=1e-4, atol=1e-4)
+
+
+@settings(max_examples=40)
+@given(kind=st.sampled_from(('M1', 'M3', 'M3-lambda')), array_index=st.integers(0, 17),
+       scale=st.sampled_from((1e-3, 1.0, 1e3)), seed=st.integers(0, 2**32 - 1))
+def test_folded_linear_weights_equal_the_destandardised_model(hand, hand_data, kind, array_index,
+                                                               scale, seed):
+    """Folding f_std and f_mean into W and b is exact: same newtons as the model's own batch
+    followed by the de-standardisation, for standardised inputs from tiny to far out."""
+    array = hand.arrays[array_index]
+    X, F, offset, data = hand_data[array_index]
+    bundle = fit_bundle(array, kind, {}, X[::4], F[::4], data.plates[::4], x_offset=offset)
+    n_max = max(a.n_taxels for a in hand.arrays)
+    z = np.zeros((1, n_max, 3))
+    z[0, :array.n_taxels] = scale * np.random.default_rng(seed).normal(size=(array.n_taxels, 3))
+    folded = folded_linear_batch([bundle], n_max)(z)
+    reference = destandardised_batch([bundle], n_max)(z)
+    np.testing.assert_allclose(folded, reference, rtol=1e-10, atol=1e-12 * max(1.0, scale))
+    expected = bundle.f_scaler.inverse(bundle.model.predict(z[:, :array.n_taxels]))
+    np.testing.assert_allclose(folded, expected, rtol=1e-10, atol=1e-12 * max(1.0, scale))

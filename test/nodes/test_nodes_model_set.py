@@ -54,6 +54,26 @@ def test_tare_takes_full_hand_frames(full_set, hand, tmp_path):
                                rest[hand.array('index_tip').flat_indices])
 
 
+def test_whole_hand_set_reads_the_frame_as_is(full_set, hand):
+    """Every array modelled: each estimate equals its model file, before and after a tare."""
+    models = load_model_set(full_set, hand)
+    assert models.skipped == () and len(models.arrays) == len(hand.arrays)
+    rng = np.random.default_rng(3)
+    rest = rng.uniform(15000, 30000, (hand.n_taxels, 3))
+    pressed = rest + rng.normal(0.0, 200.0, rest.shape)
+    bundles = [load_model(full_set.parent / f'{a.name}_M3.npz', a) for a in hand.arrays]
+    for tare in (None, rest):
+        if tare is not None:
+            models.set_tare(np.repeat(tare[None], 3, axis=0))
+        estimate = models.estimate(pressed)
+        for k, (array, bundle) in enumerate(zip(hand.arrays, bundles)):
+            x = pressed[array.flat_indices][None]
+            if tare is not None:     # the bundle's own tare replaced by the rest reading
+                x = x - tare[array.flat_indices] + bundle.x_offset
+            np.testing.assert_allclose(estimate.force[k], bundle.predict(x)[0],
+                                       rtol=1e-9, atol=1e-9)
+
+
 def test_wrong_shapes_are_flagged_not_raised(full_set, hand):
     models = load_model_set(full_set, hand)
     estimate = models.estimate(np.zeros((10, 3)))

@@ -7,8 +7,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tacforce_ros.bagio import (TOPIC_JOINTS, TOPIC_SAMPLE, TOPIC_SESSION, TOPIC_TACTILE,
-                                TOPIC_WRENCH, read_messages, read_session_metadata)
+from tacforce_ros.bagio import (TOPIC_JOINTS, TOPIC_SAMPLE, TOPIC_SESSION, TOPIC_SIM_CONTACT,
+                                TOPIC_TACTILE, TOPIC_WRENCH, read_messages,
+                                read_session_metadata)
 from tacforce_ros.hand.description import load_hand
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -39,12 +40,14 @@ def session_bag(tmp_path_factory):
 def test_metadata_names_the_simulated_session(session_bag):
     meta = read_session_metadata(session_bag)
     assert (meta['array'], meta['plate'], meta['source']) == ('index_tip', 'flat', 'sim')
+    assert meta['scene'] == 'calibration_index_tip_flat'
 
 
 def test_every_stream_is_recorded_and_decodes(session_bag):
     hand = load_hand()
+    # The simulator's ground truth is recorded too; a calibration session has no controller.
     counts = dict.fromkeys((TOPIC_TACTILE, TOPIC_WRENCH, TOPIC_JOINTS, TOPIC_SAMPLE,
-                            TOPIC_SESSION), 0)
+                            TOPIC_SESSION, TOPIC_SIM_CONTACT), 0)
     tactile_stamps, pressed = [], []
     for topic, _, msg in read_messages(session_bag):
         counts[topic] += 1

@@ -2,9 +2,9 @@
 
 Per tick: standardise the flat (368, 3) counts into a buffer whose last row stays zero (one
 subtract that also casts to float64, one multiply by 1/std), gather it with one precomputed index
-into an (arrays, n_max, 3) block (padding points at the zero row), take the OOD score from the
-block, and run one callable per model kind that returns forces in newtons. Arrays whose input is
-not finite are flagged and report zero force instead of garbage.
+into an (arrays, 1, 3 n_max) block, one zero-padded row per array (padding points at the zero
+row), take the OOD score from the block, and run one callable per model kind that returns forces
+in newtons. Arrays whose input is not finite are flagged and report zero force, not garbage.
 
 Linear models (M1, M3, M3-lambda) are folded at load time: the output de-standardisation
 f = f_std (W z + b) + f_mean goes into the stacked weights and bias, so their part of the tick is
@@ -32,7 +32,8 @@ if TYPE_CHECKING:
 
 STATUS_OK = 'ok'
 
-BatchPredict = Callable[[np.ndarray], np.ndarray]   # (k, n_max, 3) standardised -> (k, 3) N
+# (k, 1, 3 n_max) standardised inputs, one row per array (taxel-major, zero-padded) -> (k, 3) N
+BatchPredict = Callable[[np.ndarray], np.ndarray]
 
 
 @dataclass(slots=True)
@@ -56,25 +57,26 @@ def folded_linear_batch(bundles: Sequence[ModelBundle], n_max: int) -> BatchPred
         weights[i, :, :model.array.n_taxels] = f_std[:, None, None] * model.input_weights()
         bias[i] = f_std * model.intercept_ + bundle.f_scaler.mean
     weights = weights.reshape(k, 3, 3 * n_max)
-    rows = (k, 1, 3 * n_max)
 
     def predict_newtons(X: np.ndarray) -> np.ndarray:
         # vecdot: one batched dot per output row; measured faster than matmul and einsum here.
-        force = np.vecdot(weights, X.reshape(rows))
+        force = np.vecdot(weights, X)
         return np.add(force, bias, out=force)
 
     return predict_newtons
 
 
-def destandardised_batch(bundles: Sequence[ModelBundle], width: int) -> BatchPredict:
+def destandardised_batch(bundles: Sequence[ModelBundle], n_max: int) -> BatchPredict:
     """Any model kind: its own compiled batch, then f_std * y + f_mean."""
     predict = type(bundles[0].model).compile_batch([b.model for b in bundles])
+    width = max(b.array.n_taxels for b in bundles)   # the group's own n_max
+    block = (len(bundles), n_max, 3)
     f_std = np.stack([b.f_scaler.std for b in bundles])
     f_mean = np.stack([b.f_scaler.mean for b in bundles])
 
     def predict_newtons(X: np.ndarray) -> np.ndarray:
         # multiply allocates: the callable may reuse its output buffer between calls
-        force = np.multiply(predict(X[:, :width]), f_std)
+        force = np.multiply(predict(X.reshape(block)[:, :width]), f_std)
         return np.add(force, f_mean, out=force)
 
     return predict_newtons
@@ -120,12 +122,13 @@ class RuntimeEstimator:
             self._inv_std[array.flat_indices] = 1.0 / bundle.x_scaler.std
             self._tare[array.flat_indices] = bundle.x_offset
         self._centre = self._tare + self._mean
-        # Element indices into the raveled buffer: a 1-D take is the cheapest gather in numpy.
-        self._gather = gather[..., None] * 3 + np.arange(3)
+        # Element indices into the raveled buffer (a 1-D take is the cheapest gather in numpy),
+        # shaped as the models' (arrays, 1, 3 n_max) rows so the block needs no reshape.
+        self._gather = (gather[..., None] * 3 + np.arange(3)).reshape(n_arrays, 1, 3 * n_max)
         self._segments = np.arange(n_arrays) * n_max * 3
         self._groups = self._compile(n_max)
         self._flat = np.zeros((self.n_taxels + 1, 3))
-        self._x = np.zeros((n_arrays, n_max, 3))
+        self._x = np.zeros(self._gather.shape)
         self._abs = np.zeros(self._x.size)
         # views and bound methods, made once: the tick is bound by per-call overhead
         self._frame = self._flat[:-1]
@@ -139,12 +142,9 @@ class RuntimeEstimator:
         for kind in dict.fromkeys(self.kinds):
             rows = np.flatnonzero(np.array(self.kinds) == kind)
             bundles = [self.bundles[k] for k in rows]
-            width = max(b.array.n_taxels for b in bundles)   # a group's own n_max
-            if all(isinstance(b.model, LinearInputModel) for b in bundles):
-                # padded to the hand's n_max: the block goes in without slicing
-                groups.append((rows, folded_linear_batch(bundles, n_max)))
-            else:
-                groups.append((rows, destandardised_batch(bundles, width)))
+            linear = all(isinstance(b.model, LinearInputModel) for b in bundles)
+            batch = folded_linear_batch if linear else destandardised_batch
+            groups.append((rows, batch(bundles, n_max)))
         return groups
 
     # --- tare --------------------------------------------------------------------------------

@@ -166,8 +166,9 @@ def test_folded_linear_weights_equal_the_destandardised_model(hand, hand_data, k
     n_max = max(a.n_taxels for a in hand.arrays)
     z = np.zeros((1, n_max, 3))
     z[0, :array.n_taxels] = scale * np.random.default_rng(seed).normal(size=(array.n_taxels, 3))
-    folded = folded_linear_batch([bundle], n_max)(z)
-    reference = destandardised_batch([bundle], n_max)(z)
+    rows = z.reshape(1, 1, 3 * n_max)       # the runtime's block: one taxel-major row per array
+    folded = folded_linear_batch([bundle], n_max)(rows)
+    reference = destandardised_batch([bundle], n_max)(rows)
     np.testing.assert_allclose(folded, reference, rtol=1e-10, atol=1e-12 * max(1.0, scale))
     expected = bundle.f_scaler.inverse(bundle.model.predict(z[:, :array.n_taxels]))
     np.testing.assert_allclose(folded, expected, rtol=1e-10, atol=1e-12 * max(1.0, scale))

@@ -32,10 +32,11 @@ AGREEMENT_REASON = (
     '2-10 ms older than the direct path\'s (joint stream, TCP, DDS), tares on its first frames '
     'rather than the last of a 2 s hold, and starts when the command player does; the tip then '
     'meets the plate a little differently, and the shear the stuck contact keeps (which the '
-    'estimate partly misses) follows that history. Measured on a 2 N hold (e~ over its last '
-    '5 s): the direct path gives 0.12-0.23 N over seeds 0-3, two node runs of seed 0 0.14 and '
-    '0.20 N against direct 0.23 N; hence 0.08 N on e~. Both loops hold their own estimate to '
-    '~0.02 N: 0.03 N on e_track.')
+    'estimate partly misses) follows that history. On a 2 N hold (e~ over its last 5 s) node '
+    'runs came within 0.02-0.09 N of the direct run of the same seed, and the direct path\'s '
+    'own spread over seeds 0-3 was up to 0.11 N (two default models, measured while this was '
+    'written): hence 0.08 N on e~. Both loops hold their own estimate to ~0.02 N there: '
+    '0.03 N on e_track.')
 CALIBRATION_SECONDS = 40.0     # wall seconds of the node-graph calibration session
 START_MARGIN_S = 40.0          # wall seconds for the nodes to start and the recorder to open
 # Closed-loop runs go at half real time: the nine processes then keep their 100-333 Hz streams

@@ -30,7 +30,7 @@ import signal
 import sys
 import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -38,7 +38,7 @@ from typing import Any
 import rclpy
 from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
                                 SetParametersResult)
-from rclpy.executors import MultiThreadedExecutor, SingleThreadedExecutor
+from rclpy.executors import Executor, MultiThreadedExecutor, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.utilities import remove_ros_args
@@ -268,13 +268,15 @@ def parse_cli(node_cls: type[TacforceNode], args: Sequence[str]) -> None:
 
 
 def run_node(node_cls: type[TacforceNode], args: Sequence[str] | None = None, *,
-             threads: int = 1) -> int:
+             threads: int = 1, executor: Callable[[], Executor] | None = None) -> int:
     """main() of a node: --help, rclpy init, build the node, spin until SIGINT/SIGTERM or
     rclpy shutdown, then `on_shutdown()`, destroy and shut down. Returns the exit code
     (EXIT_*; `sys.exit(run_node(MyNode))`).
 
     threads > 1 spins a MultiThreadedExecutor (needed when a callback waits on another one,
-    e.g. a service handler that waits for a subscription); otherwise single-threaded.
+    e.g. a service handler that waits for a subscription); `executor`, if given, makes the
+    executor instead (called once the node exists, e.g. rclpy's EventsExecutor); otherwise
+    single-threaded.
     """
     args = list(sys.argv if args is None else args)
     parse_cli(node_cls, args)
@@ -282,7 +284,7 @@ def run_node(node_cls: type[TacforceNode], args: Sequence[str] | None = None, *,
     stop = threading.Event()
     previous = {sig: signal.signal(sig, lambda *_: stop.set())
                 for sig in (signal.SIGINT, signal.SIGTERM)}
-    node = None
+    node = spinner = None
     logger = rclpy.logging.get_logger(node_cls.NODE_NAME)
     try:
         try:
@@ -291,12 +293,13 @@ def run_node(node_cls: type[TacforceNode], args: Sequence[str] | None = None, *,
             logger.fatal(f'refusing to start: {exc}')
             return EXIT_BAD_PARAMETERS
         logger = node.get_logger()
-        executor = (MultiThreadedExecutor(num_threads=threads) if threads > 1
-                    else SingleThreadedExecutor())
-        executor.add_node(node)
+        spinner = (executor() if executor is not None
+                   else MultiThreadedExecutor(num_threads=threads) if threads > 1
+                   else SingleThreadedExecutor())
+        spinner.add_node(node)
         # Short spin slices: a signal only sets `stop`, which is seen within 0.1 s.
         while not stop.is_set() and rclpy.ok():
-            executor.spin_once(timeout_sec=0.1)
+            spinner.spin_once(timeout_sec=0.1)
         return EXIT_OK
     except Exception as exc:    # noqa: BLE001 - report, still leave things safe below
         logger.fatal(f'stopped by an error: {type(exc).__name__}: {exc}')
@@ -306,6 +309,8 @@ def run_node(node_cls: type[TacforceNode], args: Sequence[str] | None = None, *,
             try:
                 node.on_shutdown()
             finally:
+                if spinner is not None:
+                    spinner.shutdown()      # lets go of the node's handles first
                 node.destroy_node()
         rclpy.try_shutdown()
         for sig, handler in previous.items():

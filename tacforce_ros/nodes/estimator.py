@@ -21,6 +21,11 @@ decoded by one precomputed gather (messages.TactileHandDecoder), and the 19 outg
 are serialized layouts made at start-up whose stamps and numbers are overwritten
 (messages.SerializedMessages). Objects made at start-up are frozen out of the garbage
 collector's full passes, which otherwise stall a frame by milliseconds now and then.
+
+Executor: rclpy's EventsExecutor where it exists (Jazzy and later, rclpy.experimental), which
+dispatches each frame without rebuilding a wait set over every entity of the node; it keeps the
+watchdog on the node clock (it re-plans timers on every /clock jump under use_sim_time). On
+Humble the import fails and the node spins a SingleThreadedExecutor.
 """
 from __future__ import annotations
 
@@ -30,6 +35,7 @@ import sys
 import numpy as np
 from geometry_msgs.msg import Point, WrenchStamped
 from rclpy.event_handler import PublisherEventCallbacks
+from rclpy.executors import Executor, SingleThreadedExecutor
 from std_srvs.srv import Trigger
 from tacforce_msgs.msg import ForceEstimate, ForceEstimateArray, TactileHand
 from visualization_msgs.msg import Marker, MarkerArray
@@ -220,8 +226,17 @@ class Estimator(TacforceNode):
         self.marker_publisher.publish(out)
 
 
+def events_executor() -> Executor:
+    """rclpy's EventsExecutor (Jazzy and later), SingleThreadedExecutor where it is missing."""
+    try:
+        from rclpy.experimental import EventsExecutor
+    except ImportError:         # Humble
+        return SingleThreadedExecutor()
+    return EventsExecutor()
+
+
 def main(args: list[str] | None = None) -> None:
-    sys.exit(run_node(Estimator, args))
+    sys.exit(run_node(Estimator, args, executor=events_executor))
 
 
 if __name__ == '__main__':

@@ -12,7 +12,7 @@ from std_srvs.srv import Trigger
 from tacforce_msgs.msg import ForceEstimateArray, TactileHand
 
 from tacforce_ros.hand.description import load_hand
-from tacforce_ros.nodes.common import publisher_qos
+from tacforce_ros.nodes.common import EXIT_OK, publisher_qos
 from tacforce_ros.nodes.messages import stamp_ns, tactile_hand
 from tacforce_ros.nodes.model_set import load_model_set, write_synthetic_model_set
 from tacforce_ros.nodes.session_plan import params_file
@@ -125,4 +125,5 @@ def test_estimates_follow_the_model_set_with_the_node_tare(models, tmp_path):
             assert all(not e.valid and e.ood_score == np.inf for m in stale for e in m.estimates)
     finally:
         output = stop(proc)
+    assert proc.returncode == EXIT_OK, output      # SIGINT: a clean stop
     assert 'tactile frame refused' in output and 'arrays, the hand has' in output, output

@@ -37,6 +37,7 @@ from tacforce_ros.tools.session import start_nodes, stop_nodes
 
 LATENCY_TARGET_P99_MS = 2.0
 RATE_TARGET_HZ = 1000.0
+WARM_UP_TIMEOUT_S = 60.0
 # Every serialized message starts with a 4-byte encapsulation header and then std_msgs/Header,
 # whose stamp (int32 sec, uint32 nanosec) comes first.
 _STAMP = struct.Struct('<iI')
@@ -142,9 +143,15 @@ def bench_estimator(probe: Probe, hand, rates: list[float], seconds: float, pid:
                 probe.rclpy.spin_once(node, timeout_sec=max(0.0, next_t - time.monotonic()))
         return sent
 
-    # Warm-up until the estimator answers (discovery, tare on the first frames).
-    send(100, 100.0)
-    probe.spin_for(2.0, until=lambda: len(estimates) > 0)
+    # Warm-up until the estimator answers (start-up, discovery, tare on the first frames): a
+    # loaded machine can take many seconds, and frames sent before that would count as lost.
+    deadline = time.monotonic() + WARM_UP_TIMEOUT_S
+    while not estimates:
+        if time.monotonic() > deadline:
+            raise RuntimeError(f'the estimator published no estimate within '
+                               f'{WARM_UP_TIMEOUT_S:.0f} s of frames at 100 Hz')
+        send(10, 100.0)
+    send(100, 100.0)        # a second, steady, so start-up work is over before timing
     probe.spin_for(0.5)
     wrenches.clear()
     estimates.clear()
@@ -237,12 +244,15 @@ def run_estimator(probe: Probe, hand, args: argparse.Namespace, env: dict, tmp: 
     procs = start_nodes([NodeLaunch('estimator', (params_file('estimator'),), {
         'model_config': str(models), 'tare_at_start': False, 'marker_rate_hz': 0.0})],
         tmp / 'logs', 30.0, env)
+    measured = False
     try:
-        return bench_estimator(probe, hand, args.rates, args.seconds, procs[0][1].pid,
-                               args.reliable_wrenches)
+        result = bench_estimator(probe, hand, args.rates, args.seconds, procs[0][1].pid,
+                                 args.reliable_wrenches)
+        measured = True
+        return result
     finally:
         codes = stop_nodes(procs, grace=10.0)
-        if any(codes.values()):
+        if not measured or any(codes.values()):      # the estimator's side of the story
             print((tmp / 'logs' / 'estimator.log').read_text()[-2000:])
 
 

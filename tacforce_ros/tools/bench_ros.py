@@ -148,8 +148,11 @@ def bench_estimator(probe: Probe, hand, rates: list[float], seconds: float, pid:
     deadline = time.monotonic() + WARM_UP_TIMEOUT_S
     while not estimates:
         if time.monotonic() > deadline:
-            raise RuntimeError(f'the estimator published no estimate within '
-                               f'{WARM_UP_TIMEOUT_S:.0f} s of frames at 100 Hz')
+            raise RuntimeError(
+                f'the estimator published no estimate within {WARM_UP_TIMEOUT_S:.0f} s of '
+                f'frames at 100 Hz; /tactile/raw matched '
+                f'{publisher.get_subscription_count()} subscription(s), /tactile/estimates '
+                f'{node.count_publishers("/tactile/estimates")} publisher(s)')
         send(10, 100.0)
     send(100, 100.0)        # a second, steady, so start-up work is over before timing
     probe.spin_for(0.5)

@@ -21,7 +21,11 @@ Around the law, in this order per tick:
 2. Integral with a rate limiter (each axis of e_f clipped to `integral_rate_limit` N before
    integrating, so one bad estimate moves the integral by at most that many N s per second),
    clamped to +/- `integral_limit`, and conditional integration: while saturated, a step that
-   would push the binding joint further into saturation is not taken (anti-windup).
+   would push the binding joint further into saturation is not taken (anti-windup). The integral
+   only integrates while a force is commanded (f_d != 0): with f_d = 0 there is no contact force
+   to regulate, and integrating toward zero parks the tip at the contact boundary, where friction
+   holds no shear and the residual shear integral slides it off (measured on the simulated
+   spherical plate: 2 of 4 seeds slid off during the paper sequence's 15 s at f_d = 0).
 3. Saturation: one common factor s = min(1, min_j limit_j / |tau_j|) with
    limit_j = min(torque_cap, firmware clamp of joint j). All four joints are scaled by s, so the
    firmware's per-joint clamps never act on their own and the direction of tau is kept.
@@ -260,7 +264,7 @@ class ForceController:
         error = f_d - f_hat if estimate_fresh else np.zeros(3)
         # A long gap between ticks must not integrate as one big step.
         dt = min(elapsed, cfg.estimate_timeout)
-        if force_target == 1.0 and dt > 0.0 and not self.open_loop:
+        if force_target == 1.0 and dt > 0.0 and not self.open_loop and np.any(f_d != 0.0):
             rate = np.clip(error, -cfg.integral_rate_limit, cfg.integral_rate_limit)
             candidate = np.clip(mem.integral + dt * rate, -cfg.integral_limit, cfg.integral_limit)
             tau_candidate = torque(candidate)

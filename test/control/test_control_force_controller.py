@@ -148,9 +148,23 @@ def test_firmware_clamp_of_a_weak_joint_scales_the_whole_finger():
 def test_rate_limiter_bounds_how_fast_the_integral_moves():
     cfg = config(integral_rate_limit=0.5, integral_limit=100.0)
     ctrl = ForceController(cfg, KIN)
-    ctrl.update(0.0, Q16, ZERO16, np.zeros(3), 0.0, 0.0, np.zeros(3))
-    _, state = ctrl.update(DT, Q16, ZERO16, np.array([-50.0, 80.0, 0.1]), 0.0, 0.0, np.zeros(3))
+    f_d = np.array([0.0, 0.0, 1.0])
+    ctrl.update(0.0, Q16, ZERO16, f_d, 0.0, 0.0, f_d)
+    _, state = ctrl.update(DT, Q16, ZERO16, np.array([-50.0, 80.0, 1.1]), 0.0, 0.0, f_d)
     np.testing.assert_allclose(state.integral_error, [0.5 * DT, -0.5 * DT, -0.1 * DT])
+
+
+def test_integral_holds_while_no_force_is_commanded():
+    ctrl = ForceController(config(), KIN)
+    f_hat, f_d = np.array([0.1, -0.2, 0.3]), np.array([0.0, 0.0, 0.5])
+    for k in range(5):
+        _, state = ctrl.update(k * DT, Q16, ZERO16, f_hat, 0.0, 0.0, np.zeros(3))
+    np.testing.assert_array_equal(state.integral_error, np.zeros(3))
+    assert state.mode == MODE_CLOSED_LOOP
+    _, state = ctrl.update(5 * DT, Q16, ZERO16, f_hat, 0.0, 0.0, f_d)
+    assert np.all(state.integral_error != 0.0)
+    _, held = ctrl.update(6 * DT, Q16, ZERO16, f_hat, 0.0, 0.0, np.zeros(3))
+    np.testing.assert_array_equal(held.integral_error, state.integral_error)
 
 
 def test_integral_is_bounded_under_persistent_error_and_recovers_after_saturation():
@@ -224,10 +238,11 @@ def test_estimate_frame_is_rotated_into_the_force_frame():
     cfg = config(estimate_frame='uskin_index_tip', k_i=(1.0, 1.0, 1.0))
     ctrl = ForceController(cfg, KIN)
     f_hat_array = np.array([1.0, 0.0, 0.0])     # x of the array frame is y of {F} (90 deg)
-    ctrl.update(0.0, Q16, ZERO16, f_hat_array, 0.0, 0.0, np.zeros(3))
-    _, state = ctrl.update(DT, Q16, ZERO16, f_hat_array, 0.0, 0.0, np.zeros(3))
+    f_d = np.array([0.0, 0.0, 0.5])
+    ctrl.update(0.0, Q16, ZERO16, f_hat_array, 0.0, 0.0, f_d)
+    _, state = ctrl.update(DT, Q16, ZERO16, f_hat_array, 0.0, 0.0, f_d)
     np.testing.assert_allclose(state.estimated_force, [0.0, 1.0, 0.0], atol=1e-12)
-    np.testing.assert_allclose(state.integral_error, [0.0, -DT, 0.0], atol=1e-12)
+    np.testing.assert_allclose(state.integral_error, [0.0, -DT, 0.5 * DT], atol=1e-12)
 
 
 def simulate_contact(cfg, torque_gain, seconds=6.0):

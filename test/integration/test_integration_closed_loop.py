@@ -86,10 +86,11 @@ def test_node_graph_holds_a_2_n_press_within_0_2_n(tmp_path):
     inside = (trace.t >= window[0]) & (trace.t <= window[1])
     metrics = trace_metrics([trace], window)
     print(f'\nnode-graph 2 N hold over t = {window[0]:g}..{window[1]:g} s of the sequence '
-          f'(simulated): e~ {metrics["e_tilde_mean"]:.3f} N (F/T zeroed before the press), '
-          f'e_track {metrics["e_track_mean"]:.3f} N, mean f~ '
+          f'(simulated): e~ {metrics["e_tilde_mean"]} N (F/T zeroed before the press), '
+          f'e_track {metrics["e_track_mean"]} N (None: no fresh estimate), mean f~ '
           f'{np.round(trace.f_tilde[inside].mean(axis=0), 3)} N, estimate fresh on '
-          f'{metrics["estimate_coverage"]:.1%} of the ticks')
+          f'{metrics["estimate_coverage"]:.1%} of the ticks; controller modes: '
+          f'{sorted({s.mode for s in states})}')
     assert metrics['samples'] >= 0.9 * (window[1] - window[0]) * 100
     assert np.allclose(trace.f_d[inside], [0.0, 0.0, -TARGET_N])
     # The loop runs closed on a fresh estimate, but for a rare watchdog trip of a starved

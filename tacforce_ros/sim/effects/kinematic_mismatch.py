@@ -15,8 +15,8 @@ from tacforce_ros.sim.effects import Effect
 @dataclass
 class KinematicMismatch(Effect):
     name = 'kinematic_mismatch'
-    # uSkin fingertip adds a few millimetres over the 14 mm Allegro tip radius (our estimate);
-    # link length tolerance +/- 0.5 mm rms.
+    # The mounted uSkin tip (elastomer, cover, tape) is a few millimetres thicker than the
+    # 13.5 mm tip sphere of the controller's URDF (our estimate); link tolerance 0.5 mm rms.
     tip_thickness: float = 0.004   # m, added to the fingertip contact radius
     link_sigma: float = 0.0005     # m, per link origin
 

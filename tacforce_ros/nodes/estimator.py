@@ -34,11 +34,15 @@ import sys
 
 import numpy as np
 from geometry_msgs.msg import Point, WrenchStamped
-from rclpy.event_handler import PublisherEventCallbacks
 from rclpy.executors import Executor, SingleThreadedExecutor
 from std_srvs.srv import Trigger
 from tacforce_msgs.msg import ForceEstimateArray, TactileHand
 from visualization_msgs.msg import Marker, MarkerArray
+
+try:        # Iron and later
+    from rclpy.event_handler import PublisherEventCallbacks
+except ImportError:     # Humble
+    from rclpy.qos_event import PublisherEventCallbacks
 
 from tacforce_ros.bagio import TOPIC_TACTILE
 from tacforce_ros.hand.description import HandConfigError, load_hand

@@ -31,6 +31,9 @@ TOPIC_JOINTS = '/joint_states'
 TOPIC_SAMPLE = '/calibration/sample'
 TOPIC_SESSION = '/session/metadata'
 TOPIC_SIM_CONTACT = '/sim/contact_force'
+# Closed-loop sessions also carry the command and the controller's ticks.
+TOPIC_DESIRED = '/force_controller/desired'
+TOPIC_CONTROLLER_STATE = '/force_controller/state'
 
 TOPIC_TYPES = {
     TOPIC_TACTILE: 'tacforce_msgs/msg/TactileHand',

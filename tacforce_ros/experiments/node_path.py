@@ -44,8 +44,6 @@ START_MARGIN_S = 40.0          # wall seconds for the nodes to start and the rec
 CLOSED_LOOP_REAL_TIME_FACTOR = 0.5
 TACTILE_PERIOD_S = 0.01        # the estimator's tare counts 100 Hz tactile frames
 MIN_ZERO_SAMPLES = 10          # F/T readings (1 kHz) averaged at least to zero the sensor
-TOPIC_STATE = '/force_controller/state'
-TOPIC_DESIRED = '/force_controller/desired'
 
 
 class NodePathUnavailable(RuntimeError):
@@ -154,10 +152,10 @@ def node_trace(bag: Path, sequence, tare_frames: int) -> tuple[ClosedLoopTrace, 
     """
     from tacforce_ros import bagio
     states, desired, wrench = [], [], []
-    for topic, _, msg in bagio.read_messages(bag, [TOPIC_STATE, TOPIC_DESIRED,
-                                                   bagio.TOPIC_WRENCH]):
+    for topic, _, msg in bagio.read_messages(bag, [bagio.TOPIC_CONTROLLER_STATE,
+                                                   bagio.TOPIC_DESIRED, bagio.TOPIC_WRENCH]):
         t = _seconds(msg.header.stamp)
-        if topic == TOPIC_DESIRED:
+        if topic == bagio.TOPIC_DESIRED:
             desired.append(t)
         elif topic == bagio.TOPIC_WRENCH:
             f = msg.wrench.force

@@ -33,7 +33,7 @@ from geometry_msgs.msg import Vector3Stamped
 from sensor_msgs.msg import JointState
 from tacforce_msgs.msg import ControllerState, ForceEstimateArray
 
-from tacforce_ros.bagio import TOPIC_JOINTS
+from tacforce_ros.bagio import TOPIC_CONTROLLER_STATE, TOPIC_DESIRED, TOPIC_JOINTS
 from tacforce_ros.control.force_controller import (MODE_HOLD, ControllerConfigError,
                                                    ForceController, ForceControllerConfig)
 from tacforce_ros.devices.allegro import (N_JOINTS, AllegroConfig, AllegroError, AllegroV4Driver,
@@ -45,8 +45,6 @@ from tacforce_ros.nodes.common import (ParameterError, ParamSpec, TacforceNode, 
 from tacforce_ros.nodes.link_status import STATUS_PARAMETERS, LinkStatusReporter
 from tacforce_ros.nodes.messages import stamp, stamp_ns, vector3
 
-TOPIC_DESIRED = '/force_controller/desired'
-TOPIC_STATE = '/force_controller/state'
 TOPIC_ESTIMATES = '/tactile/estimates'
 CONTROLLER_GROUP = 'force_controller'
 # The Allegro's joint stream: one FINGER_POSE cycle every 3 ms.
@@ -173,8 +171,8 @@ class AllegroDriver(TacforceNode):
                                      subscriber_qos(TOPIC_DESIRED))
             self.create_subscription(ForceEstimateArray, TOPIC_ESTIMATES, self._on_estimates,
                                      subscriber_qos(TOPIC_ESTIMATES))
-            self.state_publisher = self.create_publisher(ControllerState, TOPIC_STATE,
-                                                         publisher_qos(TOPIC_STATE))
+            self.state_publisher = self.create_publisher(ControllerState, TOPIC_CONTROLLER_STATE,
+                                                         publisher_qos(TOPIC_CONTROLLER_STATE))
             self.create_timer(1.0 / p['control_rate_hz'], self._control)
         self.driver.start()
         info = self.driver.hand_info

@@ -14,11 +14,11 @@ import sys
 from geometry_msgs.msg import Vector3Stamped
 from std_srvs.srv import Trigger
 
+from tacforce_ros.bagio import TOPIC_DESIRED
 from tacforce_ros.control.command_sequence import ForceSequence, SequenceError
 from tacforce_ros.nodes.common import (ParameterError, ParamSpec, TacforceNode, publisher_qos,
                                       run_node)
 
-TOPIC_DESIRED = '/force_controller/desired'
 
 
 class CommandPlayer(TacforceNode):

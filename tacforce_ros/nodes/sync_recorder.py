@@ -29,8 +29,8 @@ from std_srvs.srv import Trigger
 from tacforce_msgs.msg import CalibrationSample, ControllerState, TactileHand
 from tacforce_msgs.srv import StartRecording
 
-from tacforce_ros.bagio import (TOPIC_JOINTS, TOPIC_SAMPLE, TOPIC_SIM_CONTACT, TOPIC_TACTILE,
-                                TOPIC_TYPES, TOPIC_WRENCH, BagError, CalibrationBagWriter,
+from tacforce_ros.bagio import (TOPIC_CONTROLLER_STATE, TOPIC_DESIRED, TOPIC_JOINTS,
+                                TOPIC_SAMPLE, TOPIC_SIM_CONTACT, TOPIC_TACTILE, TOPIC_TYPES, TOPIC_WRENCH, BagError, CalibrationBagWriter,
                                 calibration_sample, session_metadata, typestore)
 from tacforce_ros.hand.description import HandConfigError, load_hand
 from tacforce_ros.nodes.common import (ParameterError, ParamSpec, TacforceNode, publisher_qos,
@@ -38,8 +38,6 @@ from tacforce_ros.nodes.common import (ParameterError, ParamSpec, TacforceNode, 
 from tacforce_ros.recording.synchroniser import ApproximateTimeSynchroniser
 
 INPUTS = (TOPIC_TACTILE, TOPIC_WRENCH, TOPIC_JOINTS)   # synchroniser input order
-TOPIC_DESIRED = '/force_controller/desired'
-TOPIC_CONTROLLER_STATE = '/force_controller/state'
 # Written as received, outside the samples: present only when the graph publishes them.
 PASSTHROUGH = {TOPIC_DESIRED: (Vector3Stamped, 'geometry_msgs/msg/Vector3Stamped'),
                TOPIC_CONTROLLER_STATE: (ControllerState, 'tacforce_msgs/msg/ControllerState'),

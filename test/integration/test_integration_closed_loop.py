@@ -20,6 +20,7 @@ import rclpy
 import yaml
 from tacforce_msgs.msg import ControllerState
 
+from tacforce_ros.bagio import TOPIC_CONTROLLER_STATE as TOPIC_STATE
 from tacforce_ros.control.command_sequence import ForceSequence
 from tacforce_ros.experiments.closed_loop import trace_metrics
 from tacforce_ros.experiments.node_path import node_trace
@@ -39,7 +40,6 @@ ZERO_S, RAMP_S, HOLD_S, WINDOW_S = 3.0, 1.0, 10.0, 5.0
 # A quarter of real time: the nine processes then keep their 100-333 Hz streams on two shared
 # cores (at 1x, and now and then at 0.5x, a starved process misses the 20 ms joint watchdog).
 REAL_TIME_FACTOR = 0.25
-TOPIC_STATE = '/force_controller/state'
 
 
 def press_sequence(path: Path) -> Path:

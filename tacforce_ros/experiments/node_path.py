@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from tacforce_ros.control.force_controller import MODE_HOLD
 from tacforce_ros.estimation.metrics import error_stats
 from tacforce_ros.experiments.closed_loop import METRIC_WINDOW, ClosedLoopTrace, trace_metrics
 
@@ -146,9 +147,10 @@ def node_trace(bag: Path, sequence, tare_frames: int) -> tuple[ClosedLoopTrace, 
 
     Everything comes from the bag as the graph saw it: the controller's ticks
     (/force_controller/state: f_d, and f_hat where the estimate was fresh, both in {F}) and the
-    F/T reading, zeroed on its `tare_frames` tactile periods before the first command while
-    the finger holds its start pose clear of the plate (the direct path zeroes it the same way
-    at the end of its hold).
+    F/T reading, zeroed on its `tare_frames` tactile periods before the controller engaged
+    (its first tick not in mode "hold"), while the finger still held its start pose clear of the
+    plate: the direct path zeroes it the same way at the end of its hold. (Not before the first
+    command: the player may start before the recorder has its first F/T reading.)
     """
     from tacforce_ros import bagio
     states, desired, wrench = [], [], []
@@ -162,18 +164,21 @@ def node_trace(bag: Path, sequence, tare_frames: int) -> tuple[ClosedLoopTrace, 
             wrench.append((t, f.x, f.y, f.z))
         else:
             fresh = msg.estimate_fresh
-            states.append((t, *_xyz(msg.desired_force),
+            states.append((t, msg.mode != MODE_HOLD, *_xyz(msg.desired_force),
                            *(_xyz(msg.estimated_force) if fresh else (np.nan,) * 3)))
     if not desired or len(states) < 2 or len(wrench) < 2:
         raise NodePathUnavailable(f'{bag}: {len(desired)} commands, {len(states)} controller '
                                   f'ticks, {len(wrench)} F/T samples: not a closed-loop run')
     start = min(desired)
     ticks = np.asarray(sorted(states), np.float64)
+    engaged_ticks = ticks[ticks[:, 1] > 0.0, 0]
+    engaged = engaged_ticks[0] if engaged_ticks.size else start
+    ticks = np.delete(ticks, 1, axis=1)
     ft = np.asarray(sorted(wrench), np.float64)
-    resting = (ft[:, 0] < start) & (ft[:, 0] >= start - tare_frames * TACTILE_PERIOD_S)
+    resting = (ft[:, 0] < engaged) & (ft[:, 0] >= engaged - tare_frames * TACTILE_PERIOD_S)
     if resting.sum() < MIN_ZERO_SAMPLES:
-        raise NodePathUnavailable(f'{bag}: {resting.sum()} F/T readings before the first '
-                                  f'command; {MIN_ZERO_SAMPLES} needed to zero it')
+        raise NodePathUnavailable(f'{bag}: {resting.sum()} F/T readings before the controller '
+                                  f'engaged; {MIN_ZERO_SAMPLES} needed to zero it')
     zero = ft[resting, 1:].mean(axis=0)
     t = ticks[:, 0] - start
     end = sequence.duration

@@ -1,6 +1,6 @@
 """A closed-loop bag as sync_recorder writes it, read back as a trace on the sequence's clock
 (tacforce_ros/experiments/node_path.py): the clock starts at the first recorded f_d, the F/T
-is zeroed on its readings before it, and f_hat is NaN where the controller had no fresh
+is zeroed on its readings before the controller engaged, and f_hat is NaN where the controller had no fresh
 estimate. Bags without what that needs are refused, saying why."""
 import numpy as np
 import pytest
@@ -69,7 +69,7 @@ def test_trace_starts_at_the_first_command_with_the_ft_zeroed_before_it(tmp_path
 
 
 @pytest.mark.parametrize('ft_from_ns, commands, words', [
-    (START_NS, True, 'F/T readings before the first command'),
+    (START_NS + 20 * MS, True, 'F/T readings before the controller engaged'),
     (START_NS - 1_000 * MS, False, 'not a closed-loop run')])
 def test_bags_without_what_the_trace_needs_are_refused(tmp_path, ft_from_ns, commands, words):
     write_bag(tmp_path / 'bag', ft_from_ns, commands)

@@ -15,7 +15,7 @@ import mujoco
 import numpy as np
 
 from tacforce_ros.hand.description import HandDescription
-from tacforce_ros.sim.contact import Contact
+from tacforce_ros.sim.contact import Contact, skin_surface
 from tacforce_ros.sim.effects import Pipeline
 from tacforce_ros.sim.operator import FINGER_JOINTS
 from tacforce_ros.sim.sample import SimSample, StepState
@@ -69,6 +69,8 @@ class ClosedLoopSimulator:
         self.pipeline = Pipeline.from_scene(scene.effects)
         self.sensor = TactileSensor(hand, scene.array, scene.plate, self.pipeline,
                                     1.0 / scene.tactile_rate, self.dt)
+        self._taxel_positions = self.sensor.array.positions
+        self._taxel_normals = self.sensor.array.rotations[:, :, 2]
         self.reset(seed)
 
     # ------------------------------------------------------------------ model
@@ -209,8 +211,11 @@ class ClosedLoopSimulator:
         rot_s0 = data.xmat[self.s0].reshape(3, 3)
         origin = data.xpos[self.s0]
         true_force = rot_s0.T @ -force
-        point_s0 = rot_s0.T @ (point - origin)
-        state.contact = Contact(true_force, point_s0, rot_s0.T @ -normal,
+        # The dynamics' tip sphere only approximates the skin: the sensor sees the contact where
+        # the skin is, with the skin's own normal; the force's tilt from it is shear there.
+        point_s0, skin_normal = skin_surface(self._taxel_positions, self._taxel_normals,
+                                             rot_s0.T @ (point - origin))
+        state.contact = Contact(true_force, point_s0, skin_normal,
                                 self.sensor.array.rotations[0][:, 0], active)
         state.q, state.qdot = data.qpos.copy(), data.qvel.copy()
         fresh = self.step_index % self.frame_every == 0

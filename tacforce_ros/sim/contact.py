@@ -22,6 +22,29 @@ FOUNDATION_STIFFNESS = 2000.0   # N/m per taxel
 SPREAD_SIGMA = 0.0025           # m
 
 
+# Width over which taxel normals are blended into the skin's surface normal at a point: about
+# the 4.7 mm taxel pitch (uSkin), so the normal turns smoothly from taxel to taxel.
+SURFACE_BLEND = 0.003   # m
+
+
+def skin_surface(positions: np.ndarray, normals: np.ndarray, point: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """(point on the skin, unit outward normal there), {S0}, for a point near the array.
+
+    The skin is described by its taxels only; near `point` it is the plane through the taxels'
+    blended centre with their blended normal, so a contact placed by the operator or by the
+    fingertip dynamics sits on the same surface, with the normal the sensor chain assumes.
+    """
+    weight = np.exp(-0.5 * np.sum((positions - point) ** 2, axis=1) / SURFACE_BLEND ** 2)
+    if weight.sum() < 1e-12:   # far from every taxel: the nearest one decides
+        weight = np.zeros(len(positions))
+        weight[np.argmin(np.sum((positions - point) ** 2, axis=1))] = 1.0
+    normal = weight @ normals
+    normal /= np.sqrt(normal @ normal)
+    anchor = weight @ positions / weight.sum()
+    return point - ((point - anchor) @ normal) * normal, normal
+
+
 @dataclass
 class Contact:
     """One contact on the array, all in {S0}: the force the array applies to the indenter."""

@@ -12,6 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from tacforce_ros.hand.description import TaxelArray
+from tacforce_ros.sim.contact import skin_surface
 
 FINGER_JOINTS = {'index': slice(0, 4), 'middle': slice(4, 8), 'ring': slice(8, 12),
                  'thumb': slice(12, 16)}
@@ -92,10 +93,8 @@ def draw_schedule(params: OperatorParams, array: TaxelArray, n_steps: int, dt: f
                                      + rng.uniform(0, 2 * np.pi))
         fn = rng.uniform(*params.normal_force) * envelope * wobble
         taxel = rng.choice(array.n_taxels, p=preference)
-        here = array.positions[taxel] + rng.normal(0.0, params.location_sigma, 3)
-        blend = np.exp(-0.5 * np.sum((array.positions - here) ** 2, axis=1) / 0.003 ** 2)
-        n = _unit(blend @ normals)
-        here = here - ((here - array.positions[taxel]) @ n) * n   # keep it on the surface
+        here, n = skin_surface(array.positions, normals,
+                               array.positions[taxel] + rng.normal(0.0, params.location_sigma, 3))
         e1 = _unit(np.cross(n, [1.0, 0.0, 0.0] if abs(n[0]) < 0.9 else [0.0, 1.0, 0.0]))
         e2 = np.cross(n, e1)
         turn = rng.uniform(0, 2 * np.pi) + rng.uniform(-1.0, 1.0) * tau   # direction sweeps

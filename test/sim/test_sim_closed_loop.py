@@ -10,6 +10,7 @@ from tacforce_ros.control.force_controller import ForceControllerConfig
 from tacforce_ros.hand.kinematics import HandKinematics
 from tacforce_ros.paths import config_dir
 from tacforce_ros.sim import load_scene, make_simulator
+from tacforce_ros.sim.contact import skin_surface
 from tacforce_ros.sim.effects import Pipeline
 from tacforce_ros.sim.effects.actuator_limits import FINGER_CLAMP, THUMB_CLAMP
 from tacforce_ros.sim.sample import StepState
@@ -139,3 +140,28 @@ def test_finger_starts_clear_and_the_rig_touches_the_simulated_tip_at_the_contac
     sim.data.qpos[sim.joints] = sim.contact_pose   # with every model error of this hand
     mujoco.mj_kinematics(sim.model, sim.data)
     assert depth() == pytest.approx(0.0, abs=1e-9)
+
+
+def test_the_tactile_chain_sees_the_contact_on_the_skin_with_the_skin_normal(hand):
+    # The dynamics' tip sphere (with the skin thickness and the contact offset) is not the
+    # taxels' surface; the tactile chain must get the contact where the skin is, as calibration
+    # sessions give it, or the estimator meets contacts it was never calibrated on.
+    sim = simulator(hand, 'closed_loop_spherical', seed=1)
+    seen = []
+    measure = sim.sensor.measure
+
+    def record(state):
+        seen.append(state.contact)
+        measure(state)
+
+    sim.sensor.measure = record
+    open_loop(sim, 0.5, exact)
+    pressed = [c for c in seen if c.active]
+    assert len(pressed) > 20
+    normals = sim.sensor.array.rotations[:, :, 2]
+    for contact in pressed:
+        point, normal = skin_surface(sim.sensor.array.positions, normals, contact.point)
+        assert np.linalg.norm(point - contact.point) < 2e-4
+        assert np.allclose(normal, contact.normal, atol=0.01)   # the sphere's was ~0.2 off
+        # The force is what the dynamics give: pressing into the skin, with its own tilt.
+        assert contact.force @ contact.normal > 0.0

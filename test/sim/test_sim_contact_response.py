@@ -3,7 +3,7 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from tacforce_ros.sim.contact import Contact, PressureModel
+from tacforce_ros.sim.contact import Contact, PressureModel, skin_surface
 from tacforce_ros.sim.scene import Plate
 from tacforce_ros.sim.taxel_response import (ResponseParams, counts_from_loads, taxel_loads,
                                              to_uint16)
@@ -16,6 +16,37 @@ def contact_on(array, taxel, normal_force, shear=(0.0, 0.0)):
     rotation = array.rotations[taxel]
     force = normal_force * rotation[:, 2] + shear[0] * rotation[:, 0] + shear[1] * rotation[:, 1]
     return Contact(force, array.positions[taxel], rotation[:, 2], rotation[:, 0], True)
+
+
+@settings(max_examples=80, deadline=None)
+@given(taxel=st.integers(0, 29), height=st.floats(-0.005, 0.005),
+       tangent=st.tuples(st.floats(-0.002, 0.002), st.floats(-0.002, 0.002)),
+       array_name=st.sampled_from(['index_tip', 'index_middle', 'palm_center']))
+def test_skin_surface_puts_a_point_on_the_skin_with_the_skin_normal(hand, taxel, height, tangent,
+                                                                    array_name):
+    array = hand.array(array_name)
+    taxel %= array.n_taxels
+    normals = array.rotations[:, :, 2]
+    rotation = array.rotations[taxel]
+    near = (array.positions[taxel] + height * rotation[:, 2] + tangent[0] * rotation[:, 0]
+            + tangent[1] * rotation[:, 1])
+    point, normal = skin_surface(array.positions, normals, near)
+    assert np.isclose(normal @ normal, 1.0)
+    assert normal @ rotation[:, 2] > 0.9   # the normal of the skin there, not of elsewhere
+    # Only the height above the skin is removed: the point moves along the normal.
+    moved = near - point
+    assert np.linalg.norm(moved - (moved @ normal) * normal) < 1e-12
+    assert np.linalg.norm(moved) <= abs(height) + 0.001
+    if np.allclose(normals, normals[0]):   # a flat array: exact
+        assert np.allclose(point, near - height * rotation[:, 2], atol=1e-12)
+
+
+def test_skin_surface_far_from_every_taxel_uses_the_nearest(hand):
+    array = hand.array('index_tip')
+    far = array.positions[3] + 1.0 * array.rotations[3][:, 2]
+    point, normal = skin_surface(array.positions, array.rotations[:, :, 2], far)
+    assert np.allclose(normal, array.rotations[3][:, 2])
+    assert np.allclose(point, array.positions[3])
 
 
 @settings(max_examples=60, deadline=None)

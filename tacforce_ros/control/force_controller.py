@@ -83,7 +83,7 @@ class ForceControllerConfig:
     k_i: tuple[float, ...] = (2.0, 2.0, 2.0)            # 1/s, diagonal; all zero = open loop
     k_p: tuple[float, ...] = (0.25, 0.5, 0.12, 0.03)          # Nm/rad, diagonal
     k_d: tuple[float, ...] = (0.012, 0.025, 0.006, 0.0015)    # Nm s/rad, diagonal
-    q_d: tuple[float, ...] = (0.0, 0.7, 0.7, 0.7)             # rad, finger's position target
+    q_d: tuple[float, ...] = (0.0, 0.8, 0.8, 0.8)             # rad, finger's position target
     torque_cap: float = 0.35                # Nm, paper: above it the actuators throttle
     integral_rate_limit: float = 1.0        # N: |e_f| per axis clipped to this before integrating
     integral_limit: float = 2.0             # N s per axis

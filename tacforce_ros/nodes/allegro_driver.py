@@ -40,8 +40,8 @@ from tacforce_ros.devices.allegro import (N_JOINTS, AllegroConfig, AllegroError,
                                           JointSample)
 from tacforce_ros.hand.description import HandConfigError, load_hand
 from tacforce_ros.hand.kinematics import HandKinematics
-from tacforce_ros.nodes.common import (ParameterError, ParamSpec, TacforceNode, publisher_qos,
-                                       run_node, subscriber_qos)
+from tacforce_ros.nodes.common import (REALTIME_PRIORITY, ParameterError, ParamSpec,
+                                       TacforceNode, publisher_qos, run_node, subscriber_qos)
 from tacforce_ros.nodes.link_status import STATUS_PARAMETERS, LinkStatusReporter
 from tacforce_ros.nodes.messages import stamp, stamp_ns, vector3
 
@@ -132,7 +132,7 @@ class AllegroDriver(TacforceNode):
                   range=(0.0, 1.0)),
         ParamSpec('clock_timeout', 30.0, 'use_sim_time: longest wait for the first /clock '
                   'before the hand is opened (s, wall)', range=(0.1, 600.0)),
-    ) + STATUS_PARAMETERS + _controller_parameters()
+    ) + STATUS_PARAMETERS + (REALTIME_PRIORITY,) + _controller_parameters()
 
     def __init__(self) -> None:
         super().__init__()

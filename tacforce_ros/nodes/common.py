@@ -20,12 +20,19 @@ QoS (one table, `TOPIC_QOS`, decides per topic; `publisher_qos()` / `subscriber_
 Time. Nodes stamp and time everything with their own clock (`now_ns()`, `create_timer`), which
 follows /clock when `use_sim_time` is true (declared by rclpy itself); never time.time().
 
+Scheduling. Nodes on the 100 Hz path (estimator, allegro_driver) offer `realtime_priority`:
+above 0 every thread of the process (rclpy's and the DDS layer's) runs SCHED_FIFO at that
+priority, as ros2_control's real-time threads do, so a frame is not kept waiting behind
+ordinary processes; without the right (CAP_SYS_NICE or an rtprio limit) the node says so and runs
+normally. 0 (the default) leaves the normal scheduler.
+
 Distros. Uses only API present in Humble, Jazzy and Kilted; `SignalHandlerOptions` (Humble+) is
 imported defensively.
 """
 from __future__ import annotations
 
 import argparse
+import os
 import signal
 import sys
 import threading
@@ -150,6 +157,25 @@ class ParamSpec:
         return out if items is not None else out[0]
 
 
+REALTIME_PRIORITY = ParamSpec(
+    'realtime_priority', 0, 'SCHED_FIFO priority (1-98) of all of this process\'s threads; '
+    '0 = the normal scheduler. Needs CAP_SYS_NICE or an rtprio limit, else a warning',
+    range=(0, 98))
+
+
+def use_realtime_scheduling(priority: int) -> None:
+    """SCHED_FIFO at `priority` for every thread of this process (threads started later by them
+    inherit it). OSError when the system refuses (no right, or not Linux)."""
+    if not hasattr(os, 'sched_setscheduler'):
+        raise OSError('SCHED_FIFO needs Linux')
+    param = os.sched_param(priority)
+    for tid in os.listdir('/proc/self/task'):
+        try:
+            os.sched_setscheduler(int(tid), os.SCHED_FIFO, param)
+        except ProcessLookupError:   # a thread that ended meanwhile
+            continue
+
+
 class TacforceNode(Node):
     """Node base: declares and checks `PARAMETERS`, offers `now_ns()` and `on_shutdown()`.
 
@@ -167,6 +193,14 @@ class TacforceNode(Node):
         self._specs = {spec.name: spec for spec in self.PARAMETERS}
         self.params = self._declare_checked()
         self.add_on_set_parameters_callback(self._check_change)
+        priority = self.params.get(REALTIME_PRIORITY.name, 0)
+        if priority > 0:
+            try:
+                use_realtime_scheduling(priority)
+                self.get_logger().info(f'threads run SCHED_FIFO at priority {priority}')
+            except OSError as exc:
+                self.get_logger().warning(f'realtime_priority {priority} not applied ({exc}); '
+                                          'running on the normal scheduler')
 
     def _declare_checked(self) -> dict[str, Any]:
         # rclpy offers no public read of command-line / file overrides before declaring; this

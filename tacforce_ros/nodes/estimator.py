@@ -46,8 +46,9 @@ except ImportError:     # Humble
 
 from tacforce_ros.bagio import TOPIC_TACTILE
 from tacforce_ros.hand.description import HandConfigError, load_hand
-from tacforce_ros.nodes.common import (RELIABLE_QOS, ParameterError, ParamSpec, TacforceNode,
-                                       publisher_qos, run_node, subscriber_qos)
+from tacforce_ros.nodes.common import (REALTIME_PRIORITY, RELIABLE_QOS, ParameterError,
+                                       ParamSpec, TacforceNode, publisher_qos, run_node,
+                                       subscriber_qos)
 from tacforce_ros.nodes.messages import (SerializedMessages, TactileHandDecoder, stamp,
                                          serialized_estimates, serialized_wrenches)
 from tacforce_ros.nodes.model_set import ModelConfigError, load_model_set
@@ -85,6 +86,7 @@ class Estimator(TacforceNode):
         ParamSpec('tare_frames', 50, 'frames averaged by ~/tare', range=(1, 10000)),
         ParamSpec('tare_at_start', True, 'tare on the first tare_frames frames (the arrays '
                   'must be untouched at start-up); false keeps the model files\' offsets'),
+        REALTIME_PRIORITY,
     )
 
     def __init__(self) -> None:

@@ -1,8 +1,10 @@
 """bench_ros: the ROS layer's speed over real DDS, as JSON (--out) plus a table.
 
 1. latency: tactile frame in -> all 18 WrenchStamped out through the estimator node (a model on
-   every array), at 100 Hz: median and p99 of (reception of the frame's last wrench - the
-   frame's stamp), split into the estimator's part (its first and last wrench publish times);
+   every array), at 100 Hz for --latency-seconds: median and p99 of (reception of the frame's
+   last wrench - the frame's stamp), split into the estimator's part (its first and last wrench
+   publish times); once on the normal scheduler and once with the estimator's
+   realtime_priority parameter (SCHED_FIFO, --realtime-priority; skipped when 0 or refused);
 2. sustained input: frames published at each --rates value for --seconds; ForceEstimateArray
    messages received vs frames sent (drops), and the rate achieved;
 3. controller loop: allegro_driver (force control) against sim_world's hand emulator, periods
@@ -92,7 +94,7 @@ class Probe:
 
 
 def bench_estimator(probe: Probe, hand, rates: list[float], seconds: float, pid: int,
-                    wrench_reliable: bool) -> dict:
+                    wrench_reliable: bool, latency_seconds: float) -> dict:
     """`pid`: the estimator's process, whose CPU time per frame is reported too;
     `wrench_reliable`: the probe reads the 18 wrench topics reliably (else best-effort, as the
     project's sensor-data subscribers do)."""
@@ -105,7 +107,7 @@ def bench_estimator(probe: Probe, hand, rates: list[float], seconds: float, pid:
     node = probe.node
     publisher = node.create_publisher(TactileHand, '/tactile/raw', publisher_qos('/tactile/raw'))
     n_arrays = len(hand.arrays)
-    depth = int(max(rates + [100.0]) * seconds) + 100
+    depth = int(max(rates + [100.0]) * max(seconds, latency_seconds)) + 100
     # frame stamp -> [(reception, source) ns of each wrench]; estimate stamps as received
     wrenches: dict[int, list[tuple[int, int]]] = {}
     estimates: list[int] = []
@@ -159,7 +161,7 @@ def bench_estimator(probe: Probe, hand, rates: list[float], seconds: float, pid:
     wrenches.clear()
     estimates.clear()
     cpu = _cpu_seconds(pid)
-    sent = send(int(100.0 * seconds), 100.0)
+    sent = send(int(100.0 * latency_seconds), 100.0)
     cpu = _cpu_seconds(pid) - cpu
     probe.spin_for(1.0)
     complete = [(s, wrenches[s]) for s in sent if len(wrenches.get(s, ())) == n_arrays]
@@ -215,13 +217,17 @@ def bench_controller(probe: Probe, rate: float, seconds: float) -> dict:
 
 def table(result: dict) -> str:
     lines = ['| measurement | value | target |', '|---|---|---|']
-    if 'estimator' in result:
-        lat = result['estimator']['latency']
+    for key in ('estimator', 'estimator_realtime'):
+        if key not in result:
+            continue
+        lat = result[key]['latency']
         first, span = lat['to_first_publish'], lat['publish_span']
+        prio = result[key]['realtime_priority']
+        how = f'SCHED_FIFO {prio}' if prio else 'normal scheduler'
         lines += [
-            f"| tactile -> 18 wrenches latency, median (100 Hz, {lat['complete']}/"
+            f"| tactile -> 18 wrenches latency, {how}, median (100 Hz, {lat['complete']}/"
             f"{lat['frames']} frames complete) | {lat['median_ms']:.2f} ms | |",
-            f"| tactile -> 18 wrenches latency, p99 (max) | {lat['p99_ms']:.2f} ms "
+            f"| tactile -> 18 wrenches latency, {how}, p99 (max) | {lat['p99_ms']:.2f} ms "
             f"({lat['max_ms']:.2f} ms) | <= {LATENCY_TARGET_P99_MS:g} ms |",
             f"| of which frame -> first wrench sent, median / p99 | {first['median_ms']:.2f} / "
             f"{first['p99_ms']:.2f} ms | |",
@@ -229,9 +235,9 @@ def table(result: dict) -> str:
             f"{span['p99_ms']:.2f} ms | |",
             f"| estimator CPU time per frame at 100 Hz (all its threads) | "
             f"{lat['cpu_ms_per_frame']:.2f} ms | well under 1 ms |"]
-        for s in result['estimator']['sustained']:
-            lines.append(f"| input {s['rate_hz']:g} Hz (sent at {s['achieved_send_hz']:.0f} Hz):"
-                         f" drops (CPU per frame) | {s['drops']} of {s['frames']} "
+        for s in result[key]['sustained']:
+            lines.append(f"| input {s['rate_hz']:g} Hz (sent at {s['achieved_send_hz']:.0f} Hz),"
+                         f" {how}: drops (CPU per frame) | {s['drops']} of {s['frames']} "
                          f"({s['cpu_ms_per_frame']:.2f} ms) | 0 at >= {RATE_TARGET_HZ:g} Hz |")
     for c in result.get('controller', []):
         lines.append(f"| controller {c['rate_hz']:g} Hz: mean period / jitter p99 | "
@@ -242,16 +248,19 @@ def table(result: dict) -> str:
     return '\n'.join(lines)
 
 
-def run_estimator(probe: Probe, hand, args: argparse.Namespace, env: dict, tmp: Path) -> dict:
+def run_estimator(probe: Probe, hand, args: argparse.Namespace, env: dict, tmp: Path,
+                  priority: int) -> dict:
     models = write_synthetic_model_set(tmp / 'models', hand)
     procs = start_nodes([NodeLaunch('estimator', (params_file('estimator'),), {
-        'model_config': str(models), 'tare_at_start': False, 'marker_rate_hz': 0.0})],
-        tmp / 'logs', 30.0, env)
+        'model_config': str(models), 'tare_at_start': False, 'marker_rate_hz': 0.0,
+        'realtime_priority': priority})], tmp / 'logs', 30.0, env)
     measured = False
     try:
         result = bench_estimator(probe, hand, args.rates, args.seconds, procs[0][1].pid,
-                                 args.reliable_wrenches)
+                                 args.reliable_wrenches, args.latency_seconds)
         measured = True
+        log = (tmp / 'logs' / 'estimator.log').read_text()
+        result['realtime_priority'] = priority if 'SCHED_FIFO at priority' in log else 0
         return result
     finally:
         codes = stop_nodes(procs, grace=10.0)
@@ -284,6 +293,10 @@ def main(argv: list[str] | None = None) -> None:
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument('--out', type=Path, default=None, help='JSON result file')
     parser.add_argument('--seconds', type=float, default=3.0, help='per measurement')
+    parser.add_argument('--latency-seconds', type=float, default=20.0,
+                        help='length of the latency test at 100 Hz (p99 of 100 frames a second)')
+    parser.add_argument('--realtime-priority', type=int, default=50,
+                        help='estimator realtime_priority of the second latency run; 0 = none')
     parser.add_argument('--rates', type=float, nargs='+', default=[200.0, 500.0, 1000.0],
                         help='input rates of the sustained-rate test (Hz)')
     parser.add_argument('--parts', nargs='+', default=['estimator', 'controller'],
@@ -296,8 +309,10 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument('--ports', type=int, nargs=3, default=[25101, 25102, 25103],
                         help='emulator ports on 127.0.0.1 for the controller test')
     args = parser.parse_args(argv)
-    if args.seconds <= 0 or any(r <= 0 for r in args.rates):
-        parser.error('--seconds and --rates must be positive')
+    if args.seconds <= 0 or args.latency_seconds <= 0 or any(r <= 0 for r in args.rates):
+        parser.error('--seconds, --latency-seconds and --rates must be positive')
+    if not 0 <= args.realtime_priority <= 98:
+        parser.error('--realtime-priority must be 0..98')
     os.environ['ROS_DOMAIN_ID'] = str(args.domain)
     os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
     env = dict(os.environ)
@@ -309,7 +324,14 @@ def main(argv: list[str] | None = None) -> None:
     try:
         with tempfile.TemporaryDirectory() as tmp:
             if 'estimator' in args.parts:
-                result['estimator'] = run_estimator(probe, hand, args, env, Path(tmp))
+                result['estimator'] = run_estimator(probe, hand, args, env, Path(tmp), 0)
+                if args.realtime_priority > 0:
+                    realtime = run_estimator(probe, hand, args, env, Path(tmp),
+                                             args.realtime_priority)
+                    if realtime['realtime_priority'] > 0:
+                        result['estimator_realtime'] = realtime
+                    else:
+                        print('realtime_priority refused on this machine: normal scheduler only')
             if 'controller' in args.parts:
                 result['controller'] = run_controller(probe, args, env, Path(tmp))
     finally:

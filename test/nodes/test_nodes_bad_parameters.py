@@ -16,6 +16,7 @@ DOMAIN = unique_domain_id(offset=61)
 CASES = [
     ('estimator', ['stale_timeout:=-1.0'], 'stale_timeout: -1.0 is outside'),
     ('estimator', ['model_config:=/nonexistent/models.yaml'], 'model_config: /nonexistent'),
+    ('estimator', ['realtime_priority:=99'], 'realtime_priority: 99 is outside'),
     ('allegro_driver', ['control_rate_hz:=500.0'], 'control_rate_hz: 500.0 is outside'),
     ('allegro_driver', ['force_controller.k_i:=[1.0, 2.0]'], 'k_i: expected 3 finite numbers'),
     ('allegro_driver', ["control:='torque'"], "control: 'torque' is not one of"),

@@ -165,13 +165,15 @@ REALTIME_PRIORITY = ParamSpec(
 
 def use_realtime_scheduling(priority: int) -> None:
     """SCHED_FIFO at `priority` for every thread of this process (threads started later by them
-    inherit it). OSError when the system refuses (no right, or not Linux)."""
+    inherit it); 0 returns them to the normal scheduler. OSError when the system refuses (no
+    right, or not Linux)."""
     if not hasattr(os, 'sched_setscheduler'):
         raise OSError('SCHED_FIFO needs Linux')
+    policy = os.SCHED_FIFO if priority > 0 else os.SCHED_OTHER
     param = os.sched_param(priority)
     for tid in os.listdir('/proc/self/task'):
         try:
-            os.sched_setscheduler(int(tid), os.SCHED_FIFO, param)
+            os.sched_setscheduler(int(tid), policy, param)
         except ProcessLookupError:   # a thread that ended meanwhile
             continue
 

@@ -32,11 +32,10 @@ AGREEMENT_REASON = (
     'loop: same scene, seed, model, gains and sequence, but the graph\'s loop acts on samples '
     '2-10 ms older than the direct path\'s (joint stream, TCP, DDS), tares on its first frames '
     'rather than the last of a 2 s hold, and starts when the command player does; the tip then '
-    'meets the plate a little differently, and the shear the stuck contact keeps (which the '
-    'estimate partly misses) follows that history. On a 2 N hold (e~ over its last 5 s) node '
-    'runs came within 0.02-0.09 N of the direct run of the same seed, and the direct path\'s '
-    'own spread over seeds 0-3 was up to 0.11 N (two default models, measured while this was '
-    'written): hence 0.08 N on e~. Both loops hold their own estimate to ~0.02 N there: '
+    'meets the plate a little differently. Measured on the same seed: node runs came within '
+    '0.02-0.09 N of the direct run while the in-loop estimate still missed shear (code '
+    '97c6695), 0.015 N once the tactile chain saw the contact on the skin (code 3f59c9e): '
+    '0.08 N on e~ keeps the wider bound. Both loops hold their own estimate to ~0.02 N: '
     '0.03 N on e_track.')
 CALIBRATION_SECONDS = 40.0     # wall seconds of the node-graph calibration session
 START_MARGIN_S = 40.0          # wall seconds for the nodes to start and the recorder to open

@@ -41,7 +41,9 @@ def tracking(traces: dict[str, list[ClosedLoopTrace]], title: str, path: Path) -
             ax.grid(True, alpha=0.3)
     for ax in axes[-1]:
         ax.set_xlabel('t [s]')
-    axes[0][0].legend(fontsize=7)
+    # The legend goes where every line is drawn (the open-loop row has no estimate).
+    fullest = max((row[0] for row in axes), key=lambda ax: len(ax.get_lines()))
+    fullest.legend(fontsize=7)
     fig.suptitle(f'{SIM_LABEL}: {title} (mean and std band over {len(runs)} runs)')
     return _save(fig, path)
 

@@ -267,8 +267,10 @@ def run_estimator(probe: Probe, hand, args: argparse.Namespace, env: dict, tmp: 
         result = bench_estimator(probe, hand, args.rates, args.seconds, procs[0][1].pid,
                                  args.reliable_wrenches, args.latency_seconds)
         measured = True
-        log = (tmp / 'logs' / 'estimator.log').read_text()
-        result['realtime_priority'] = priority if 'SCHED_FIFO at priority' in log else 0
+        # What the estimator process runs at, read from the system (it may have been refused).
+        pid = procs[0][1].pid
+        result['realtime_priority'] = (os.sched_getparam(pid).sched_priority
+                                       if os.sched_getscheduler(pid) == os.SCHED_FIFO else 0)
         return result
     finally:
         codes = stop_nodes(procs, grace=10.0)
@@ -335,19 +337,19 @@ def main(argv: list[str] | None = None) -> None:
                 result['estimator'] = run_estimator(probe, hand, args, env, Path(tmp), 0)
                 if args.realtime_priority > 0:
                     from tacforce_ros.nodes.common import use_realtime_scheduling
+                    realtime = None
                     try:
                         use_realtime_scheduling(args.realtime_priority)
                         realtime = run_estimator(probe, hand, args, env, Path(tmp),
                                                  args.realtime_priority)
                     except OSError as exc:
-                        realtime = {'realtime_priority': 0}
-                        print(f'SCHED_FIFO refused ({exc})')
+                        print(f'SCHED_FIFO refused ({exc}): normal scheduler only')
                     finally:
                         use_realtime_scheduling(0)
-                    if realtime['realtime_priority'] > 0:
+                    if realtime is not None and realtime['realtime_priority'] > 0:
                         result['estimator_realtime'] = realtime
-                    else:
-                        print('realtime_priority refused on this machine: normal scheduler only')
+                    elif realtime is not None:
+                        print('the estimator ran without SCHED_FIFO: normal scheduler only')
             if 'controller' in args.parts:
                 result['controller'] = run_controller(probe, args, env, Path(tmp))
     finally:

@@ -4,8 +4,15 @@ import os
 import subprocess
 import sys
 import textwrap
+import time
+from pathlib import Path
 
 import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from ros_processes import executable, start, stop, unique_domain_id  # noqa: E402
+
+DOMAIN = unique_domain_id(offset=67)
 
 # A process with rclpy initialised (its DDS threads exist) and one thread of its own.
 CHILD = textwrap.dedent('''
@@ -43,3 +50,33 @@ def test_every_thread_of_the_process_runs_fifo_at_the_priority():
         pytest.skip(f'this machine refuses SCHED_FIFO: {" ".join(out[1:])}')
     assert out[0] == 'threads' and int(out[1]) >= 3   # main, ours, and the DDS layer's
     assert out[2:] == ['True', 'True', 'True']
+
+
+def _fifo_allowed() -> bool:
+    probe = [sys.executable, '-c',
+             'import os; os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(1))']
+    return subprocess.run(probe, capture_output=True, timeout=30).returncode == 0
+
+
+@pytest.mark.ros
+@pytest.mark.skipif(not sys.platform.startswith('linux'), reason='SCHED_FIFO is Linux')
+def test_the_estimator_node_applies_its_realtime_priority():
+    if not _fifo_allowed():
+        pytest.skip('this machine refuses SCHED_FIFO')
+    proc = start([executable('estimator'), '--ros-args', '-p', 'realtime_priority:=5'], DOMAIN)
+    try:
+        deadline, policies = time.monotonic() + 30.0, set()
+        while time.monotonic() < deadline and proc.poll() is None:
+            tasks = os.listdir(f'/proc/{proc.pid}/task')
+            try:
+                policies = {(os.sched_getscheduler(int(t)),
+                             os.sched_getparam(int(t)).sched_priority) for t in tasks}
+            except ProcessLookupError:
+                continue
+            if policies == {(os.SCHED_FIFO, 5)} and len(tasks) >= 3:
+                break
+            time.sleep(0.2)
+    finally:
+        output = stop(proc)
+    assert policies == {(os.SCHED_FIFO, 5)}, output[-800:]
+    assert 'threads run SCHED_FIFO at priority 5' in output

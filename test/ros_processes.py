@@ -39,8 +39,8 @@ def start(args: list[str], domain_id: int, **kwargs) -> subprocess.Popen:
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, **kwargs)
 
 
-def stop(proc: subprocess.Popen, timeout: float = 10.0) -> str:
-    """SIGINT, then kill if needed; returns what the process printed."""
+def end(proc: subprocess.Popen, timeout: float = 10.0) -> None:
+    """SIGINT, then kill if needed."""
     if proc.poll() is None:
         proc.send_signal(2)
         try:
@@ -48,6 +48,11 @@ def stop(proc: subprocess.Popen, timeout: float = 10.0) -> str:
         except subprocess.TimeoutExpired:
             proc.kill()
             proc.wait(timeout=timeout)
+
+
+def stop(proc: subprocess.Popen, timeout: float = 10.0) -> str:
+    """SIGINT, then kill if needed; returns what the process printed."""
+    end(proc, timeout)
     return proc.stdout.read() if proc.stdout else ''
 
 
@@ -87,3 +92,36 @@ def rclpy_node(name: str, domain_id: int):
     finally:
         node.destroy_node()
         rclpy.shutdown()
+
+
+class OutputLines:
+    """Reads a started process's output in a thread, so a test can wait for a line while the
+    process runs; `stop()` ends the process and returns everything it printed."""
+
+    def __init__(self, proc: subprocess.Popen) -> None:
+        import threading
+        self.proc = proc
+        self.lines: list[tuple[float, str]] = []     # (monotonic time read, line)
+        self._thread = threading.Thread(target=self._read, daemon=True)
+        self._thread.start()
+
+    def _read(self) -> None:
+        for line in self.proc.stdout:
+            self.lines.append((time.monotonic(), line))
+
+    def wait_for(self, text: str, timeout: float) -> float | None:
+        """Monotonic time of the first line containing `text`, waiting at most `timeout` s."""
+        deadline = time.monotonic() + timeout
+        while True:
+            found = next((t for t, line in list(self.lines) if text in line), None)
+            if found is not None or time.monotonic() > deadline:
+                return found
+            time.sleep(0.01)
+
+    def text(self) -> str:
+        return ''.join(line for _, line in list(self.lines))
+
+    def stop(self, timeout: float = 10.0) -> str:
+        end(self.proc, timeout)
+        self._thread.join(timeout)
+        return self.text()

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import logging
 import math
+import socket
 import struct
 import time
 from dataclasses import dataclass, field
@@ -19,7 +20,7 @@ import can
 import numpy as np
 
 from tacforce_ros.devices.diagnostics import ArrivalStamp
-from tacforce_ros.devices.polling import PollingDriver
+from tacforce_ros.devices.polling import LinkLost, PollingDriver
 
 N_FINGERS = 4
 N_JOINTS = 16
@@ -44,32 +45,67 @@ PERIOD = struct.Struct('<3H')
 HAND_INFO = struct.Struct('<HHBbB')     # hw version, fw version, side, board temp C, status
 
 
-class PartialReadFilter(logging.Filter):
-    """Drops python-can's socketcand "Got incomplete message => waiting for more data": one
-    TCP read ending mid-frame, which the client keeps and completes with the next read (no frame
-    is lost: test/devices/test_devices_socketcand_fragments.py). At 1333 frames/s it was
-    hundreds of log lines a minute. Its other warnings (discarded data) still pass; `suppressed`
-    counts what was dropped."""
+class SocketcandLogFilter(logging.Filter):
+    """Keeps python-can's socketcand client from flooding the log.
 
-    MESSAGE = 'Got incomplete message => waiting for more data'
+    * "Got incomplete message => waiting for more data": one TCP read ending mid-frame, which the
+      client keeps and completes with the next read (no frame is lost:
+      test/devices/test_devices_socketcand_fragments.py); at 1333 frames/s it was hundreds of
+      lines a minute. All dropped.
+    * "Failed to connect to server: ...": the client retries connect() for 10 s without a pause
+      and logs every failure (~150 000 lines in 10 s with no server). The first of each
+      connection attempt (:meth:`begin_attempt`) passes, the rest are dropped.
+
+    Its other warnings (discarded data) pass; `suppressed` counts what was dropped.
+    """
+
+    PARTIAL_READ = 'Got incomplete message => waiting for more data'
+    CONNECT_FAILED = 'Failed to connect to server'
 
     def __init__(self) -> None:
         super().__init__()
         self.suppressed = 0
+        self._connect_failure_shown = False
+
+    def begin_attempt(self) -> None:
+        """A new connection attempt: its first connect failure is shown again."""
+        self._connect_failure_shown = False
 
     def filter(self, record: logging.LogRecord) -> bool:
-        if record.getMessage() == self.MESSAGE:
+        message = record.getMessage()
+        if message.startswith(self.CONNECT_FAILED) and not self._connect_failure_shown:
+            self._connect_failure_shown = True
+            return True
+        if message == self.PARTIAL_READ or message.startswith(self.CONNECT_FAILED):
             self.suppressed += 1
             return False
         return True
 
 
-PARTIAL_READS = PartialReadFilter()
+SOCKETCAND_LOG = SocketcandLogFilter()
 SOCKETCAND_LOGGER = 'can.interfaces.socketcand.socketcand'
 
 
 class AllegroError(RuntimeError):
     """The hand did not answer, or the bus failed."""
+
+
+def _socketcand_socket(bus: can.BusABC) -> socket.socket | None:
+    """The TCP socket of python-can's socketcand client, None for other interfaces. That client
+    (python-can 4.6, pinned) reads a closed connection as "no data yet": recv() returns b'' and
+    it polls on until the timeout, at 100 % CPU and with no error, so the driver looks for the
+    end of the stream itself."""
+    return getattr(bus, '_SocketCanDaemonBus__socket', None)
+
+
+def _peer_closed(sock: socket.socket) -> bool:
+    """True when the peer closed or reset the TCP connection (reads nothing)."""
+    try:
+        return sock.recv(1, socket.MSG_PEEK | socket.MSG_DONTWAIT) == b''
+    except BlockingIOError:
+        return False            # open, nothing to read
+    except OSError:
+        return True             # reset, or the socket is closed
 
 
 def wire_id(command: int, device: int = 0) -> int:
@@ -130,7 +166,13 @@ class HandInfo:
 @dataclass(frozen=True)
 class AllegroConfig:
     """``interface``/``channel``/``bus_kwargs`` go to ``can.Bus`` unchanged (pcan, socketcan,
-    socketcand, virtual, ...). ``stale_after`` defaults to ~7 missed 3 ms cycles."""
+    socketcand, virtual, ...). ``stale_after`` defaults to ~7 missed 3 ms cycles.
+
+    A silent hand (no complete FINGER_POSE cycle while the link is up): after
+    ``silent_warn_after`` s a warning, and the stream is requested again (SET_PERIOD) every
+    ``silent_warn_after`` s; after ``silent_timeout`` s zero torque and servos off, and torque
+    commands are refused from then on (the servos stay off when the stream returns).
+    """
 
     interface: str = 'pcan'
     channel: str = 'PCAN_USBBUS1'
@@ -142,6 +184,13 @@ class AllegroConfig:
     rtr_requests: bool = True
     reply_timeout: float = 1.0
     stale_after: float = 0.02
+    silent_warn_after: float = 0.5
+    silent_timeout: float = 2.0
+
+    def __post_init__(self) -> None:
+        if not 0 < self.silent_warn_after < self.silent_timeout:
+            raise ValueError('need 0 < silent_warn_after < silent_timeout, got '
+                             f'{self.silent_warn_after} and {self.silent_timeout}')
 
 
 @dataclass(frozen=True)
@@ -155,8 +204,10 @@ class JointSample:
 
 class AllegroV4Driver(PollingDriver[JointSample]):
     """Torque driver: start-up in the constructor, pose stream via poll()/start(), torques via
-    :meth:`set_torques`. ``close()`` (and any fatal error) stops the stream, sends zero torques
-    and switches the servos off. Torques are clamped on the host to ``torque_limits``."""
+    :meth:`set_torques`. ``close()`` (and any fatal error, a lost link included) stops the
+    stream, sends zero torques and switches the servos off. Torques are clamped on the host to
+    ``torque_limits``. ``safe_stop`` says why the driver made the hand safe by itself (a silent
+    hand), '' while it has not."""
 
     def __init__(self, config: AllegroConfig, bus: can.BusABC | None = None) -> None:
         super().__init__(config.stale_after, poll_timeout=0.01)
@@ -165,10 +216,17 @@ class AllegroV4Driver(PollingDriver[JointSample]):
         if self.torque_limits.shape != (N_JOINTS,) or np.any(self.torque_limits <= 0):
             raise ValueError('torque_limits must be 16 positive values [Nm]')
         if config.interface == 'socketcand':
-            logging.getLogger(SOCKETCAND_LOGGER).addFilter(PARTIAL_READS)   # once: same object
+            logging.getLogger(SOCKETCAND_LOGGER).addFilter(SOCKETCAND_LOG)   # once: same object
+            SOCKETCAND_LOG.begin_attempt()
         self.bus = bus if bus is not None else can.Bus(interface=config.interface,
                                                        channel=config.channel,
                                                        **config.bus_kwargs)
+        self._socket = _socketcand_socket(self.bus)
+        self.safe_stop = ''
+        self._streaming = False                   # the stream was asked for (start-up done)
+        self._last_cycle: float | None = None     # monotonic time of the last complete cycle
+        self._silent = False
+        self._last_request = 0.0
         self.hand_info: HandInfo | None = None
         self.serial: str | None = None
         self.temperatures_c = np.full(N_JOINTS, np.nan)
@@ -181,8 +239,11 @@ class AllegroV4Driver(PollingDriver[JointSample]):
             raise
 
     def _send(self, command: int, data: bytes = b'') -> None:
-        self.bus.send(can.Message(arbitration_id=wire_id(command, self.config.device_id),
-                                  data=data, is_extended_id=False))
+        try:
+            self.bus.send(can.Message(arbitration_id=wire_id(command, self.config.device_id),
+                                      data=data, is_extended_id=False))
+        except (can.CanError, OSError) as error:
+            raise LinkLost(f'link lost: sending to the hand failed: {error!r}') from error
 
     def _request(self, command: int) -> None:
         if self.config.rtr_requests:
@@ -206,9 +267,16 @@ class AllegroV4Driver(PollingDriver[JointSample]):
                                f'{self.config.rtr_requests})')
         self._send(CMD_SET_PERIOD, encode_period(self.config.position_period_ms))
         self._send(CMD_SYSTEM_ON)
+        self._streaming = True
 
     def set_torques(self, tau: np.ndarray) -> np.ndarray:
-        """Command 16 joint torques [Nm] (Allegro order); returns the PWM values sent."""
+        """Command 16 joint torques [Nm] (Allegro order); returns the PWM values sent.
+        AllegroError once the driver made the hand safe by itself (``safe_stop``)."""
+        if self.safe_stop:
+            raise AllegroError(f'torque refused: {self.safe_stop}')
+        return self._send_torques(tau)
+
+    def _send_torques(self, tau: np.ndarray) -> np.ndarray:
         tau = np.asarray(tau, dtype=np.float64)
         if tau.shape != (N_JOINTS,) or not np.all(np.isfinite(tau)):
             raise ValueError(f'need 16 finite torques, got shape {tau.shape}')
@@ -220,15 +288,52 @@ class AllegroV4Driver(PollingDriver[JointSample]):
 
     def _receive(self, timeout: float) -> list[JointSample]:
         samples = []
-        message = self.bus.recv(timeout)
-        while message is not None:
-            stamp = ArrivalStamp.now()
-            self.diagnostics.note_received(stamp.monotonic)
-            sample = self._decode(message, stamp)
-            if sample is not None:
-                samples.append(sample)
-            message = self.bus.recv(0.0)
+        try:
+            message = self.bus.recv(timeout)
+            if message is None and self._socket is not None and _peer_closed(self._socket):
+                raise LinkLost('link lost: the socketcand server closed the connection')
+            while message is not None:
+                stamp = ArrivalStamp.now()
+                self.diagnostics.note_received(stamp.monotonic)
+                sample = self._decode(message, stamp)
+                if sample is not None:
+                    samples.append(sample)
+                message = self.bus.recv(0.0)
+            if self._streaming:
+                self._watch_stream(bool(samples))
+        except LinkLost:
+            raise
+        except (can.CanError, OSError) as error:
+            raise LinkLost(f'link lost: {error}') from error
         return samples
+
+    def _watch_stream(self, cycle_completed: bool) -> None:
+        """The silent-hand policy (see AllegroConfig), checked on every poll."""
+        now = time.monotonic()
+        if cycle_completed or self._last_cycle is None:
+            if self._silent:
+                self._silent = False
+                self._event(logging.INFO, f'joint stream back after {now - self._last_cycle:.2f} s'
+                            + ('; servos stay off' if self.safe_stop else ''))
+            self._last_cycle = now
+            return
+        silence = now - self._last_cycle
+        if silence < self.config.silent_warn_after:
+            return
+        if not self._silent:
+            self._silent = True
+            self._event(logging.WARNING, f'hand silent: no joint data for {silence:.2f} s with '
+                        'the link up; asking for the stream again every '
+                        f'{self.config.silent_warn_after:g} s, zero torque and servos off after '
+                        f'{self.config.silent_timeout:g} s')
+        if now - self._last_request >= self.config.silent_warn_after:
+            self._last_request = now
+            self._send(CMD_SET_PERIOD, encode_period(self.config.position_period_ms))
+        if silence >= self.config.silent_timeout and not self.safe_stop:
+            self._make_safe()
+            self.safe_stop = (f'the hand sent no joint data for {silence:.2f} s: zero torque '
+                              'sent and servos switched off')
+            self._event(logging.ERROR, self.safe_stop)
 
     def _decode(self, message: can.Message, stamp: ArrivalStamp) -> JointSample | None:
         command, device = split_wire_id(message.arbitration_id)
@@ -273,12 +378,12 @@ class AllegroV4Driver(PollingDriver[JointSample]):
 
     def _make_safe(self) -> None:
         """Zero torques and servo off, best effort (the bus may be what failed)."""
-        for step in (lambda: self.set_torques(np.zeros(N_JOINTS)),
+        for step in (lambda: self._send_torques(np.zeros(N_JOINTS)),
                      lambda: self._send(CMD_SYSTEM_OFF)):
             try:
                 step()
-            except (can.CanError, OSError) as error:
-                self.diagnostics.last_error = f'safe stop failed: {error!r}'
+            except LinkLost as error:
+                self.diagnostics.last_error = f'safe stop failed: {error}'
 
     def _on_fatal(self, error: BaseException) -> None:
         self._make_safe()
@@ -286,7 +391,7 @@ class AllegroV4Driver(PollingDriver[JointSample]):
     def _shutdown(self) -> None:
         try:
             self._send(CMD_SET_PERIOD, encode_period(0))
-        except (can.CanError, OSError) as error:
-            self.diagnostics.last_error = f'stop stream failed: {error!r}'
+        except LinkLost as error:
+            self.diagnostics.last_error = f'stop stream failed: {error}'
         self._make_safe()
         self.bus.shutdown()

@@ -1,5 +1,7 @@
 """The driving pattern every device driver shares: ``poll()`` from the caller's own thread or
-executor, or ``start()`` a background thread that polls; callbacks, latest sample, staleness."""
+executor, or ``start()`` a background thread that polls; callbacks, latest sample, staleness, and
+events (faults and recoveries worth a log line, with a logging level) for whoever runs the
+driver: a node turns them into its own log lines."""
 from __future__ import annotations
 
 import abc
@@ -11,7 +13,12 @@ from typing import Generic, TypeVar
 from tacforce_ros.devices.diagnostics import LinkDiagnostics
 
 SampleT = TypeVar('SampleT')
+EventCallback = Callable[[int, str], None]      # (logging level, message)
 log = logging.getLogger(__name__)
+
+
+class LinkLost(ConnectionError):
+    """The transport to the device is gone (peer closed, reset, unplugged)."""
 
 
 class PollingDriver(abc.ABC, Generic[SampleT]):
@@ -23,6 +30,7 @@ class PollingDriver(abc.ABC, Generic[SampleT]):
         self.stale_after = float(stale_after)
         self.poll_timeout = float(poll_timeout)
         self._callbacks: list[Callable[[SampleT], None]] = []
+        self._event_callbacks: list[EventCallback] = []
         self._latest: SampleT | None = None
         self._count = 0
         self._new_sample = threading.Condition()
@@ -45,6 +53,17 @@ class PollingDriver(abc.ABC, Generic[SampleT]):
     def add_callback(self, callback: Callable[[SampleT], None]) -> None:
         """Call ``callback(sample)`` for every delivered sample (from the polling thread)."""
         self._callbacks.append(callback)
+
+    def add_event_callback(self, callback: EventCallback) -> None:
+        """Call ``callback(level, message)`` for every event (faults, recoveries); without one,
+        events go to this module's logger."""
+        self._event_callbacks.append(callback)
+
+    def _event(self, level: int, message: str) -> None:
+        if level >= logging.WARNING:
+            self.diagnostics.last_error = message
+        for callback in self._event_callbacks or [lambda lv, text: log.log(lv, '%s', text)]:
+            callback(level, message)
 
     def poll(self, timeout: float = 0.0) -> list[SampleT]:
         """Process input for at most ``timeout`` s; deliver and return the completed samples."""
@@ -72,9 +91,10 @@ class PollingDriver(abc.ABC, Generic[SampleT]):
             try:
                 self.poll(self.poll_timeout)
             except Exception as error:  # noqa: BLE001 - any failure must make the device safe
-                log.exception('%s stopped on a fatal error', type(self).__name__)
+                if not isinstance(error, ConnectionError):   # a lost link needs no traceback
+                    log.exception('%s stopped on a fatal error', type(self).__name__)
                 self.fatal_error = error
-                self.diagnostics.last_error = f'fatal: {error!r}'
+                self._event(logging.ERROR, f'{type(self).__name__} stopped: {error}')
                 self._on_fatal(error)
                 return
 

@@ -20,6 +20,13 @@ the whole torque to zero when the joint stream does; every tick is published as
 tacforce_msgs/ControllerState on /force_controller/state.
 `control` = off (calibration sessions) only publishes joint states and never commands torque.
 On shutdown the driver stops the stream, sends zero torque and switches the servos off.
+
+Faults (README, fault table): a lost link (socketcand connection closed, CAN error) is logged at
+ERROR, the hand made safe as far as the bus still allows, and the node exits with code 1 in
+either mode (restart it, or let launch respawn it). A silent hand (link up, no joint data): WARN
+after `silent_warn_after` and the stream requested again; after `silent_timeout` zero torque and
+servos off, logged at ERROR; with `control` = force the node then exits with code 1, with
+`control` = off it keeps asking for the stream and publishes again when it returns.
 """
 from __future__ import annotations
 
@@ -30,6 +37,7 @@ from dataclasses import fields
 import can
 import numpy as np
 from geometry_msgs.msg import Vector3Stamped
+from rclpy.clock import Clock, ClockType
 from sensor_msgs.msg import JointState
 from tacforce_msgs.msg import ControllerState, ForceEstimateArray
 
@@ -38,6 +46,7 @@ from tacforce_ros.control.force_controller import (MODE_HOLD, ControllerConfigEr
                                                    ForceController, ForceControllerConfig)
 from tacforce_ros.devices.allegro import (N_JOINTS, AllegroConfig, AllegroError, AllegroV4Driver,
                                           JointSample)
+from tacforce_ros.devices.polling import LinkLost
 from tacforce_ros.hand.description import HandConfigError, load_hand
 from tacforce_ros.hand.kinematics import HandKinematics
 from tacforce_ros.nodes.common import (REALTIME_PRIORITY, ParameterError, ParamSpec,
@@ -49,6 +58,9 @@ TOPIC_ESTIMATES = '/tactile/estimates'
 CONTROLLER_GROUP = 'force_controller'
 # The Allegro's joint stream: one FINGER_POSE cycle every 3 ms.
 MAX_CONTROL_RATE_HZ = 1000.0 / 3.0
+# Wall-time period of the check that ends the node on a lost link (and, under force control, on
+# a hand the driver made safe): the exit follows the fault within this.
+LINK_CHECK_PERIOD_S = 0.05
 
 _CONTROLLER_HELP = {
     'finger': 'finger under force control (index, middle, ring, thumb)',
@@ -132,6 +144,10 @@ class AllegroDriver(TacforceNode):
                   range=(0.0, 1.0)),
         ParamSpec('clock_timeout', 30.0, 'use_sim_time: longest wait for the first /clock '
                   'before the hand is opened (s, wall)', range=(0.1, 600.0)),
+        ParamSpec('silent_warn_after', 0.5, 'no joint data for this long with the link up: '
+                  'warn and ask for the stream again (s, wall)', range=(0.01, 10.0)),
+        ParamSpec('silent_timeout', 2.0, 'no joint data for this long: zero torque and servos '
+                  'off (s, wall; above silent_warn_after)', range=(0.02, 60.0)),
     ) + STATUS_PARAMETERS + (REALTIME_PRIORITY,) + _controller_parameters()
 
     def __init__(self) -> None:
@@ -156,6 +172,9 @@ class AllegroDriver(TacforceNode):
         self._engaged = False
         self._estimate: tuple[np.ndarray, int] | None = None     # f_hat, stamp ns
         self.refused_commands = 0
+        if not p['silent_warn_after'] < p['silent_timeout']:
+            raise ParameterError(f'silent_timeout: {p["silent_timeout"]} must be above '
+                                 f'silent_warn_after ({p["silent_warn_after"]})')
         # Servos on (the end of the hand's start-up) only once this node can stamp and time:
         # in simulation that is when simulated time starts, so control acts from its first step.
         self.wait_for_clock(p['clock_timeout'])
@@ -166,6 +185,8 @@ class AllegroDriver(TacforceNode):
                                  ) from None
         self.driver.add_callback(self._on_joints)
         self.status = LinkStatusReporter(self, self.driver)
+        self.create_timer(LINK_CHECK_PERIOD_S, self._check_hand,
+                          clock=Clock(clock_type=ClockType.STEADY_TIME))
         if self.controller is not None:
             self.create_subscription(Vector3Stamped, TOPIC_DESIRED, self._on_desired,
                                      subscriber_qos(TOPIC_DESIRED))
@@ -213,7 +234,19 @@ class AllegroDriver(TacforceNode):
             bus = {}
         return AllegroConfig(interface=p['interface'], channel=p['channel'], bus_kwargs=bus,
                              position_period_ms=p['position_period_ms'],
-                             rtr_requests=p['rtr_requests'])
+                             rtr_requests=p['rtr_requests'],
+                             silent_warn_after=p['silent_warn_after'],
+                             silent_timeout=p['silent_timeout'])
+
+    # --- the hand's health (its events are logged by LinkStatusReporter) ---------------------
+
+    def _check_hand(self) -> None:
+        """Ends the node (exit code 1, via run_node) on a lost link, and under force control
+        on a hand the driver made safe: a controller cannot act on either."""
+        if self.driver.fatal_error is not None:
+            raise RuntimeError(f'Allegro link failed: {self.driver.fatal_error}')
+        if self.controller is not None and self.driver.safe_stop:
+            raise RuntimeError(f'force control ended: {self.driver.safe_stop}')
 
     # --- inputs (joint callback runs in the driver's thread) --------------------------------
 
@@ -254,10 +287,8 @@ class AllegroDriver(TacforceNode):
     # --- control tick ------------------------------------------------------------------------
 
     def _control(self) -> None:
-        if self.driver.fatal_error is not None:
-            raise RuntimeError(f'Allegro link failed: {self.driver.fatal_error!r}')
-        if self._joints is None:
-            return                          # nothing to act on yet; no torque was ever sent
+        if self._joints is None or self.driver.fatal_error is not None or self.driver.safe_stop:
+            return      # nothing to act on yet, or _check_hand is about to end the node
         now = self.now_ns()
         q, qdot, q_ns = self._joints
         estimate = self._estimate
@@ -270,7 +301,10 @@ class AllegroDriver(TacforceNode):
             state.mode = MODE_HOLD
         tau = state.hold_gain * self._hold_others(q, qdot)
         tau[self.controller.joints] = tau_finger
-        self.driver.set_torques(tau)
+        try:
+            self.driver.set_torques(tau)
+        except LinkLost as error:
+            raise RuntimeError(f'Allegro link failed: {error}') from None
         self._tau = tau
         self.state_publisher.publish(self._state_message(now, state, q, qdot))
 

@@ -1,8 +1,10 @@
 """Link-status reporting of the driver nodes: a periodic log line (and optional ~/status JSON)
-of a driver's LinkDiagnostics counters (diagnostic_msgs is not installed everywhere)."""
+of a driver's LinkDiagnostics counters (diagnostic_msgs is not installed everywhere), and the
+driver's events (faults, recoveries) as log lines of the node at their level."""
 from __future__ import annotations
 
 import json
+import logging
 
 from rclpy.clock import Clock, ClockType
 from std_msgs.msg import String
@@ -25,12 +27,28 @@ class LinkStatusReporter:
     """
 
     def __init__(self, node: TacforceNode, driver: PollingDriver) -> None:
-        self.node, self.driver = node, driver
+        self.node = node
+        self.watch(driver)
         self.publisher = (node.create_publisher(String, '~/status', RELIABLE_QOS)
                           if node.params['publish_status'] else None)
         period = node.params['diagnostics_period']
         if period > 0:
             node.create_timer(period, self.report, clock=Clock(clock_type=ClockType.STEADY_TIME))
+
+    def watch(self, driver: PollingDriver) -> None:
+        """Report on `driver` from now on (a node that replaced its driver calls this again)."""
+        self.driver = driver
+        driver.add_event_callback(self._log_event)
+
+    def _log_event(self, level: int, message: str) -> None:
+        # One call per severity: rclpy refuses a call site that changes its severity.
+        logger = self.node.get_logger()
+        if level >= logging.ERROR:
+            logger.error(message)
+        elif level >= logging.WARNING:
+            logger.warning(message)
+        else:
+            logger.info(message)
 
     def report(self) -> None:
         counters = self.driver.diagnostics.as_dict()

@@ -133,6 +133,12 @@ class AllegroEmulator:
         """Stop (or resume) sending FINGER_POSE frames without being told to."""
         self.paused = paused
 
+    def forget_stream(self) -> None:
+        """Lose the stream period, as a board that reset itself does: silent until a host sends
+        SET_PERIOD again."""
+        self.period_ms = 0
+        self._period_changed.set()
+
     def close(self) -> None:
         self._stop.set()
         self._period_changed.set()

@@ -1,0 +1,73 @@
+"""Allegro driver faults on loopback socketcand: no server (one log line per connection attempt,
+not python-can's flood), a server that closes the link, a hand that goes silent."""
+import logging
+import socket
+import time
+
+import numpy as np
+import pytest
+from devices_support import wait_until
+
+from tacforce_ros.devices import allegro
+from tacforce_ros.devices.allegro import AllegroConfig, AllegroError, AllegroV4Driver
+from tacforce_ros.devices.polling import LinkLost
+from tacforce_ros.sim.emulators.allegro import AllegroEmulator
+
+POSE = np.linspace(-0.2, 1.0, 16)
+
+
+def config(port, host='127.0.0.1', **overrides):
+    return AllegroConfig(interface='socketcand', channel='can0',
+                         bus_kwargs={'host': host, 'port': port, 'tcp_tune': True},
+                         rtr_requests=False, **overrides)
+
+
+def unused_port() -> int:
+    with socket.socket() as probe:
+        probe.bind(('127.0.0.1', 0))
+        return probe.getsockname()[1]
+
+
+def test_no_server_logs_one_connect_failure_per_attempt(caplog):
+    suppressed = allegro.SOCKETCAND_LOG.suppressed
+    with caplog.at_level(logging.WARNING, logger=allegro.SOCKETCAND_LOGGER):
+        with pytest.raises(OSError):        # python-can gives up after its 10 s of retries
+            AllegroV4Driver(config(unused_port()))
+    failures = [r for r in caplog.records if 'Failed to connect' in r.getMessage()]
+    assert len(failures) == 1, f'{len(failures)} lines'
+    assert allegro.SOCKETCAND_LOG.suppressed - suppressed > 100
+
+
+def test_a_closed_link_stops_the_driver_at_once():
+    hand = AllegroEmulator(lambda: POSE, lambda tau: None)
+    driver = AllegroV4Driver(config(hand.address[1], silent_timeout=30.0))
+    try:
+        driver.start()
+        assert driver.wait_for_samples(10, timeout=5)
+        hand.close()
+        assert wait_until(lambda: driver.fatal_error is not None, 3.0)
+        assert isinstance(driver.fatal_error, LinkLost)
+        assert 'closed the connection' in str(driver.fatal_error)
+        assert wait_until(lambda: not driver._thread.is_alive(), 1.0), 'polling thread spins on'
+    finally:
+        driver.close()
+
+
+def test_a_silent_hand_is_made_safe_and_torques_are_refused():
+    with AllegroEmulator(lambda: POSE, lambda tau: None) as hand, \
+            AllegroV4Driver(config(hand.address[1], silent_warn_after=0.1,
+                                   silent_timeout=0.5)) as driver:
+        events = []
+        driver.add_event_callback(lambda level, text: events.append((level, text)))
+        driver.start()
+        assert driver.wait_for_samples(10, timeout=5)
+        driver.set_torques(np.full(16, 0.1))
+        hand.pause_stream()
+        started = time.monotonic()
+        assert wait_until(lambda: driver.safe_stop, 5.0)
+        assert time.monotonic() - started >= 0.5
+        assert wait_until(lambda: not hand.servo_on, 2.0) and np.all(hand.torques == 0)
+        with pytest.raises(AllegroError, match='torque refused: the hand sent no joint data'):
+            driver.set_torques(np.zeros(16))
+        levels = [level for level, _ in events]
+        assert levels[levels.index(logging.WARNING):][:2] == [logging.WARNING, logging.ERROR]

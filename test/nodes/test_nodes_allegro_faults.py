@@ -1,0 +1,93 @@
+"""allegro_driver as a real process against the emulated hand over socketcand on loopback: a
+closed link ends it with code 1 in either mode (no hang, no spin), a silent hand is warned
+about, asked for its stream again, and made safe."""
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from tacforce_ros.nodes.common import EXIT_FAILURE
+from tacforce_ros.paths import config_dir
+from tacforce_ros.sim.emulators.allegro import AllegroEmulator
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from ros_processes import OutputLines, executable, start, unique_domain_id  # noqa: E402
+
+pytestmark = pytest.mark.ros
+DOMAIN = unique_domain_id(offset=71)
+POSE = np.linspace(0.0, 0.6, 16)
+STARTED = 'Allegro SAH040X1'
+WARN_AFTER_S = 0.2
+
+
+def driver(hand: AllegroEmulator, control: str, silent_timeout: float) -> OutputLines:
+    host, port = hand.address
+    params = ['interface:=socketcand', 'channel:=can0', f'host:={host}', f'port:={port}',
+              'rtr_requests:=false', f'control:={control}', 'diagnostics_period:=0.0',
+              f'silent_warn_after:={WARN_AFTER_S}', f'silent_timeout:={silent_timeout}']
+    proc = start([executable('allegro_driver'), '--ros-args', '--params-file',
+                  config_dir() / 'params' / 'force_controller.yaml',
+                  *[a for p in params for a in ('-p', p)]], DOMAIN)
+    return OutputLines(proc)
+
+
+@pytest.mark.parametrize('control', ['off', 'force'])
+def test_a_closed_link_ends_the_driver_with_an_error(control):
+    with AllegroEmulator(lambda: POSE, lambda tau: None) as hand:
+        out = driver(hand, control, silent_timeout=10.0)
+        try:
+            assert out.wait_for(STARTED, 60.0), out.text()[-2000:]
+            time.sleep(0.3)
+            hand.close()                       # the socketcand server goes away
+            closed = time.monotonic()
+            code = out.proc.wait(timeout=10.0)
+            exited = time.monotonic() - closed
+        finally:
+            text = out.stop()
+    assert code == EXIT_FAILURE, text[-2000:]
+    assert 'link lost' in text and 'Allegro link failed' in text, text[-2000:]
+    assert exited < 3.0, f'exited {exited:.2f} s after the link closed'
+
+
+def test_a_silent_hand_is_warned_about_asked_again_and_made_safe_without_control():
+    timeout = 3.0       # far above the ~1 s stalls of a busy shared machine
+    with AllegroEmulator(lambda: POSE, lambda tau: None) as hand:
+        out = driver(hand, 'off', timeout)
+        try:
+            assert out.wait_for(STARTED, 60.0), out.text()[-2000:]
+            assert hand.servo_on
+            # A board that lost its stream period: only a new SET_PERIOD brings it back.
+            hand.forget_stream()
+            silent = time.monotonic()
+            warned = out.wait_for('hand silent', 5.0)
+            back = out.wait_for('joint stream back', 5.0)
+            assert warned and back, out.text()[-2000:]
+            assert hand.period_ms == 3 and hand.servo_on, out.text()[-2000:]
+            hand.pause_stream()                # a hand that ignores the requests
+            paused = time.monotonic()
+            safe = out.wait_for('servos switched off', 10.0)
+            assert safe, out.text()[-2000:]
+            assert not hand.servo_on and np.all(hand.torques == 0)
+            hand.pause_stream(False)
+            assert out.wait_for('servos stay off', 5.0), out.text()[-2000:]
+            assert out.proc.poll() is None, 'control off: the driver keeps running'
+        finally:
+            text = out.stop()
+    assert warned - silent < WARN_AFTER_S + 1.5, text[-2000:]
+    assert timeout - 0.05 < safe - paused < timeout + 1.5, text[-2000:]
+
+
+def test_a_silent_hand_ends_force_control():
+    with AllegroEmulator(lambda: POSE, lambda tau: None) as hand:
+        out = driver(hand, 'force', silent_timeout=1.0)
+        try:
+            assert out.wait_for(STARTED, 60.0), out.text()[-2000:]
+            hand.pause_stream()
+            code = out.proc.wait(timeout=10.0)
+        finally:
+            text = out.stop()
+        assert not hand.servo_on and np.all(hand.torques == 0)
+    assert code == EXIT_FAILURE, text[-2000:]
+    assert 'hand silent' in text and 'force control ended' in text, text[-2000:]

@@ -9,6 +9,7 @@ values only.
 """
 from __future__ import annotations
 
+import logging
 import socket
 import struct
 from collections import deque
@@ -130,8 +131,11 @@ class NetFtClient(PollingDriver[WrenchSample]):
     """Streams real-time RDT records from one Net F/T box; always sends stop on close.
 
     Records older than the newest delivered one (signed uint32 sequence difference <= 0) are
-    counted as reordered and dropped; forward jumps add the missing count to ``gaps``. Records
-    with a non-zero status are delivered (with their status) and counted as warnings or errors.
+    counted as reordered and dropped; forward jumps add the missing count to ``gaps``. A record
+    with a monitor warning (0x80010000) is delivered with its status and counted as a warning;
+    one with any other non-zero status word is withheld: counted in ``status_errors`` and
+    ``dropped``, kept out of the bias window, and reported by an ERROR event when such records
+    start (and an INFO event when healthy records return), since its numbers cannot be trusted.
     """
 
     def __init__(self, config: NetFtConfig) -> None:
@@ -141,6 +145,7 @@ class NetFtClient(PollingDriver[WrenchSample]):
         self._host_bias = np.zeros(6, dtype=np.float64)
         self._recent = deque(maxlen=config.bias_window)
         self._last_sequence: int | None = None
+        self._withholding = 0       # serious-status records withheld since the last good one
         self._sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self._sock.connect((config.host, config.port))
         self._send(CMD_START_REALTIME)
@@ -198,11 +203,19 @@ class NetFtClient(PollingDriver[WrenchSample]):
             self._last_sequence = sequence
             status = int(record['status'])
             severity = status_severity(status)
+            if severity == 'serious':
+                self.diagnostics.add(status_errors=1, dropped=1)
+                if not self._withholding:
+                    self._event(logging.ERROR, f'F/T status 0x{status:08x} (record '
+                                f'{sequence}): withholding records until the status clears')
+                self._withholding += 1
+                continue
+            if self._withholding:
+                self._event(logging.INFO, f'F/T status clear again after {self._withholding} '
+                            'withheld records')
+                self._withholding = 0
             if severity == 'warning':
                 self.diagnostics.add(status_warnings=1)
-            elif severity == 'serious':
-                self.diagnostics.add(status_errors=1)
-                self.diagnostics.last_error = f'F/T status 0x{status:08x}'
             counts = record['counts'].astype(np.int32)
             raw = counts * self._scale
             self._recent.append(raw)

@@ -2,7 +2,9 @@
 
 Each RDT record becomes one message in the sensor frame {F} (`frame_id`), N and N m, stamped on
 arrival with the node clock (sim time under use_sim_time). Out-of-order and malformed records are
-counted and dropped by the client. ~/bias (std_srvs/Trigger) zeroes the reading on the host with
+counted and dropped by the client; so are records whose status word reports a fault (anything but
+0 or the monitor warning 0x80010000): they are withheld from the topic, and so never recorded or
+paired, with an ERROR line when they start and an INFO line when the status clears. ~/bias (std_srvs/Trigger) zeroes the reading on the host with
 the mean of the last `bias_window` records (the paper biases with nothing on the plate).
 """
 from __future__ import annotations
@@ -78,7 +80,7 @@ class FtBridge(TacforceNode):
                                'the box for a new stream', throttle_duration_sec=10.0)
         self.client.close()
         self.client = self._connect()
-        self.status.driver = self.client
+        self.status.watch(self.client)
 
     def _publish(self, sample: WrenchSample) -> None:
         now = self.stamp_ns()

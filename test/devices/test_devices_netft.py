@@ -1,4 +1,5 @@
 """ATI Net F/T RDT: byte-level codec and the client against the emulator over UDP on loopback."""
+import logging
 import threading
 
 import numpy as np
@@ -140,18 +141,35 @@ def test_wrap_around_is_not_a_gap():
     assert client.diagnostics.gaps == 0 and client.diagnostics.reordered == 0
 
 
-def test_status_words_are_delivered_and_counted_by_severity():
+def test_monitor_warnings_are_delivered_and_serious_status_records_withheld():
     source = CountingSource(status=STATUS_MONITOR_WARNING)
     with NetFtEmulator(source, rate_hz=500) as emulator:
         client = client_for(emulator)
+        events, delivered = [], []
+        client.add_event_callback(lambda level, text: events.append((level, text)))
+        client.add_callback(lambda s: delivered.append(s.status))
         assert client.wait_for_samples(3, timeout=5)
-        source.status = 0x20000000
+        source.status = 0x80020000          # a serious word: no record may pass
+        assert wait_until(lambda: client.diagnostics.status_errors >= 20, 5.0)
+        source.status = 0
         assert client.wait_for_samples(3, timeout=5)
         client.close()
     diag = client.diagnostics.snapshot()
-    assert diag.status_warnings >= 3 and diag.status_errors >= 3
-    assert diag.last_error == 'F/T status 0x20000000'
-    assert client.latest().status == 0x20000000
+    assert diag.status_warnings >= 3 and diag.dropped >= diag.status_errors >= 20
+    assert set(delivered) == {STATUS_MONITOR_WARNING, 0}
+    assert diag.last_error.startswith('F/T status 0x80020000')
+    assert [level for level, _ in events] == [logging.ERROR, logging.INFO]
+    assert 'withholding' in events[0][1] and 'withheld records' in events[1][1]
+
+
+def test_serious_status_records_stay_out_of_the_host_bias():
+    source = CountingSource(status=0x80020000)
+    with NetFtEmulator(source, rate_hz=500) as emulator:
+        client = client_for(emulator)
+        assert wait_until(lambda: client.diagnostics.status_errors >= 10, 5.0)
+        with pytest.raises(RuntimeError, match='no wrench received'):
+            client.set_host_bias()
+        client.close()
 
 
 def test_device_bias_and_host_bias_zero_the_reading():

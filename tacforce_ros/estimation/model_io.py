@@ -134,6 +134,13 @@ def load_model(path: str | Path, array: TaxelArray) -> ModelBundle:
     for key, digest in header['sha256'].items():
         if _sha256(arrays[key]) != digest:
             raise ModelFileError(f'{path}: entry {key!r} is corrupted (checksum mismatch)')
+    for key, value in arrays.items():
+        # A checksum only proves the file is as written: a training that diverged writes NaNs
+        # with a matching checksum, and a model with them estimates NaN forever.
+        if value.dtype.kind in 'fc' and not np.all(np.isfinite(value)):
+            bad = int(np.count_nonzero(~np.isfinite(value)))
+            raise ModelFileError(f'{path}: entry {key!r} holds {bad} of {value.size} values '
+                                 'NaN or Inf; refusing the model')
     state = {k[len(_STATE_PREFIX):]: v for k, v in arrays.items() if k.startswith(_STATE_PREFIX)}
     try:
         model = cls.from_state(array, header['hyperparameters'], state)

@@ -4,7 +4,8 @@ Per tick: standardise the flat (368, 3) counts into a buffer whose last row stay
 subtract that also casts to float64, one multiply by 1/std), gather it with one precomputed index
 into an (arrays, 1, 3 n_max) block, one zero-padded row per array (padding points at the zero
 row), take the OOD score from the block, and run one callable per model kind that returns forces
-in newtons. Arrays whose input is not finite are flagged and report zero force, not garbage.
+in newtons. Arrays whose input or output is not finite are flagged invalid and report zero force,
+not garbage.
 
 Linear models (M1, M3, M3-lambda) are folded at load time: the output de-standardisation
 f = f_std (W z + b) + f_mean goes into the stacked weights and bias, so their part of the tick is
@@ -20,6 +21,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from math import isfinite
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -31,6 +33,7 @@ if TYPE_CHECKING:
     from tacforce_ros.hand.description import HandDescription
 
 STATUS_OK = 'ok'
+STATUS_NOT_FINITE = 'model output is NaN or Inf'
 
 # (k, 1, 3 n_max) standardised inputs, one row per array (taxel-major, zero-padded) -> (k, 3) N
 BatchPredict = Callable[[np.ndarray], np.ndarray]
@@ -135,6 +138,7 @@ class RuntimeEstimator:
         self._take = self._flat.reshape(-1).take
         self._x_1d = self._x.reshape(-1)
         self._all_ok = (STATUS_OK,) * n_arrays
+        self._sum = np.add.reduce
 
     def _compile(self, n_max: int) -> list[tuple[np.ndarray, BatchPredict]]:
         """(rows, callable) per model kind, in the order the kinds first appear."""
@@ -200,4 +204,9 @@ class RuntimeEstimator:
                 force[rows] = predict(x[rows])
         if status is not self._all_ok:
             force[~valid] = 0.0
+        if not isfinite(self._sum(force, None)):    # one reduction; NaN and Inf propagate
+            bad = ~np.isfinite(force).all(axis=1)
+            valid = valid & ~bad
+            force[bad] = 0.0
+            status = tuple(STATUS_NOT_FINITE if b else s for b, s in zip(bad, status))
         return HandEstimate(force=force, valid=valid, status=status, ood_score=ood)

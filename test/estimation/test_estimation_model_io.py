@@ -114,3 +114,18 @@ def test_provenance_is_required(tip, tip_data, tmp_path):
     bundle = fit_bundle(tip, 'M1', {}, X, F, data.plates, provenance={'seed': 1})
     with pytest.raises(ValueError, match='provenance lacks'):
         save_model(tmp_path / 'm.npz', bundle)
+
+
+def test_non_finite_entries_with_matching_checksums_are_refused(saved, tip, tmp_path):
+    """A training that diverged writes NaN weights with a consistent checksum."""
+    from tacforce_ros.estimation.model_io import _sha256
+    _, path, _ = saved
+    name = next(k for k in read_header(path)['sha256'] if k.startswith('state.'))
+
+    def poison(header, arrays):
+        arrays[name] = arrays[name].astype(np.float64)
+        arrays[name].flat[0] = np.nan
+        header['sha256'][name] = _sha256(arrays[name])
+    bad = rewrite(path, tmp_path, poison)
+    with pytest.raises(ModelFileError, match=f"entry '{name}' holds 1 of .* values NaN or Inf"):
+        load_model(bad, tip)

@@ -172,3 +172,25 @@ def test_folded_linear_weights_equal_the_destandardised_model(hand, hand_data, k
     np.testing.assert_allclose(folded, reference, rtol=1e-10, atol=1e-12 * max(1.0, scale))
     expected = bundle.f_scaler.inverse(bundle.model.predict(z[:, :array.n_taxels]))
     np.testing.assert_allclose(folded, expected, rtol=1e-10, atol=1e-12 * max(1.0, scale))
+
+
+def test_a_non_finite_model_output_is_invalid_with_zero_force(hand, hand_data, mixed):
+    """Loading refuses non-finite parameters; should a model still produce NaN or Inf at run
+    time (here: an output mean poisoned in memory), that array is invalid and reports zero."""
+    import dataclasses
+
+    from tacforce_ros.estimation.preprocessing import Standardiser
+    _, bundles = mixed
+    poisoned = list(bundles)
+    for k, value in ((2, np.nan), (7, np.inf)):
+        f = bundles[k].f_scaler
+        poisoned[k] = dataclasses.replace(bundles[k], f_scaler=Standardiser(
+            mean=np.array([value, 0.0, 0.0]), std=f.std, dead=f.dead))
+    result = RuntimeEstimator(hand, poisoned).estimate(pressed_frame(hand, hand_data, 200))
+    for k in range(len(hand.arrays)):
+        if k in (2, 7):
+            assert not result.valid[k] and result.status[k] == 'model output is NaN or Inf'
+            assert np.all(result.force[k] == 0.0)
+        else:
+            assert result.valid[k] and result.status[k] == 'ok'
+    assert np.all(np.isfinite(result.force))

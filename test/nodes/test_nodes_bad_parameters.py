@@ -41,3 +41,30 @@ def test_bad_values_are_refused_with_a_clear_message():
                 or message not in output:
             problems.append(f'{name} exited {code} without "{message}":\n{output[-600:]}')
     assert not problems, '\n'.join(problems)
+
+
+def test_a_model_file_with_nan_weights_is_refused_naming_the_entry(tmp_path):
+    """Consistent checksums, NaN weights (a diverged training): the estimator refuses to start
+    instead of publishing NaN forces flagged valid."""
+    import json
+
+    import numpy as np
+
+    from tacforce_ros.estimation.model_io import _sha256
+    from tacforce_ros.paths import config_dir
+    with np.load(config_dir() / 'models' / 'index_tip_M3-lambda.npz', allow_pickle=False) as npz:
+        arrays = {k: npz[k] for k in npz.files}
+    header = json.loads(str(arrays.pop('header')))
+    name = next(k for k in header['sha256'] if k.startswith('state.'))
+    arrays[name] = np.full_like(arrays[name], np.nan, dtype=np.float64)
+    header['sha256'][name] = _sha256(arrays[name])
+    np.savez(tmp_path / 'nan.npz', header=np.array(json.dumps(header)), **arrays)
+    (tmp_path / 'models.yaml').write_text('models:\n  index_tip: nan.npz\n')
+    proc = start([executable('estimator'), '--ros-args', '-p',
+                  f'model_config:={tmp_path / "models.yaml"}'], DOMAIN)
+    try:
+        code = proc.wait(timeout=60.0)
+    finally:
+        output = stop(proc)
+    assert code == EXIT_BAD_PARAMETERS, output[-1000:]
+    assert f"entry '{name}' holds" in output and 'NaN or Inf' in output, output[-1000:]

@@ -32,7 +32,9 @@ imported defensively.
 from __future__ import annotations
 
 import argparse
+import difflib
 import os
+import re
 import signal
 import sys
 import threading
@@ -106,6 +108,14 @@ class ParameterError(ValueError):
     """Parameter values a node refuses; the message names every offending parameter."""
 
 
+# Words ROS parameter YAML (rcl_yaml_param_parser, YAML 1.1) reads as booleans when unquoted:
+# `control: off` arrives as False, `force_unit: N` as False.
+YAML_BOOLEAN_WORDS = {
+    True: ('y', 'Y', 'yes', 'Yes', 'YES', 'true', 'True', 'TRUE', 'on', 'On', 'ON'),
+    False: ('n', 'N', 'no', 'No', 'NO', 'false', 'False', 'FALSE', 'off', 'Off', 'OFF'),
+}
+
+
 @dataclass(frozen=True)
 class ParamSpec:
     """One node parameter. The type is the default's: bool, int, float, str or a list of one."""
@@ -145,6 +155,8 @@ class ParamSpec:
         for item in (items if items is not None else [value]):
             if want is float and isinstance(item, int) and not isinstance(item, bool):
                 item = float(item)
+            if want is str and isinstance(item, bool):
+                item = self._word_for(item)
             if not isinstance(item, want) or (want is int and isinstance(item, bool)):
                 raise ParameterError(f'{self.name}: {value!r} has type {type(item).__name__}, '
                                      f'expected {want.__name__}')
@@ -155,6 +167,17 @@ class ParamSpec:
                 raise ParameterError(f'{self.name}: {item!r} is not one of {list(self.choices)}')
             out.append(item)
         return out if items is not None else out[0]
+
+    def _word_for(self, flag: bool) -> str:
+        """The choice an unquoted YAML word that read as `flag` meant (`off`, `N`), when exactly
+        one choice reads so; otherwise ParameterError asking to quote the value."""
+        words = YAML_BOOLEAN_WORDS[flag]
+        meant = [choice for choice in self.choices or () if choice in words]
+        if len(meant) == 1:
+            return meant[0]
+        raise ParameterError(f'{self.name}: {flag} is a boolean, expected a string: YAML reads '
+                             'unquoted on/off, yes/no, y/n and true/false as booleans; quote '
+                             f"the value, e.g. {self.name}: '{words[-1].lower()}'")
 
 
 REALTIME_PRIORITY = ParamSpec(
@@ -280,6 +303,59 @@ class TacforceNode(Node):
         """Leave hardware and files safe; called once by run_node before the node is destroyed."""
 
 
+def params_files(args: Sequence[str]) -> list[Path]:
+    """The files named by --params-file in the ROS arguments of a command line."""
+    files, in_ros_args = [], False
+    for i, arg in enumerate(args):
+        if arg == '--ros-args':
+            in_ros_args = True
+        elif arg == '--':
+            in_ros_args = False
+        elif in_ros_args and arg == '--params-file' and i + 1 < len(args):
+            files.append(Path(args[i + 1]))
+    return files
+
+
+def params_file_node_keys(doc: Any, prefix: str = '') -> list[str]:
+    """Node keys of a parameters YAML, namespaces joined (``/ns/node``): each path down to a
+    ``ros__parameters`` mapping, as rcl_yaml_param_parser reads them."""
+    if not isinstance(doc, dict):
+        return []
+    keys = []
+    for key, value in doc.items():
+        if key == 'ros__parameters':
+            keys.append(prefix or '/')
+        else:
+            keys.extend(params_file_node_keys(value, f'{prefix}/{str(key).strip("/")}'))
+    return keys
+
+
+def node_key_matches(key: str, fully_qualified_name: str) -> bool:
+    """rcl's rule: a node key names the node (``node``, ``/ns/node``), with ``*`` for one name
+    token and ``**`` for any number of them."""
+    pattern = re.escape('/' + key.strip('/')).replace(r'\*\*', '.*').replace(r'\*', '[^/]*')
+    return re.fullmatch(pattern, fully_qualified_name) is not None
+
+
+def unmatched_params_files(node: Node, args: Sequence[str]) -> list[str]:
+    """One message per --params-file whose node keys all miss this node: its parameters would
+    silently stay at their defaults (a misspelt node key, or the wrong file)."""
+    import yaml
+    name = node.get_fully_qualified_name()
+    messages = []
+    for path in params_files(args):
+        try:
+            keys = params_file_node_keys(yaml.safe_load(path.read_text()))
+        except (OSError, yaml.YAMLError):
+            continue                # rcl itself refused an unreadable file before we got here
+        if keys and not any(node_key_matches(key, name) for key in keys):
+            near = difflib.get_close_matches(name, keys, n=1)
+            messages.append(f'{path}: no entry for this node ({name}); its node keys are {keys}'
+                            + (f' (did you mean {name!r} for {near[0]!r}?)' if near else '')
+                            + ': those parameters are NOT applied, this node runs on defaults')
+    return messages
+
+
 def _init_without_rclpy_signal_handlers(args: Sequence[str] | None) -> None:
     try:    # Humble+: let run_node own SIGINT/SIGTERM so on_shutdown always runs first
         from rclpy.signals import SignalHandlerOptions
@@ -329,6 +405,8 @@ def run_node(node_cls: type[TacforceNode], args: Sequence[str] | None = None, *,
             logger.fatal(f'refusing to start: {exc}')
             return EXIT_BAD_PARAMETERS
         logger = node.get_logger()
+        for message in unmatched_params_files(node, args):
+            logger.warning(message)
         spinner = (executor() if executor is not None
                    else MultiThreadedExecutor(num_threads=threads) if threads > 1
                    else SingleThreadedExecutor())

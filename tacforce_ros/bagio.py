@@ -19,9 +19,10 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from rosbags.rosbag2 import Reader, StoragePlugin, Writer
+from rosbags.rosbag2 import Reader, ReaderError, StoragePlugin, Writer
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from ruamel.yaml import YAML
+from ruamel.yaml.error import YAMLError
 
 from tacforce_ros.paths import share_dir
 
@@ -48,6 +49,9 @@ METADATA_KEYS = ('array', 'plate', 'hand_side', 'operator_notes', 'source', 'sce
                  'started')
 CUSTOM_DATA_PREFIX = 'tacforce.'
 _SPLIT_SUFFIX = '.partial'
+# An MCAP file starts and ends with these 8 bytes (MCAP specification, "Magic"); a file cut off
+# while being written lacks the trailing copy.
+MCAP_MAGIC = b'\x89MCAP0\r\n'
 
 
 class BagError(RuntimeError):
@@ -266,8 +270,30 @@ class CalibrationBagWriter:
 
 
 def _load_metadata(bag_dir: Path) -> dict[str, Any]:
-    with (bag_dir / 'metadata.yaml').open(encoding='utf8') as stream:
-        return YAML(typ='safe').load(stream)['rosbag2_bagfile_information']
+    path = bag_dir / 'metadata.yaml'
+    try:
+        with path.open(encoding='utf8') as stream:
+            return YAML(typ='safe').load(stream)['rosbag2_bagfile_information']
+    except YAMLError as exc:
+        where = getattr(exc, 'problem_mark', None)
+        raise BagError(f'{path}: not valid YAML ({getattr(exc, "problem", None) or exc}'
+                       + (f', line {where.line + 1}' if where else '') + ')') from None
+    except (KeyError, TypeError):
+        raise BagError(f'{path}: no rosbag2_bagfile_information; not rosbag2 metadata') from None
+
+
+def _check_files(bag_dir: Path, info: dict[str, Any]) -> None:
+    """Every file the metadata lists is there, and an MCAP file is complete: names the file."""
+    for name in info.get('relative_file_paths') or []:
+        file = bag_dir / name
+        if not file.is_file():
+            raise BagError(f'{file}: listed in {bag_dir / "metadata.yaml"} but missing')
+        if file.suffix == '.mcap':
+            with file.open('rb') as stream:
+                stream.seek(max(file.stat().st_size - len(MCAP_MAGIC), 0))
+                if stream.read() != MCAP_MAGIC:
+                    raise BagError(f'{file}: incomplete MCAP file (it does not end with the MCAP '
+                                   'magic: cut off while being written, or truncated)')
 
 
 def _merge_metadata(splits: list[dict[str, Any]]) -> dict[str, Any]:
@@ -316,8 +342,12 @@ def read_messages(path: str | Path, topics: Sequence[str] | None = None
     path = Path(path)
     if not (path / 'metadata.yaml').is_file():
         raise BagError(f'{path} is not a rosbag2 folder (no metadata.yaml)')
+    _check_files(path, _load_metadata(path))
     store = typestore()
-    with Reader(path) as reader:
-        connections = [c for c in reader.connections if topics is None or c.topic in topics]
-        for connection, stamp, raw in reader.messages(connections=connections):
-            yield connection.topic, stamp, store.deserialize_cdr(raw, connection.msgtype)
+    try:
+        with Reader(path) as reader:
+            connections = [c for c in reader.connections if topics is None or c.topic in topics]
+            for connection, stamp, raw in reader.messages(connections=connections):
+                yield connection.topic, stamp, store.deserialize_cdr(raw, connection.msgtype)
+    except ReaderError as exc:
+        raise BagError(f'{path}: unreadable bag ({exc})') from None

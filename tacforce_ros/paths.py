@@ -1,5 +1,8 @@
-"""Where the package's data (config/, launch/) lives, installed or in the source tree."""
+"""Where the package's data (config/, launch/) lives, installed or in the source tree; and the
+check every tool makes of its output folder before long work."""
+import argparse
 import os
+import tempfile
 from pathlib import Path
 
 PACKAGE = 'tacforce_ros'
@@ -27,3 +30,36 @@ def share_dir() -> Path:
 
 def config_dir() -> Path:
     return share_dir() / 'config'
+
+
+class OutputError(OSError):
+    """An output folder that cannot be created or written."""
+
+
+def writable_folder(path: str | Path) -> Path:
+    """Create `path` if needed and prove it takes a file (created and removed again), so a tool
+    fails at its start, not after an hour of work; OutputError names the folder and the cause."""
+    path = Path(path)
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=path):
+            pass
+    except OSError as exc:
+        raise OutputError(f'{path}: cannot write there ({exc.strerror or exc})') from None
+    return path
+
+
+def output_folder(value: str) -> Path:
+    """argparse type of an output folder (--out): created and proved writable while the command
+    line is parsed, before any work; otherwise the usual argparse error, exit code 2."""
+    try:
+        return writable_folder(value)
+    except OutputError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def output_file(value: str) -> Path:
+    """argparse type of an output file: its folder as in output_folder."""
+    path = Path(value)
+    output_folder(str(path.parent))
+    return path

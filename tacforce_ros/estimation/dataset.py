@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
+from tacforce_ros.estimation.npz import read_npz
 from tacforce_ros.estimation.preprocessing import remove_offsets
 
 DATASET_FORMAT = 'tacforce-dataset/1'
@@ -68,10 +69,11 @@ class CalibrationDataset:
     @classmethod
     def load(cls, path: str | Path) -> CalibrationDataset:
         try:
-            with np.load(path, allow_pickle=False) as npz:
-                data = {key: npz[key] for key in npz.files}
+            data = read_npz(path)
             header = json.loads(str(data['header']))
-        except (OSError, ValueError, KeyError, EOFError) as exc:
+        except FileNotFoundError:
+            raise DatasetError(f'{path}: no such dataset file') from None
+        except (ValueError, KeyError) as exc:
             raise DatasetError(f'{path}: not a readable dataset file ({exc})') from None
         if header.get('format') != DATASET_FORMAT:
             raise DatasetError(f'{path}: format {header.get("format")!r}, '

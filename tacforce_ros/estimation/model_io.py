@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -21,6 +20,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from tacforce_ros.estimation.base import ForceModel
+from tacforce_ros.estimation.npz import read_npz
 from tacforce_ros.estimation.preprocessing import Standardiser
 
 if TYPE_CHECKING:
@@ -91,11 +91,10 @@ def read_header(path: str | Path) -> dict[str, Any]:
 
 def _open(path: Path) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
     try:
-        with np.load(path, allow_pickle=False) as npz:
-            arrays = {key: npz[key] for key in npz.files}
+        arrays = read_npz(path)
     except FileNotFoundError:
         raise ModelFileError(f'{path}: no such model file') from None
-    except (zipfile.BadZipFile, ValueError, OSError, EOFError) as exc:
+    except ValueError as exc:
         raise ModelFileError(f'{path}: not a readable npz model file ({exc})') from None
     if 'header' not in arrays:
         raise ModelFileError(f'{path}: no header entry; not a tacforce model file')

@@ -26,6 +26,7 @@ from tacforce_ros.estimation.m3_lambda import DEFAULT_GRID, PAPER_LAMBDA
 from tacforce_ros.estimation.runtime import RuntimeEstimator
 from tacforce_ros.estimation.synthetic import synthetic_dataset
 from tacforce_ros.estimation.training import fit_bundle
+from tacforce_ros.paths import output_folder
 
 
 LABELS = ('M1', 'M2', 'M3', 'M3-lambda', 'M3-lambda-cv', 'M4', 'M5')
@@ -144,7 +145,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--repeats', type=int, default=2000,
                         help='timed calls per measurement, interleaved across models')
     parser.add_argument('--seed', type=int, default=0)
-    parser.add_argument('--out', type=Path, default=Path('bench_out'))
+    parser.add_argument('--out', type=output_folder, default='bench_out')
     args = parser.parse_args(argv)
 
     from tacforce_ros.hand.description import load_hand
@@ -177,7 +178,6 @@ def main(argv: list[str] | None = None) -> int:
     result = {'array': array.name, 'n_taxels': array.n_taxels, 'source': dataset.source,
               'samples': int(X.shape[0]), 'plates': dataset.plate_names(), 'seed': args.seed,
               'repeats': args.repeats, 'models': rows}
-    args.out.mkdir(parents=True, exist_ok=True)
     (args.out / 'bench.json').write_text(json.dumps(result, indent=2))
     text = table(rows, title)
     (args.out / 'bench.md').write_text(text)

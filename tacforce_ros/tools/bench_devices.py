@@ -13,7 +13,6 @@ import platform
 import threading
 import time
 from collections.abc import Callable
-from pathlib import Path
 
 import numpy as np
 
@@ -22,6 +21,7 @@ from tacforce_ros.devices.netft import NetFtClient, NetFtConfig
 from tacforce_ros.devices.polling import PollingDriver
 from tacforce_ros.devices.xela import XelaClient, XelaConfig
 from tacforce_ros.hand.description import load_hand
+from tacforce_ros.paths import output_file
 from tacforce_ros.sim.emulators.allegro import AllegroEmulator
 from tacforce_ros.sim.emulators.netft import NetFtEmulator
 from tacforce_ros.sim.emulators.xela_server import XelaServerEmulator
@@ -126,7 +126,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument('--rdt-rate', type=float, default=1000.0, help='RDT records/s')
     parser.add_argument('--allegro-period-ms', type=int, default=3,
                         help='FINGER_POSE period (3 ms = 333 Hz x 4 frames)')
-    parser.add_argument('--out', type=Path, help='write the results as JSON here')
+    parser.add_argument('--out', type=output_file, help='write the results as JSON here')
     args = parser.parse_args(argv)
     runners = {'xela': lambda: bench_xela(args.duration, args.xela_rate),
                'netft': lambda: bench_netft(args.duration, args.rdt_rate),
@@ -134,7 +134,6 @@ def main(argv: list[str] | None = None) -> None:
     results = [runners[name]() for name in args.devices]
     print_table(results)
     if args.out is not None:
-        args.out.parent.mkdir(parents=True, exist_ok=True)
         args.out.write_text(json.dumps({
             'duration_s': args.duration, 'python': platform.python_version(),
             'machine': platform.machine(), 'results': results}, indent=2))

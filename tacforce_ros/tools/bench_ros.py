@@ -38,6 +38,7 @@ import numpy as np
 from tacforce_ros.hand.description import load_hand
 from tacforce_ros.nodes.model_set import write_synthetic_model_set
 from tacforce_ros.nodes.session_plan import NodeLaunch, params_file
+from tacforce_ros.paths import output_file
 from tacforce_ros.tools.session import start_nodes, stop_nodes
 
 LATENCY_TARGET_P99_MS = 2.0
@@ -301,7 +302,7 @@ def run_controller(probe: Probe, args: argparse.Namespace, env: dict, tmp: Path)
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(prog='bench_ros', description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument('--out', type=Path, default=None, help='JSON result file')
+    parser.add_argument('--out', type=output_file, default=None, help='JSON result file')
     parser.add_argument('--seconds', type=float, default=3.0, help='per measurement')
     parser.add_argument('--latency-seconds', type=float, default=20.0,
                         help='length of the latency test at 100 Hz (p99 of 100 frames a second)')
@@ -358,7 +359,6 @@ def main(argv: list[str] | None = None) -> None:
     text = table(result)
     print(text)
     if args.out is not None:
-        args.out.parent.mkdir(parents=True, exist_ok=True)
         args.out.write_text(json.dumps({**result, 'table': text}, indent=2))
         print(f'wrote {args.out}')
 

@@ -14,11 +14,11 @@ import json
 import sys
 import time
 import warnings
-from pathlib import Path
 
 import numpy as np
 
 from tacforce_ros.hand.description import load_hand
+from tacforce_ros.paths import output_file
 from tacforce_ros.sim import list_scenes, load_scene, make_simulator
 from tacforce_ros.sim.effects import EFFECTS
 
@@ -65,7 +65,7 @@ def realtime_factors(scenes, hand, seconds: float, repeats: int) -> list[float]:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog='bench_sim', description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument('--out', type=Path, help='JSON result file')
+    parser.add_argument('--out', type=output_file, help='JSON result file')
     parser.add_argument('--seconds', type=float, default=5.0, help='simulated s per run')
     parser.add_argument('--repeats', type=int, default=2, help='runs per measurement (best)')
     parser.add_argument('--scenes', nargs='*', help='scene names (default: all)')
@@ -100,7 +100,6 @@ def main(argv: list[str] | None = None) -> int:
         print(f'{effect:22s} {REFERENCE[kind]:32s} {factor:12.1f} {none:8.1f} '
               f'{cost_ms:12.2f} ms')
     if args.out:
-        args.out.parent.mkdir(parents=True, exist_ok=True)
         args.out.write_text(json.dumps(result, indent=2))
         print(f'\nwrote {args.out}')
     return 0

@@ -28,6 +28,7 @@ from pathlib import Path
 from tacforce_ros.experiments import pipeline, report
 from tacforce_ros.experiments.cache import StageCache
 from tacforce_ros.experiments.node_path import AGREEMENT_N, AGREEMENT_REASON
+from tacforce_ros.paths import output_folder
 
 DEFAULT_OUT = Path(__file__).resolve().parents[2] / 'out'
 
@@ -113,7 +114,7 @@ def run(settings: pipeline.Settings, out: Path, jobs: int) -> dict:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog='reproduce', description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument('--out', type=Path, default=DEFAULT_OUT,
+    parser.add_argument('--out', type=output_folder, default=str(DEFAULT_OUT),
                         help=f'output folder (default {DEFAULT_OUT})')
     parser.add_argument('--quick', action='store_true',
                         help='small sizes: 1 x 20 s session per plate, 1 epoch, the spherical '
@@ -132,7 +133,6 @@ def main(argv: list[str] | None = None) -> int:
     settings = dataclasses.replace(settings, seed=args.seed,
                                    node_path=(settings.node_path or args.node_path)
                                    and not args.no_node_path)
-    args.out.mkdir(parents=True, exist_ok=True)
     doc = run(settings, args.out, args.jobs)
     (args.out / 'report.json').write_text(json.dumps(doc, indent=1, default=str))
     text = report.markdown(doc)

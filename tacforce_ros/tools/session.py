@@ -23,6 +23,7 @@ from pathlib import Path
 
 from tacforce_ros.nodes.session_plan import (CAN_PORT, MODES, NETFT_PORT, XELA_PORT, NodeLaunch,
                                              PlanError, SessionArgs, plan)
+from tacforce_ros.paths import output_folder
 
 POLL_S = 0.1
 EXECUTABLES = Path(sys.prefix) / 'lib' / 'tacforce_ros'
@@ -136,7 +137,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument('--plate', default='spherical', help='push-plate or object')
     parser.add_argument('--scene', default='', help='sim scene (default from mode/array/plate)')
     parser.add_argument('--model', default='', help='estimator models YAML (closed_loop)')
-    parser.add_argument('--out', default='bags', help='folder for bags and node logs')
+    parser.add_argument('--out', type=output_folder, default='bags',
+                        help='folder for bags and node logs')
     parser.add_argument('--real-time-factor', type=float, default=1.0,
                         help='simulated seconds per wall second (sim only)')
     parser.add_argument('--seed', type=int, default=-1,

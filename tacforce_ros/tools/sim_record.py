@@ -20,6 +20,7 @@ from tqdm import tqdm
 
 from tacforce_ros import bagio
 from tacforce_ros.hand.description import HandDescription, load_hand
+from tacforce_ros.paths import output_folder
 from tacforce_ros.sim import load_scene, make_simulator
 
 PLATES = ('button', 'flat', 'fillet', 'convex', 'edge', 'spherical')
@@ -73,7 +74,7 @@ def record_session(out_dir: Path, hand: HandDescription, array: str, plate: str,
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog='sim_record', description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument('--out', type=Path, required=True, help='folder for the bags')
+    parser.add_argument('--out', type=output_folder, required=True, help='folder for the bags')
     parser.add_argument('--arrays', nargs='+', default=list(ARRAYS), choices=ARRAYS)
     parser.add_argument('--plates', nargs='+', default=list(PLATES), choices=PLATES)
     parser.add_argument('--sessions', type=int, default=4, help='sessions per plate and array')
@@ -86,7 +87,6 @@ def main(argv: list[str] | None = None) -> int:
     jobs = [(a, p, s) for a in args.arrays for p in args.plates for s in range(args.sessions)]
     steps = sum(int(round(args.seconds * load_scene(f'calibration_{a}_{p}').tactile_rate))
                 for a, p, _ in jobs)
-    args.out.mkdir(parents=True, exist_ok=True)
     try:
         with tqdm(total=steps, unit='step', desc='sim_record') as progress:
             for array, plate, session in jobs:

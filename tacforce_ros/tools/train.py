@@ -24,6 +24,7 @@ from tacforce_ros.estimation.model_io import save_model
 from tacforce_ros.estimation.preprocessing import StaticSegmentError
 from tacforce_ros.estimation.registry import MODEL_KINDS
 from tacforce_ros.estimation.training import fit_bundle
+from tacforce_ros.paths import output_folder
 
 RANDOM_KINDS = ('M4', 'M5')     # trained from a random initialisation: they take a seed
 
@@ -97,7 +98,8 @@ def main(argv: list[str] | None = None) -> int:
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument('inputs', nargs='+', type=Path,
                         help='calibration bag folders and/or processed dataset .npz files')
-    parser.add_argument('--out', type=Path, required=True, help='folder for model files + report')
+    parser.add_argument('--out', type=output_folder, required=True,
+                        help='folder for model files + report')
     parser.add_argument('--kinds', nargs='+', default=['M3-lambda'], choices=sorted(MODEL_KINDS),
                         help='model kinds to train (default: M3-lambda)')
     parser.add_argument('--arrays', nargs='+', help='only these arrays (default: all found)')
@@ -138,7 +140,6 @@ def main(argv: list[str] | None = None) -> int:
     version, date = code_version(), time.strftime('%Y-%m-%dT%H:%M:%S%z')
     report = {'code_version': version, 'date': date, 'seed': args.seed,
               'inputs': [str(p) for p in args.inputs], 'dropped_messages': dropped, 'models': []}
-    args.out.mkdir(parents=True, exist_ok=True)
     jobs = [(name, kind) for name in names for kind in args.kinds]
     prepared = {}
     for name, kind in tqdm(jobs, desc='models', unit='model'):

@@ -46,6 +46,7 @@ def test_a_closed_link_ends_the_driver_with_an_error(control):
             exited = time.monotonic() - closed
         finally:
             text = out.stop()
+    print(f'control {control}: exited {exited:.3f} s after the link closed')
     assert code == EXIT_FAILURE, text[-2000:]
     assert 'link lost' in text and 'Allegro link failed' in text, text[-2000:]
     assert exited < 3.0, f'exited {exited:.2f} s after the link closed'
@@ -75,6 +76,8 @@ def test_a_silent_hand_is_warned_about_asked_again_and_made_safe_without_control
             assert out.proc.poll() is None, 'control off: the driver keeps running'
         finally:
             text = out.stop()
+    print(f'warned {warned - silent:.3f} s after the hand fell silent (silent_warn_after '
+          f'{WARN_AFTER_S}), servos off {safe - paused:.3f} s after (silent_timeout {timeout})')
     assert warned - silent < WARN_AFTER_S + 1.5, text[-2000:]
     assert timeout - 0.05 < safe - paused < timeout + 1.5, text[-2000:]
 

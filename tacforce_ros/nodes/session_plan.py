@@ -22,6 +22,13 @@ NETFT_PORT = 49152      # ATI RDT UDP port
 CAN_PORT = 29536        # socketcand's default TCP port
 
 
+# The simulated hand streams from a thread of sim_world, which shares the CPU with the whole
+# graph: on a 2-core shared machine its joint stream stalled for 1-2.4 s (`session calibration`
+# logs, 2026-11-23), beyond the hardware default of 2 s. A stall is a slower run, not a silent
+# hand: simulated sessions make the hand safe only after a silence no stall reaches.
+SIM_SILENT_TIMEOUT_S = 10.0
+
+
 class PlanError(ValueError):
     """Session arguments that cannot make a node graph; the message says which and why."""
 
@@ -113,7 +120,8 @@ def plan(args: SessionArgs) -> list[NodeLaunch]:
                     'netft': {'host': '127.0.0.1', 'port': args.netft_port},
                     'allegro': {'interface': 'socketcand', 'channel': 'can0',
                                 'host': '127.0.0.1', 'port': args.can_port,
-                                'rtr_requests': False}}
+                                'rtr_requests': False,
+                                'silent_timeout': SIM_SILENT_TIMEOUT_S}}
                    if args.sim else {'xela': {}, 'netft': {}, 'allegro': {}})
     nodes.append(NodeLaunch('xela_driver', (params_file('xela_driver'),),
                             {**common, **hand_param, **sim_devices['xela']}))

@@ -156,7 +156,7 @@ def main(argv: list[str] | None = None) -> None:
     os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     sys.exit(run(SessionArgs(mode=a.mode, sim=not a.hardware, hand_side=a.hand_side,
                              array=a.array, plate=a.plate, scene=a.scene,
-                             model_config=a.model, out=a.out,
+                             model_config=a.model, out=str(a.out),
                              real_time_factor=a.real_time_factor, seed=a.seed,
                              xela_port=a.ports[0],
                              netft_port=a.ports[1], can_port=a.ports[2]),

@@ -13,6 +13,8 @@ from tacforce_ros.paths import config_dir
 from tacforce_ros.sim.emulators.allegro import AllegroEmulator
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / 'devices'))
+from devices_support import wait_until  # noqa: E402
 from ros_processes import OutputLines, executable, start, unique_domain_id  # noqa: E402
 
 pytestmark = pytest.mark.ros
@@ -70,7 +72,7 @@ def test_a_silent_hand_is_warned_about_asked_again_and_made_safe_without_control
             paused = time.monotonic()
             safe = out.wait_for('servos switched off', 10.0)
             assert safe, out.text()[-2000:]
-            assert not hand.servo_on and np.all(hand.torques == 0)
+            assert wait_until(lambda: not hand.servo_on, 5.0) and np.all(hand.torques == 0)
             hand.pause_stream(False)
             assert out.wait_for('servos stay off', 5.0), out.text()[-2000:]
             assert out.proc.poll() is None, 'control off: the driver keeps running'
@@ -91,6 +93,6 @@ def test_a_silent_hand_ends_force_control():
             code = out.proc.wait(timeout=10.0)
         finally:
             text = out.stop()
-        assert not hand.servo_on and np.all(hand.torques == 0)
+        assert wait_until(lambda: not hand.servo_on, 5.0) and np.all(hand.torques == 0)
     assert code == EXIT_FAILURE, text[-2000:]
     assert 'hand silent' in text and 'force control ended' in text, text[-2000:]

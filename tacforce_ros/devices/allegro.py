@@ -330,9 +330,10 @@ class AllegroV4Driver(PollingDriver[JointSample]):
             self._last_request = now
             self._send(CMD_SET_PERIOD, encode_period(self.config.position_period_ms))
         if silence >= self.config.silent_timeout and not self.safe_stop:
-            self._make_safe()
+            # Refuse torque commands first: a controller thread may be sending one right now.
             self.safe_stop = (f'the hand sent no joint data for {silence:.2f} s: zero torque '
                               'sent and servos switched off')
+            self._make_safe()
             self._event(logging.ERROR, self.safe_stop)
 
     def _decode(self, message: can.Message, stamp: ArrivalStamp) -> JointSample | None:

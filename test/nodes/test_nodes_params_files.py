@@ -39,17 +39,22 @@ def test_node_keys_match_as_rcl_matches_them():
                          '--params-file', 'not_ros.yaml']) == [Path('f.yaml')]
 
 
+def node_output(name: str, params: Path, text: str) -> tuple[bool, str]:
+    """Start node `name` with `params`; whether it printed `text` within 60 s, and its output."""
+    out = OutputLines(start([executable(name), '--ros-args', '--params-file', params], DOMAIN))
+    try:
+        found = out.wait_for(text, 60.0) is not None
+    finally:
+        output = out.stop()
+    return found, output
+
+
 @pytest.mark.ros
 def test_an_unquoted_word_in_a_params_file_starts_the_node(tmp_path):
     params = tmp_path / 'ft_bridge.yaml'
     params.write_text('ft_bridge:\n  ros__parameters:\n    host: 127.0.0.1\n    port: 1\n'
                       '    force_unit: N\n')
-    out = OutputLines(start([executable('ft_bridge'), '--ros-args', '--params-file', params],
-                            DOMAIN))
-    try:
-        started = out.wait_for('reading udp 127.0.0.1:1', 60.0)
-    finally:
-        text = out.stop()
+    started, text = node_output('ft_bridge', params, 'reading udp 127.0.0.1:1')
     assert started and 'refusing' not in text, text[-1500:]
 
 
@@ -57,11 +62,6 @@ def test_an_unquoted_word_in_a_params_file_starts_the_node(tmp_path):
 def test_a_params_file_that_names_no_such_node_is_reported(tmp_path):
     params = tmp_path / 'estimator.yaml'
     params.write_text('estimatr:\n  ros__parameters:\n    marker_rate_hz: 0.0\n')
-    out = OutputLines(start([executable('estimator'), '--ros-args', '--params-file', params],
-                            DOMAIN))
-    try:
-        warned = out.wait_for('no entry for this node (/estimator)', 60.0)
-    finally:
-        text = out.stop()
+    warned, text = node_output('estimator', params, 'no entry for this node (/estimator)')
     assert warned, text[-1500:]
     assert "did you mean '/estimator' for '/estimatr'" in text and 'runs on defaults' in text

@@ -53,7 +53,7 @@ class SocketcandLogFilter(logging.Filter):
       test/devices/test_devices_socketcand_fragments.py); at 1333 frames/s it was hundreds of
       lines a minute. All dropped.
     * "Failed to connect to server: ...": the client retries connect() for 10 s without a pause
-      and logs every failure (~150 000 lines in 10 s with no server). The first of each
+      and logs every failure (~100 000 lines in 10 s with no server). The first of each
       connection attempt (:meth:`begin_attempt`) passes, the rest are dropped.
 
     Its other warnings (discarded data) pass; `suppressed` counts what was dropped.

@@ -2,10 +2,11 @@
 
 Each RDT record becomes one message in the sensor frame {F} (`frame_id`), N and N m, stamped on
 arrival with the node clock (sim time under use_sim_time). Out-of-order and malformed records are
-counted and dropped by the client; so are records whose status word reports a fault (anything but
-0 or the monitor warning 0x80010000): they are withheld from the topic, and so never recorded or
-paired, with an ERROR line when they start and an INFO line when the status clears. ~/bias (std_srvs/Trigger) zeroes the reading on the host with
-the mean of the last `bias_window` records (the paper biases with nothing on the plate).
+counted and dropped by the client; so are records whose status word reports a fault (anything
+but 0 or the monitor warning 0x80010000): they are withheld from the topic, and so never
+recorded or paired, with an ERROR line when they start and an INFO line when the status clears.
+~/bias (std_srvs/Trigger) zeroes the reading on the host with the mean of the last `bias_window`
+records (the paper biases with nothing on the plate).
 """
 from __future__ import annotations
 
@@ -55,6 +56,7 @@ class FtBridge(TacforceNode):
             bias_window=p['bias_window'])
         self.client = self._connect()
         self.status = LinkStatusReporter(self, self.client)
+        self.client.start()
         self.create_service(Trigger, '~/bias', self._on_bias)
         # RDT is request-driven: a box that rebooted (or came up after us) streams only when
         # asked again, so a silent link is re-requested (wall time: a device matter).
@@ -70,7 +72,6 @@ class FtBridge(TacforceNode):
             raise ParameterError(f'host/port: cannot reach {self.config.host}:'
                                  f'{self.config.port}: {exc}') from None
         client.add_callback(self._publish)
-        client.start()
         return client
 
     def _restart_if_silent(self) -> None:
@@ -80,7 +81,8 @@ class FtBridge(TacforceNode):
                                'the box for a new stream', throttle_duration_sec=10.0)
         self.client.close()
         self.client = self._connect()
-        self.status.watch(self.client)
+        self.status.watch(self.client)     # before it starts: its first events are logged too
+        self.client.start()
 
     def _publish(self, sample: WrenchSample) -> None:
         now = self.stamp_ns()

@@ -27,16 +27,24 @@ from tacforce_ros.sim.emulators.netft import NetFtEmulator
 from tacforce_ros.sim.emulators.xela_server import XelaServerEmulator
 
 DEVICES = ('xela', 'netft', 'allegro')
+FIRST_SAMPLE_TIMEOUT_S = 30.0
 
 
 def _measure(driver: PollingDriver, sent_log, sequence_of: Callable, duration: float,
              rate_hz: float, frames_per_sample: int, modulo: int | None = None) -> dict:
-    """Run ``driver`` in its background thread for ``duration`` s and summarise the link;
+    """Run ``driver`` in its background thread for ``duration`` s from its first sample (waited
+    for up to FIRST_SAMPLE_TIMEOUT_S: connecting is not the link's rate) and summarise the link;
     ``modulo`` when the wire carries the sequence number modulo that value."""
     arrivals: list[tuple[int, float]] = []
-    driver.add_callback(lambda sample: arrivals.append((sequence_of(sample), time.monotonic())))
+    first = threading.Event()
+
+    def arrived(sample) -> None:
+        arrivals.append((sequence_of(sample), time.monotonic()))
+        first.set()
+    driver.add_callback(arrived)
     driver.start()
-    time.sleep(duration)
+    if first.wait(FIRST_SAMPLE_TIMEOUT_S):
+        time.sleep(duration)
     driver.close()
     sent = {(k % modulo if modulo else k): t for k, t in list(sent_log)}
     latencies = np.array([(t - sent[k]) * 1e6 for k, t in arrivals if k in sent])
@@ -120,7 +128,8 @@ def print_table(results: list[dict]) -> None:
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument('--duration', type=float, default=5.0, help='seconds per device')
+    parser.add_argument('--duration', type=float, default=5.0,
+                        help='seconds per device, from its first sample')
     parser.add_argument('--devices', nargs='+', choices=DEVICES, default=list(DEVICES))
     parser.add_argument('--xela-rate', type=float, default=100.0, help='XELA frames/s')
     parser.add_argument('--rdt-rate', type=float, default=1000.0, help='RDT records/s')

@@ -22,9 +22,11 @@ from ros_processes import (executable, rclpy_node, spin_until, start, stop,  # n
 pytestmark = pytest.mark.ros
 DOMAIN = unique_domain_id(offset=37)
 PARAMS = config_dir() / 'params' / 'command_player.yaml'
+# The ramp outlasts a stall of this shared machine (up to 1.3 s seen) by enough ticks to fit.
+RAMP_S = 2.0
 SEQUENCE = {'frame_id': 'ft_sensor', 'segments': [
     {'duration': 0.6, 'force': [0.0, 0.0, 0.0]},
-    {'duration': 0.6, 'force': [0.0, 0.0, -1.2], 'shape': 'ramp'},
+    {'duration': RAMP_S, 'force': [0.0, 0.0, -1.2], 'shape': 'ramp'},
     {'duration': 0.6, 'force': [0.3, -0.2, -2.0]}]}
 RATE_HZ = 50      # given as an integer on purpose: a float parameter must accept it
 
@@ -70,36 +72,44 @@ def test_publishes_the_sequence_values_at_their_times(ros_node, sequence_file):
     received, sub, proc = play(ros_node, sequence_file, '-p', 'autostart:=false')
     try:
         assert start_when_matched(ros_node, sub).success
-        reached = spin_until(ros_node, lambda: received and received[-1].vector.x == 0.3, 30.0)
-        # Then until the stream goes quiet for 0.5 s (bounded): the sequence has ended.
-        count, quiet_since = -1, time.monotonic()
-        while time.monotonic() - quiet_since < 0.5 and time.monotonic() - quiet_since < 10.0:
-            if len(received) != count:
-                count, quiet_since = len(received), time.monotonic()
-            rclpy.spin_once(ros_node, timeout_sec=0.05)
+        # Until a value stamped at the sequence's end (the first value is stamped at its t = 0),
+        # then 0.5 s more, in which nothing more may come.
+        duration = ForceSequence.from_mapping(SEQUENCE).duration
+
+        def played() -> float:
+            if not received:
+                return 0.0
+            return (Time.from_msg(received[-1].header.stamp).nanoseconds
+                    - Time.from_msg(received[0].header.stamp).nanoseconds) * 1e-9
+        reached = spin_until(ros_node, lambda: played() >= duration - 1e-3, 60.0)
+        spin_until(ros_node, lambda: False, 0.5)
         assert proc.poll() is None, 'the player must stay up after the sequence'
     finally:
         output = stop(proc)
         ros_node.destroy_subscription(sub)
     assert reached, f'the sequence never reached its last value; node said:\n{output}'
     assert all(m.header.frame_id == 'ft_sensor' for m in received)
-    stamps = np.array([Time.from_msg(m.header.stamp).nanoseconds for m in received]) * 1e-9
+    stamps_ns = np.array([Time.from_msg(m.header.stamp).nanoseconds for m in received])
+    stamps = stamps_ns * 1e-9
     values = np.array([[m.vector.x, m.vector.y, m.vector.z] for m in received])
     assert np.all(np.diff(stamps) > 0)
-    # The ramp's messages fix the start time: z = -1.2 * (t - t0 - 0.6) / 0.6 on it.
+    # The ramp's messages fix the start time: z = -1.2 * (t - t0 - 0.6) / RAMP_S on it. Ticks
+    # a stalled machine skips leave fewer of them; three fix the line.
     ramp = (values[:, 2] < -1e-9) & (values[:, 2] > -1.2 + 1e-9)
-    assert ramp.sum() >= 0.6 * RATE_HZ - 3, 'ramp messages missing'
+    assert ramp.sum() >= 3, 'ramp messages missing'
     slope, intercept = np.polyfit(stamps[ramp], values[ramp, 2], 1)
-    assert slope == pytest.approx(-2.0, rel=1e-3)
+    assert slope == pytest.approx(-1.2 / RAMP_S, rel=1e-3)
     t0 = -intercept / slope - 0.6
     sequence = ForceSequence.from_mapping(SEQUENCE)
     expected = np.array([sequence.force_at(t - t0) for t in stamps])
     np.testing.assert_allclose(values, expected, atol=5e-3)
-    # Every received message was published while playing, about every 1/RATE_HZ.
-    assert stamps[0] - t0 <= 1.5 / RATE_HZ, 'the first value comes one period after ~/start'
-    # A non-looping sequence stops right after its end.
-    assert sequence.duration <= stamps[-1] - t0 <= sequence.duration + 2.0 / RATE_HZ
-    assert np.median(np.diff(stamps)) == pytest.approx(1.0 / RATE_HZ, rel=0.05)
+    # The first value is published at ~/start's first tick (t = 0), the final value once at the
+    # end, and never more than one value per period in between (a late timer skips, it does
+    # not burst).
+    assert stamps[0] - t0 == pytest.approx(0.0, abs=1e-3)
+    after_end = (stamps_ns - stamps_ns[0]) * 1e-9 >= sequence.duration
+    assert after_end.sum() == 1 and after_end[-1], 'the final value comes once, last'
+    assert len(stamps) <= sequence.duration * RATE_HZ + 2
     assert 'sequence finished' in output
 
 
@@ -156,18 +166,20 @@ def test_bad_parameter_exits_non_zero_naming_it(override, words):
 
 
 def test_follows_sim_time_from_clock(ros_node, sequence_file):
-    """With use_sim_time the sequence runs on /clock: here sim time runs 4x slower than wall
+    """With use_sim_time the sequence runs on /clock: here sim time runs 2x slower than wall
     time, so wall-clock timing would put the values far off the sim stamps."""
     from rosgraph_msgs.msg import Clock
     clock_pub = ros_node.create_publisher(Clock, '/clock', 10)
     received, sub, proc = play(ros_node, sequence_file, '-p', 'use_sim_time:=true')
-    sim_ns = 1000 * 10**9
+    sim_ns = start_ns = 1000 * 10**9
     try:
-        deadline = time.monotonic() + 40.0
-        while time.monotonic() < deadline and not (received and received[-1].vector.x == 0.3):
-            sim_ns += 2_500_000             # 2.5 ms of sim time per 10 ms of wall time
+        started = time.monotonic()
+        while time.monotonic() < started + 60.0 and not (received
+                                                         and received[-1].vector.x == 0.3):
+            # Half a simulated second per wall second, on the wall clock.
+            sim_ns = start_ns + int((time.monotonic() - started) * 0.5e9)
             clock_pub.publish(Clock(clock=Time(nanoseconds=sim_ns).to_msg()))
-            rclpy.spin_once(ros_node, timeout_sec=0.01)
+            rclpy.spin_once(ros_node, timeout_sec=0.005)
     finally:
         output = stop(proc)
         ros_node.destroy_subscription(sub)
@@ -178,7 +190,7 @@ def test_follows_sim_time_from_clock(ros_node, sequence_file):
     values = np.array([m.vector.z for m in received])
     ramp = (values < -1e-9) & (values > -1.2 + 1e-9)
     slope, _ = np.polyfit(stamps[ramp], values[ramp], 1)
-    assert slope == pytest.approx(-2.0, rel=0.05), 'the ramp must run on sim time'
+    assert slope == pytest.approx(-1.2 / RAMP_S, rel=0.05), 'the ramp must run on sim time'
 
 
 def test_loop_starts_the_sequence_over(ros_node, sequence_file):
@@ -188,7 +200,7 @@ def test_loop_starts_the_sequence_over(ros_node, sequence_file):
         assert start_when_matched(ros_node, sub).success
         # Past the last segment (x = 0.3) and back into the first one (all zero) again.
         looped = spin_until(ros_node, lambda: any(m.vector.x == 0.3 for m in received)
-                            and received[-1].vector.z == 0.0, 20.0)
+                            and received[-1].vector.z == 0.0, 60.0)
     finally:
         output = stop(proc)
         ros_node.destroy_subscription(sub)

@@ -62,5 +62,18 @@ def wait_until(done, timeout: float, spin=None) -> bool:
     return bool(done())
 
 
+def wait_while_progressing(done, progress, stalled_after: float, timeout: float, spin) -> bool:
+    """Spin until done(), for as long as progress() keeps changing: a run on a slow machine
+    gets the time it needs (up to `timeout`), one that stopped fails after `stalled_after`."""
+    deadline = time.monotonic() + timeout
+    last, changed = progress(), time.monotonic()
+    while (not done() and time.monotonic() < deadline
+           and time.monotonic() - changed < stalled_after):
+        spin()
+        if (now := progress()) != last:
+            last, changed = now, time.monotonic()
+    return bool(done())
+
+
 __all__ = ['Graph', 'free_ports', 'graph_nodes', 'session_args', 'synthetic_model_set',
-           'unique_domain_id', 'wait_until', 'with_overrides']
+           'unique_domain_id', 'wait_until', 'wait_while_progressing', 'with_overrides']

@@ -1,11 +1,13 @@
 """Whole-hand force estimation at 100 Hz: one batched numpy pass per tactile frame.
 
 Per tick: standardise the flat (368, 3) counts into a buffer whose last row stays zero (one
-subtract that also casts to float64, one multiply by 1/std), gather it with one precomputed index
-into an (arrays, 1, 3 n_max) block, one zero-padded row per array (padding points at the zero
-row), take the OOD score from the block, and run one callable per model kind that returns forces
-in newtons. Arrays whose input or output is not finite are flagged invalid and report zero force,
-not garbage.
+subtract that also casts to float64, one multiply by 1/std), optionally low-pass it in place
+(`set_lowpass`: a causal filter per input channel, estimation/causal_filter.py; the models were
+trained on low-passed data, and the controller then sees the filter's delay), gather it with one
+precomputed index into an (arrays, 1, 3 n_max) block, one zero-padded row per array (padding
+points at the zero row), take the OOD score from the block, and run one callable per model kind
+that returns forces in newtons. Arrays whose input or output is not finite are flagged invalid
+and report zero force, not garbage.
 
 Linear models (M1, M3, M3-lambda) are folded at load time: the output de-standardisation
 f = f_std (W z + b) + f_mean goes into the stacked weights and bias, so their part of the tick is
@@ -27,6 +29,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from tacforce_ros.estimation.affine import LinearInputModel
+from tacforce_ros.estimation.causal_filter import BatchLowPass
 from tacforce_ros.estimation.model_io import ModelBundle
 
 if TYPE_CHECKING:
@@ -139,6 +142,12 @@ class RuntimeEstimator:
         self._x_1d = self._x.reshape(-1)
         self._all_ok = (STATUS_OK,) * n_arrays
         self._sum = np.add.reduce
+        self._frame_1d = self._frame.reshape(-1)
+        taxel_array = np.empty(self.n_taxels, dtype=np.intp)
+        for k, array in enumerate(hand.arrays):
+            taxel_array[array.flat_indices] = k
+        self._channel_array = np.repeat(taxel_array, 3)     # array of each flat input channel
+        self.lowpass: BatchLowPass | None = None
 
     def _compile(self, n_max: int) -> list[tuple[np.ndarray, BatchPredict]]:
         """(rows, callable) per model kind, in the order the kinds first appear."""
@@ -150,6 +159,12 @@ class RuntimeEstimator:
             batch = folded_linear_batch if linear else destandardised_batch
             groups.append((rows, batch(bundles, n_max)))
         return groups
+
+    def set_lowpass(self, cutoff_hz: float | None, rate_hz: float, order: int = 2) -> None:
+        """Low-pass every input channel at `cutoff_hz` (Butterworth of `order`) for frames at
+        `rate_hz`; None or 0 switches filtering off. Raises FilterDesignError on a bad cut-off."""
+        self.lowpass = (BatchLowPass(self._frame_1d.size, cutoff_hz, rate_hz, order)
+                        if cutoff_hz else None)
 
     # --- tare --------------------------------------------------------------------------------
 
@@ -168,6 +183,8 @@ class RuntimeEstimator:
             taxels = self.hand.arrays[k].flat_indices
             self._tare[taxels] = frames[:, taxels].mean(axis=0)
         self._centre = self._tare + self._mean
+        if self.lowpass is not None:      # the input steps with the tare: start over from it
+            self.lowpass.restart(np.isin(self._channel_array, rows))
 
     def tare(self, name: str) -> np.ndarray:
         """Current tare (n, 3) [counts] of one array."""
@@ -186,6 +203,8 @@ class RuntimeEstimator:
         x, frame = self._x, self._frame
         np.subtract(counts, self._centre, out=frame)    # copies and casts to float64 too
         np.multiply(frame, self._inv_std, out=frame)
+        if self.lowpass is not None:
+            self.lowpass(self._frame_1d)
         # mode='clip' skips per-element bounds errors (the indices are built valid): ~1 us less
         self._take(self._gather, out=x, mode='clip')
         # NaN/Inf stay inside their own array's rows, so the OOD score doubles as the check.
@@ -196,6 +215,8 @@ class RuntimeEstimator:
             x[~valid] = 0.0
             ood[~valid] = np.inf     # no finite input: as far out of distribution as it gets
             status = tuple(STATUS_OK if ok else 'input contains NaN or Inf' for ok in valid)
+            if self.lowpass is not None:      # not carried into the next frames
+                self.lowpass.restart(~valid[self._channel_array])
         if len(self._groups) == 1:
             force = self._groups[0][1](x)
         else:

@@ -15,6 +15,9 @@ safe; the per-array wrench topics stay silent meanwhile (a WrenchStamped cannot 
 While frames flow it never wakes the executor.
 ~/tare (std_srvs/Trigger) re-estimates the taxel offsets from the next `tare_frames` frames
 (nothing may touch the arrays meanwhile).
+`lowpass_hz` > 0 low-passes every input channel causally (Butterworth of `lowpass_order`, designed
+for frames at `frame_rate_hz`; estimation/causal_filter.py): less noise on the estimate, at the
+price of the filter's group delay, logged at start-up, which the controller sees. Off by default.
 
 Per frame the node handles bytes, not message objects: /tactile/raw is taken serialized and
 decoded by one precomputed gather (messages.TactileHandDecoder), and the 19 outgoing messages
@@ -45,6 +48,7 @@ except ImportError:     # Humble
     from rclpy.qos_event import PublisherEventCallbacks
 
 from tacforce_ros.bagio import TOPIC_TACTILE
+from tacforce_ros.estimation.causal_filter import FilterDesignError
 from tacforce_ros.hand.description import HandConfigError, load_hand
 from tacforce_ros.nodes.common import (REALTIME_PRIORITY, RELIABLE_QOS, ParameterError,
                                        ParamSpec, TacforceNode, publisher_qos, run_node,
@@ -86,6 +90,11 @@ class Estimator(TacforceNode):
         ParamSpec('tare_frames', 50, 'frames averaged by ~/tare', range=(1, 10000)),
         ParamSpec('tare_at_start', True, 'tare on the first tare_frames frames (the arrays '
                   'must be untouched at start-up); false keeps the model files\' offsets'),
+        ParamSpec('lowpass_hz', 0.0, 'causal low-pass cut-off of the input channels (Hz); '
+                  '0 = off', range=(0.0, 1000.0)),
+        ParamSpec('lowpass_order', 2, 'Butterworth order of that low-pass', range=(1, 8)),
+        ParamSpec('frame_rate_hz', 100.0, 'tactile frame rate the low-pass is designed for (Hz)',
+                  range=(1.0, 10000.0)),
         REALTIME_PRIORITY,
     )
 
@@ -100,6 +109,11 @@ class Estimator(TacforceNode):
             raise ParameterError(f'hand_config: {exc}') from None
         except ModelConfigError as exc:
             raise ParameterError(f'model_config: {exc}') from None
+        try:
+            self.models.estimator.set_lowpass(p['lowpass_hz'], p['frame_rate_hz'],
+                                              p['lowpass_order'])
+        except FilterDesignError as exc:
+            raise ParameterError(f'lowpass_hz: {exc}') from None
         self.names = tuple(a.name for a in self.models.arrays)
         self.frames = tuple(a.frame_id for a in self.models.arrays)
         # rclpy's default QoS-event handlers (incompatible QoS or type: a log line) would add two
@@ -142,6 +156,12 @@ class Estimator(TacforceNode):
             + ', '.join(f'{n}:{k}' for n, k in zip(self.names, self.models.kinds)) + ')'
             + (f'; no model, skipped: {", ".join(self.models.skipped)}'
                if self.models.skipped else ''))
+        lowpass = self.models.estimator.lowpass
+        if lowpass is not None:
+            self.get_logger().info(
+                f'input low-pass {lowpass.cutoff_hz:g} Hz, order {lowpass.order} at '
+                f'{lowpass.rate_hz:g} frames/s: group delay '
+                f'{lowpass.group_delay_s() * 1e3:.1f} ms')
         gc.freeze()
 
     # --- per frame -------------------------------------------------------------------------

@@ -2,8 +2,9 @@
 
 Every model goes through the leave-one-plate-out protocol on one array's dataset; then its cost is
 timed: one `predict` on one sample, the compiled batch of one, and a full-hand tick of the runtime
-estimator (18 arrays of that kind, one batched pass), all timed round-robin so every model sees
-the same machine load. Writes bench.json, bench.md and bench.png.
+estimator (18 arrays of that kind, one batched pass), without and with the estimator's causal
+input low-pass (`--lowpass-hz`; its group delay is in the JSON), all timed round-robin so every
+model sees the same machine load. Writes bench.json, bench.md and bench.png.
 
 Full-hand models are fitted on short synthetic recordings of every array: the cost of a tick does
 not depend on the weights' values, only on the shapes.
@@ -20,6 +21,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
+from tacforce_ros.estimation.causal_filter import BatchLowPass
 from tacforce_ros.estimation.cross_validation import cross_validate
 from tacforce_ros.estimation.dataset import CalibrationDataset, DatasetError
 from tacforce_ros.estimation.m3_lambda import DEFAULT_GRID, PAPER_LAMBDA
@@ -30,6 +32,7 @@ from tacforce_ros.paths import output_folder
 
 
 LABELS = ('M1', 'M2', 'M3', 'M3-lambda', 'M3-lambda-cv', 'M4', 'M5')
+FRAME_RATE_HZ = 100.0       # XELA frames per second
 
 
 def configurations(seed: int, epochs: int) -> dict[str, tuple[str, dict]]:
@@ -76,9 +79,10 @@ def hand_estimator(hand, kind: str, hyper: dict, seed: int) -> RuntimeEstimator:
 
 
 def bench_model(array, hand, label: str, kind: str, hyper: dict, dataset: CalibrationDataset,
-                X: np.ndarray, F: np.ndarray, offset: np.ndarray,
-                seed: int) -> tuple[dict, dict[str, Callable[[], object]]]:
-    """Cross-validated accuracy row of one model, and the calls whose cost is to be timed."""
+                X: np.ndarray, F: np.ndarray, offset: np.ndarray, seed: int,
+                lowpass: tuple[float, int] | None) -> tuple[dict, dict[str, Callable[[], object]]]:
+    """Cross-validated accuracy row of one model, and the calls whose cost is to be timed;
+    `lowpass` = (cut-off Hz, order) adds the full-hand tick with the input low-pass on."""
     cv = cross_validate(array, kind, hyper, X, F, dataset.plates).summary()
     bundle = fit_bundle(array, kind, hyper, X, F, dataset.plates, x_offset=offset)
     one = bundle.x_scaler.transform(X[:1])
@@ -89,14 +93,19 @@ def bench_model(array, hand, label: str, kind: str, hyper: dict, dataset: Calibr
     calls = {'predict_one': lambda: bundle.model.predict(one),
              'batch_one': lambda: batch_one(one),
              'full_hand_tick': lambda: estimator.estimate(frame)}
+    if lowpass is not None:
+        filtered = RuntimeEstimator(hand, estimator.bundles)
+        filtered.set_lowpass(lowpass[0], FRAME_RATE_HZ, lowpass[1])
+        calls['full_hand_tick_lowpass'] = lambda: filtered.estimate(frame)
     return {'label': label, 'kind': kind, 'hyperparameters': hyper, **cv}, calls
 
 
 def table(rows: list[dict], title: str) -> str:
     lines = [f'## {title}', '',
              '| model | e_r [%] | e_hat [N] | MAE x / y / z [N] | p | train [s/fold] '
-             '| predict 1 [us] | batch of 1 [us] | full hand [us] median (p99) |',
-             '|---|---|---|---|---|---|---|---|---|']
+             '| predict 1 [us] | batch of 1 [us] | full hand [us] median (p99) '
+             '| with low-pass [us] (ratio) |',
+             '|---|---|---|---|---|---|---|---|---|---|']
     for r in rows:
         e_r = '-' if r['e_r_mean'] is None else \
             f"{100 * r['e_r_mean']:.1f} ± {100 * r['e_r_std']:.1f}"
@@ -105,8 +114,15 @@ def table(rows: list[dict], title: str) -> str:
             + ' / '.join(f'{v:.3f}' for v in r['mae_axis'])
             + f" | {r['n_parameters']} | {r['train_seconds']:.2f} | "
             f"{r['predict_one']['median_us']:.1f} | {r['batch_one']['median_us']:.1f} | "
-            f"{r['full_hand_tick']['median_us']:.1f} ({r['full_hand_tick']['p99_us']:.1f}) |")
+            f"{r['full_hand_tick']['median_us']:.1f} ({r['full_hand_tick']['p99_us']:.1f}) | "
+            + (lowpass_cell(r) if 'full_hand_tick_lowpass' in r else '-') + ' |')
     return '\n'.join(lines) + '\n'
+
+
+def lowpass_cell(row: dict) -> str:
+    filtered = row['full_hand_tick_lowpass']['median_us']
+    plain = row['full_hand_tick']['median_us']
+    return f'{filtered:.1f} (x {filtered / plain:.2f})'
 
 
 def plot(rows: list[dict], path: Path, title: str) -> None:
@@ -144,9 +160,19 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--epochs', type=int, default=40, help='M4/M5 epochs (paper: 40)')
     parser.add_argument('--repeats', type=int, default=2000,
                         help='timed calls per measurement, interleaved across models')
+    parser.add_argument('--lowpass-hz', type=float, default=10.0,
+                        help='also time the tick with the estimator\'s input low-pass at this '
+                        'cut-off (Hz, frames at 100 Hz); 0 = not')
+    parser.add_argument('--lowpass-order', type=int, default=2)
     parser.add_argument('--seed', type=int, default=0)
     parser.add_argument('--out', type=output_folder, default='bench_out')
     args = parser.parse_args(argv)
+    lowpass = (args.lowpass_hz, args.lowpass_order) if args.lowpass_hz > 0 else None
+    try:
+        design = None if lowpass is None else BatchLowPass(1, lowpass[0], FRAME_RATE_HZ,
+                                                           lowpass[1])
+    except ValueError as exc:
+        parser.error(f'--lowpass-hz: {exc}')
 
     from tacforce_ros.hand.description import load_hand
     hand = load_hand()
@@ -166,18 +192,22 @@ def main(argv: list[str] | None = None) -> int:
     for label in tqdm(args.models, desc='models', unit='model'):
         kind, hyper = configs[label]
         row, timed = bench_model(array, hand, label, kind, hyper, dataset, X, F, offset,
-                                 args.seed)
+                                 args.seed, lowpass)
         rows.append(row)
         calls.update({(label, key): call for key, call in timed.items()})
     timings = time_interleaved(calls, args.repeats)
     for row in rows:
-        row.update({key: timings[(row['label'], key)]
-                    for key in ('predict_one', 'batch_one', 'full_hand_tick')})
+        row.update({key: timing for (label, key), timing in timings.items()
+                    if label == row['label']})
     title = (f"{array.name} ({array.n_taxels} taxels), {dataset.source} data, "
              f"{len(dataset.plate_names())}-fold leave-one-plate-out")
     result = {'array': array.name, 'n_taxels': array.n_taxels, 'source': dataset.source,
               'samples': int(X.shape[0]), 'plates': dataset.plate_names(), 'seed': args.seed,
-              'repeats': args.repeats, 'models': rows}
+              'repeats': args.repeats, 'models': rows,
+              'lowpass': None if design is None else {
+                  'cutoff_hz': design.cutoff_hz, 'order': design.order,
+                  'frame_rate_hz': design.rate_hz,
+                  'group_delay_ms': design.group_delay_s() * 1e3}}
     (args.out / 'bench.json').write_text(json.dumps(result, indent=2))
     text = table(rows, title)
     (args.out / 'bench.md').write_text(text)

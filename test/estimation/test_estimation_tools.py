@@ -140,11 +140,14 @@ def test_bench_synthetic_writes_json_table_and_plot(tmp_path):
     result = json.loads((out / 'bench.json').read_text())
     assert [m['label'] for m in result['models']] == ['M1', 'M3-lambda']
     for row in result['models']:
-        for key in ('predict_one', 'batch_one', 'full_hand_tick'):
+        for key in ('predict_one', 'batch_one', 'full_hand_tick', 'full_hand_tick_lowpass'):
             assert 0.0 < row[key]['median_us'] <= row[key]['p99_us']
         assert row['folds'] == 5 and row['train_seconds'] > 0.0
+    assert result['lowpass']['cutoff_hz'] == 10.0
+    assert result['lowpass']['group_delay_ms'] == pytest.approx(21.8, abs=0.05)
     assert (out / 'bench.png').read_bytes()[:8] == b'\x89PNG\r\n\x1a\n'
     assert '| M3-lambda |' in (out / 'bench.md').read_text()
+    assert '(x ' in (out / 'bench.md').read_text()
 
 
 @pytest.mark.parametrize('tool', ['train', 'bench'])

@@ -127,3 +127,48 @@ def test_estimates_follow_the_model_set_with_the_node_tare(models, tmp_path):
         output = stop(proc)
     assert proc.returncode == EXIT_OK, output      # SIGINT: a clean stop
     assert 'tactile frame refused' in output and 'arrays, the hand has' in output, output
+
+
+def test_low_pass_estimates_are_the_core_filter_on_the_frames_received(models):
+    """lowpass_hz on: each estimate equals the core estimator's with the same low-pass, fed the
+    frames the node received (a best-effort loss would change the filter state, so the
+    reference skips what the node did not get), and the group delay is logged."""
+    reference = load_model_set(models, HAND)
+    reference.estimator.set_lowpass(10.0, 100.0, 2)
+    rest = HAND.merge([b.x_offset for b in reference.estimator.bundles])
+    proc = start([executable('estimator'), '--ros-args', '--params-file',
+                  params_file('estimator'), '-p', f'model_config:={models}',
+                  '-p', f'tare_frames:={TARE_FRAMES}', '-p', 'marker_rate_hz:=0.0',
+                  '-p', 'lowpass_hz:=10.0'], DOMAIN)
+    try:
+        with rclpy_node('estimator_lowpass_test', DOMAIN) as node:
+            estimates = {}
+            node.create_subscription(
+                ForceEstimateArray, '/tactile/estimates',
+                lambda m: estimates.__setitem__(stamp_ns(m.header.stamp), m), 100)
+            publisher = node.create_publisher(TactileHand, '/tactile/raw',
+                                              publisher_qos('/tactile/raw'))
+            assert spin_until(node, lambda: publisher.get_subscription_count() > 0, 30.0)
+            rest = frames(1, rest, 1)[0]
+            sent = {}
+            stamp = 1_000_000_000
+            # Rest until the tare is done and estimates flow, then a press (a step), held.
+            for counts in [rest] * 200 + frames(2, rest, 1, press=400.0) * 30:
+                stamp += 10_000_000
+                publisher.publish(tactile_hand(stamp, HAND, counts, None, 0.0, 1))
+                sent[stamp] = counts
+                spin_until(node, lambda: False, 0.02)
+            assert spin_until(node, lambda: max(sent) in estimates, 10.0), 'no estimate of the end'
+    finally:
+        output = stop(proc)
+    assert proc.returncode == EXIT_OK, output
+    assert 'input low-pass 10 Hz, order 2 at 100 frames/s: group delay 21.8 ms' in output, output
+    received = sorted(s for s in sent if s in estimates)
+    reference.set_tare(rest[None].astype(np.float64))
+    got = np.array([[[e.force.x, e.force.y, e.force.z] for e in estimates[s].estimates]
+                    for s in received])
+    expected = np.array([reference.estimate(sent[s]).force.copy() for s in received])
+    np.testing.assert_allclose(got, expected, rtol=0, atol=1e-9)
+    # The press reached the estimate through the filter: a ramp over frames, not one jump.
+    z = got[-30:, 0, 2]
+    assert np.count_nonzero(np.abs(np.diff(z)) > 1e-6) >= 3

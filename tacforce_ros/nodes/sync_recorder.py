@@ -11,6 +11,10 @@ truth on the one clock. Bag layout and session metadata: docs/CONTRACTS.md. The 
 last split. Services: ~/start (tacforce_msgs/srv/StartRecording; empty fields take the
 parameters) and ~/stop (std_srvs/Trigger).
 
+Log times are the node clock's. Under use_sim_time the clock reads 0 until the first /clock, so
+nothing is recorded before it: `autostart` starts the session at the first /clock, and ~/start
+is refused until then (no message enters a bag with log time 0).
+
 The subscriptions are raw: the CDR bytes as received go into the bag untouched (as rosbag2
 records), and only the stamps and the sample's parts are decoded, with the bag's own typestore.
 (rclpy's serialize_message is no substitute: with Fast DDS it returns the rmw's size
@@ -100,11 +104,22 @@ class SyncRecorder(TacforceNode):
         # Flushing is about wall time (what a crash can lose), not sim time: a steady timer.
         self.create_timer(min(0.5, self.params['split_seconds']), self._flush_if_due,
                           clock=Clock(clock_type=ClockType.STEADY_TIME))
+        self._autostart_timer = None
         if self.params['autostart']:
-            ok, message = self.start(self.params['array'], self.params['plate'],
-                                     self.params['operator_notes'])
-            if not ok:
-                raise ParameterError(message)
+            if self.now_ns() > 0:
+                self._autostart()
+            else:       # a timer on the node clock fires once /clock runs
+                self.get_logger().info('autostart: recording starts at the first /clock')
+                self._autostart_timer = self.create_timer(0.001, self._autostart)
+
+    def _autostart(self) -> None:
+        if self._autostart_timer is not None:
+            self.destroy_timer(self._autostart_timer)
+            self._autostart_timer = None
+        ok, message = self.start(self.params['array'], self.params['plate'],
+                                 self.params['operator_notes'])
+        if not ok:
+            raise ParameterError(message)
 
     def _array_problem(self, name: str) -> str | None:
         names = [a.name for a in self.hand.arrays]
@@ -118,6 +133,9 @@ class SyncRecorder(TacforceNode):
         problem = self._array_problem(array)
         if problem:
             return False, problem
+        started_ns = self.now_ns()
+        if started_ns <= 0:
+            return False, 'no clock yet (use_sim_time and no /clock): nothing could be stamped'
         folder = Path(self.params['output_dir']).expanduser()
         # Bag names use wall-clock date for people; stamps inside use the node clock.
         stem = f'{time.strftime("%Y%m%d_%H%M%S")}_{array}' + (f'_{plate}' if plate else '')
@@ -130,7 +148,7 @@ class SyncRecorder(TacforceNode):
                                 seed=self.params['seed'] if self.params['seed'] >= 0 else '')
         try:
             folder.mkdir(parents=True, exist_ok=True)
-            self.writer = CalibrationBagWriter(path, meta, started_ns=self.now_ns(),
+            self.writer = CalibrationBagWriter(path, meta, started_ns=started_ns,
                                                split_seconds=self.params['split_seconds'],
                                                topics=BAG_TOPICS)
         except (OSError, BagError) as exc:

@@ -302,6 +302,43 @@ def test_closed_loop_streams_are_recorded_when_published(ros_node, tmp_path):
         assert msg.wrench.force.z == pytest.approx(0.05 * k)
 
 
+def test_under_sim_time_nothing_is_recorded_before_the_first_clock(ros_node, streams,
+                                                                   tmp_path):
+    """autostart waits for /clock, ~/start is refused before it: no log time 0 in the bag."""
+    from rosgraph_msgs.msg import Clock
+
+    from tacforce_ros.nodes.sim_world import CLOCK_QOS
+    clock = ros_node.create_publisher(Clock, '/clock', CLOCK_QOS)
+    proc = recorder(tmp_path, '-p', 'autostart:=true', '-p', 'use_sim_time:=true')
+    clock_ns = 7_000_000_000
+    try:
+        assert streams.wait_for_recorder(), 'recorder never subscribed'
+        early = call_service(ros_node, StartRecording, '/sync_recorder/start',
+                             StartRecording.Request(array='index_middle'))
+        streams.run(0.5)                       # frames before any /clock
+        assert not early.success and 'no clock yet' in early.message, early.message
+        assert list(tmp_path.iterdir()) == [], 'a session began before the clock'
+        started = time.monotonic()
+
+        def bag_started() -> bool:
+            clock.publish(Clock(clock=Time(nanoseconds=clock_ns).to_msg()))
+            return any(tmp_path.iterdir()) or time.monotonic() - started > 30.0
+        assert spin_until(ros_node, bag_started, 30.0) and any(tmp_path.iterdir())
+        streams.run(0.5)
+        clock.publish(Clock(clock=Time(nanoseconds=clock_ns).to_msg()))
+        spin_until(ros_node, lambda: False, 1.0)
+    finally:
+        output = stop(proc)
+        ros_node.destroy_publisher(clock)
+    assert proc.returncode == EXIT_OK, output
+    (bag,) = tmp_path.iterdir()
+    log_times = [t for _, t, _ in bagio.read_messages(bag)]
+    assert log_times and min(log_times) == clock_ns, (min(log_times), output)
+    tactile = [m for topic, _, m in bagio.read_messages(bag) if topic == bagio.TOPIC_TACTILE]
+    assert tactile, 'the frames after the first /clock are recorded'
+    assert 'recording starts at the first /clock' in output, output
+
+
 # Last in the module: the killed process's DDS endpoints linger until their lease expires.
 def test_killed_recorder_leaves_a_bag_readable_up_to_the_last_split(ros_node, streams, tmp_path):
     proc = recorder(tmp_path, '-p', 'autostart:=true', '-p', 'plate:=edge')

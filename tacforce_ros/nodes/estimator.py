@@ -49,6 +49,7 @@ except ImportError:     # Humble
 
 from tacforce_ros.bagio import TOPIC_TACTILE
 from tacforce_ros.estimation.causal_filter import FilterDesignError
+from tacforce_ros.estimation.preprocessing import SAMPLE_RATE_HZ
 from tacforce_ros.hand.description import HandConfigError, load_hand
 from tacforce_ros.nodes.common import (REALTIME_PRIORITY, RELIABLE_QOS, ParameterError,
                                        ParamSpec, TacforceNode, publisher_qos, run_node,
@@ -93,8 +94,8 @@ class Estimator(TacforceNode):
         ParamSpec('lowpass_hz', 0.0, 'causal low-pass cut-off of the input channels (Hz); '
                   '0 = off', range=(0.0, 1000.0)),
         ParamSpec('lowpass_order', 2, 'Butterworth order of that low-pass', range=(1, 8)),
-        ParamSpec('frame_rate_hz', 100.0, 'tactile frame rate the low-pass is designed for (Hz)',
-                  range=(1.0, 10000.0)),
+        ParamSpec('frame_rate_hz', SAMPLE_RATE_HZ, 'tactile frame rate the low-pass is designed '
+                  'for (Hz)', range=(1.0, 10000.0)),
         REALTIME_PRIORITY,
     )
 

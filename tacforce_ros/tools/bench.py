@@ -25,6 +25,7 @@ from tacforce_ros.estimation.causal_filter import BatchLowPass
 from tacforce_ros.estimation.cross_validation import cross_validate
 from tacforce_ros.estimation.dataset import CalibrationDataset, DatasetError
 from tacforce_ros.estimation.m3_lambda import DEFAULT_GRID, PAPER_LAMBDA
+from tacforce_ros.estimation.preprocessing import CUTOFF_HZ, SAMPLE_RATE_HZ
 from tacforce_ros.estimation.runtime import RuntimeEstimator
 from tacforce_ros.estimation.synthetic import synthetic_dataset
 from tacforce_ros.estimation.training import fit_bundle
@@ -32,7 +33,6 @@ from tacforce_ros.paths import output_folder
 
 
 LABELS = ('M1', 'M2', 'M3', 'M3-lambda', 'M3-lambda-cv', 'M4', 'M5')
-FRAME_RATE_HZ = 100.0       # XELA frames per second
 
 
 def configurations(seed: int, epochs: int) -> dict[str, tuple[str, dict]]:
@@ -95,7 +95,7 @@ def bench_model(array, hand, label: str, kind: str, hyper: dict, dataset: Calibr
              'full_hand_tick': lambda: estimator.estimate(frame)}
     if lowpass is not None:
         filtered = RuntimeEstimator(hand, estimator.bundles)
-        filtered.set_lowpass(lowpass[0], FRAME_RATE_HZ, lowpass[1])
+        filtered.set_lowpass(lowpass[0], SAMPLE_RATE_HZ, lowpass[1])
         calls['full_hand_tick_lowpass'] = lambda: filtered.estimate(frame)
     return {'label': label, 'kind': kind, 'hyperparameters': hyper, **cv}, calls
 
@@ -160,16 +160,17 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--epochs', type=int, default=40, help='M4/M5 epochs (paper: 40)')
     parser.add_argument('--repeats', type=int, default=2000,
                         help='timed calls per measurement, interleaved across models')
-    parser.add_argument('--lowpass-hz', type=float, default=10.0,
+    parser.add_argument('--lowpass-hz', type=float, default=CUTOFF_HZ,
                         help='also time the tick with the estimator\'s input low-pass at this '
-                        'cut-off (Hz, frames at 100 Hz); 0 = not')
+                        'cut-off (Hz, XELA frames at 100 Hz; default: the training data\'s); '
+                        '0 = not')
     parser.add_argument('--lowpass-order', type=int, default=2)
     parser.add_argument('--seed', type=int, default=0)
     parser.add_argument('--out', type=output_folder, default='bench_out')
     args = parser.parse_args(argv)
     lowpass = (args.lowpass_hz, args.lowpass_order) if args.lowpass_hz > 0 else None
     try:
-        design = None if lowpass is None else BatchLowPass(1, lowpass[0], FRAME_RATE_HZ,
+        design = None if lowpass is None else BatchLowPass(1, lowpass[0], SAMPLE_RATE_HZ,
                                                            lowpass[1])
     except ValueError as exc:
         parser.error(f'--lowpass-hz: {exc}')

@@ -109,11 +109,13 @@ class OutputLines:
         for line in self.proc.stdout:
             self.lines.append((time.monotonic(), line))
 
-    def wait_for(self, text: str, timeout: float) -> float | None:
-        """Monotonic time of the first line containing `text`, waiting at most `timeout` s."""
+    def wait_for(self, text: str, timeout: float, since: float = 0.0) -> float | None:
+        """Monotonic time of the first line containing `text` read at or after `since`,
+        waiting at most `timeout` s."""
         deadline = time.monotonic() + timeout
         while True:
-            found = next((t for t, line in list(self.lines) if text in line), None)
+            found = next((t for t, line in list(self.lines) if t >= since and text in line),
+                         None)
             if found is not None or time.monotonic() > deadline:
                 return found
             time.sleep(0.01)

@@ -305,6 +305,11 @@ class AllegroDriver(TacforceNode):
             self.driver.set_torques(tau)
         except LinkLost as error:
             raise RuntimeError(f'Allegro link failed: {error}') from None
+        except AllegroError:
+            # The polling thread made the hand safe after this tick's check: the same end.
+            if self.driver.safe_stop:
+                raise RuntimeError(f'force control ended: {self.driver.safe_stop}') from None
+            raise
         self._tau = tau
         self.state_publisher.publish(self._state_message(now, state, q, qdot))
 

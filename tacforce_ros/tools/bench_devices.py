@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import json
 import platform
+import sys
 import threading
 import time
 from collections.abc import Callable
@@ -45,6 +46,9 @@ def _measure(driver: PollingDriver, sent_log, sequence_of: Callable, duration: f
     driver.start()
     if first.wait(FIRST_SAMPLE_TIMEOUT_S):
         time.sleep(duration)
+    else:
+        print(f'bench_devices: {type(driver).__name__} delivered no sample within '
+              f'{FIRST_SAMPLE_TIMEOUT_S:g} s; its row shows nothing delivered', file=sys.stderr)
     driver.close()
     sent = {(k % modulo if modulo else k): t for k, t in list(sent_log)}
     latencies = np.array([(t - sent[k]) * 1e6 for k, t in arrivals if k in sent])

@@ -171,7 +171,10 @@ class AllegroConfig:
     A silent hand (no complete FINGER_POSE cycle while the link is up): after
     ``silent_warn_after`` s a warning, and the stream is requested again (SET_PERIOD) every
     ``silent_warn_after`` s; after ``silent_timeout`` s zero torque and servos off, and torque
-    commands are refused from then on (the servos stay off when the stream returns).
+    commands are refused from then on (the servos stay off when the stream returns). A check
+    that comes more than ``silent_warn_after``/2 after the previous one (the host did not run
+    the driver) is counted in ``diagnostics.late_polls`` and defers any verdict by that long
+    again, so that a hand stalled with the driver (an emulator) is heard before it is blamed.
     """
 
     interface: str = 'pcan'
@@ -225,6 +228,8 @@ class AllegroV4Driver(PollingDriver[JointSample]):
         self.safe_stop = ''
         self._streaming = False                   # the stream was asked for (start-up done)
         self._last_cycle: float | None = None     # monotonic time of the last complete cycle
+        self._last_watch: float | None = None     # monotonic time of the last silence check
+        self._judge_after = 0.0                   # no silence verdict before (after a stall)
         self._silent = False
         self._last_request = 0.0
         self.hand_info: HandInfo | None = None
@@ -310,6 +315,13 @@ class AllegroV4Driver(PollingDriver[JointSample]):
     def _watch_stream(self, cycle_completed: bool) -> None:
         """The silent-hand policy (see AllegroConfig), checked on every poll."""
         now = time.monotonic()
+        grace = self.config.silent_warn_after / 2
+        if self._last_watch is not None and now - self._last_watch > grace:
+            # This thread was not run (an overloaded host stalls every thread, an emulated hand's
+            # too): the hand gets that long again, with the driver awake, to be heard.
+            self._judge_after = now + grace
+            self.diagnostics.add(late_polls=1)
+        self._last_watch = now
         if cycle_completed or self._last_cycle is None:
             if self._silent:
                 self._silent = False
@@ -318,7 +330,7 @@ class AllegroV4Driver(PollingDriver[JointSample]):
             self._last_cycle = now
             return
         silence = now - self._last_cycle
-        if silence < self.config.silent_warn_after:
+        if silence < self.config.silent_warn_after or now < self._judge_after:
             return
         if not self._silent:
             self._silent = True

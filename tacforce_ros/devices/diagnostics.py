@@ -16,6 +16,8 @@ class LinkDiagnostics:
     could not be decoded (bad JSON, wrong length, wrong DLC, wrong taxel count). ``gaps`` counts
     samples missing according to the device's sequence numbers (or incomplete CAN cycles), and
     ``reordered`` inputs that arrived older than one already delivered (they are dropped).
+    ``late_polls`` counts polls the host ran late enough that the driver could not have seen
+    the device (its thread was not scheduled); that time is not counted as device silence.
     """
 
     received: int = 0
@@ -25,6 +27,7 @@ class LinkDiagnostics:
     gaps: int = 0
     reordered: int = 0
     reconnects: int = 0
+    late_polls: int = 0
     status_warnings: int = 0
     status_errors: int = 0
     last_seen: float = math.nan      # time.monotonic() of the last input, NaN before the first

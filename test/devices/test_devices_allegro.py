@@ -8,7 +8,7 @@ import time
 import can
 import numpy as np
 import pytest
-from devices_support import wait_until
+from devices_support import EVENT_TIMEOUT, wait_until
 from hypothesis import given
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
@@ -111,27 +111,28 @@ def test_start_up_and_torque_frames_on_the_wire(hand):
 def test_pose_stream_torques_and_safe_close(hand):
     with AllegroV4Driver(socketcand_config(hand.address)) as driver:
         driver.start()
-        assert driver.wait_for_samples(50, timeout=5)
+        assert driver.wait_for_samples(50, timeout=EVENT_TIMEOUT)
         np.testing.assert_allclose(driver.latest().positions, POSE, atol=RAD_PER_COUNT / 2)
         assert hand.servo_on and hand.period_ms == 3
         driver.set_torques(np.full(16, 10.0))
-        assert wait_until(lambda: np.allclose(hand.torques, FIRMWARE_TORQUE_LIMITS), 2.0)
+        assert wait_until(lambda: np.allclose(hand.torques, FIRMWARE_TORQUE_LIMITS), EVENT_TIMEOUT)
         diag = driver.diagnostics.snapshot()
         assert diag.gaps == diag.malformed == 0
-    assert wait_until(lambda: not hand.servo_on and hand.period_ms == 0, 2.0)
+    assert wait_until(lambda: not hand.servo_on and hand.period_ms == 0, EVENT_TIMEOUT)
     assert np.all(hand.torque_log[-1] == 0)
 
 
 def test_wrong_dlc_and_unknown_ids_are_counted_and_the_stream_continues(hand):
     with AllegroV4Driver(socketcand_config(hand.address)) as driver:
         driver.start()
-        assert driver.wait_for_samples(5, timeout=5)
+        assert driver.wait_for_samples(5, timeout=EVENT_TIMEOUT)
         hand.inject(wire_id(CMD_FINGER_POSE + 1), bytes(6))
-        assert wait_until(lambda: driver.diagnostics.malformed == 1, 2.0)
+        assert wait_until(lambda: driver.diagnostics.malformed == 1, EVENT_TIMEOUT)
         assert 'FINGER_POSE 1 with DLC 6' in driver.diagnostics.last_error
         hand.inject(0x3FC, bytes(2))
-        assert wait_until(lambda: 'unexpected CAN id 0x3fc' in driver.diagnostics.last_error, 2)
-        assert driver.wait_for_samples(20, timeout=5)
+        assert wait_until(lambda: 'unexpected CAN id 0x3fc' in driver.diagnostics.last_error,
+                          EVENT_TIMEOUT)
+        assert driver.wait_for_samples(20, timeout=EVENT_TIMEOUT)
         diag = driver.diagnostics.snapshot()
     assert diag.malformed == 1 and diag.dropped == 2 and diag.gaps == 0
 
@@ -139,28 +140,28 @@ def test_wrong_dlc_and_unknown_ids_are_counted_and_the_stream_continues(hand):
 def test_a_hand_that_stops_streaming_goes_stale_and_recovers(hand):
     with AllegroV4Driver(socketcand_config(hand.address, stale_after=0.25)) as driver:
         driver.start()
-        assert driver.wait_for_samples(5, timeout=5)
+        assert driver.wait_for_samples(5, timeout=EVENT_TIMEOUT)
         assert not driver.is_stale()
         hand.pause_stream()
-        assert wait_until(driver.is_stale, 2.0)
+        assert wait_until(driver.is_stale, EVENT_TIMEOUT)
         age = driver.diagnostics.age()
         time.sleep(0.05)
         assert driver.diagnostics.age() > age
         hand.pause_stream(False)
-        assert driver.wait_for_samples(5, timeout=5) and not driver.is_stale()
+        assert driver.wait_for_samples(5, timeout=EVENT_TIMEOUT) and not driver.is_stale()
 
 
 def test_a_fatal_error_in_the_driver_thread_makes_the_hand_safe(hand):
     with AllegroV4Driver(socketcand_config(hand.address)) as driver:
         driver.set_torques(np.full(16, 0.1))
-        assert wait_until(lambda: hand.torques[0] == pytest.approx(0.1), 2.0)
+        assert wait_until(lambda: hand.torques[0] == pytest.approx(0.1), EVENT_TIMEOUT)
 
         def broken_consumer(sample):
             raise RuntimeError('controller crashed')
         driver.add_callback(broken_consumer)
         driver.start()
-        assert wait_until(lambda: driver.fatal_error is not None, 2.0)
-        assert wait_until(lambda: not hand.servo_on, 2.0)
+        assert wait_until(lambda: driver.fatal_error is not None, EVENT_TIMEOUT)
+        assert wait_until(lambda: not hand.servo_on, EVENT_TIMEOUT)
         assert np.all(hand.torques == 0)
         assert 'controller crashed' in driver.diagnostics.last_error
 
@@ -189,7 +190,7 @@ def test_driver_reaches_a_hand_in_another_process():
         port = json.loads(process.stdout.readline())['port']
         with AllegroV4Driver(socketcand_config(('127.0.0.1', port))) as driver:
             driver.start()
-            assert driver.wait_for_samples(100, timeout=5)
+            assert driver.wait_for_samples(100, timeout=EVENT_TIMEOUT)
             np.testing.assert_allclose(driver.latest().positions, pose, atol=RAD_PER_COUNT)
             driver.set_torques(np.full(16, 0.2))
             time.sleep(0.1)

@@ -6,7 +6,7 @@ import time
 
 import numpy as np
 import pytest
-from devices_support import wait_until
+from devices_support import EVENT_TIMEOUT, wait_until
 
 from tacforce_ros.devices import allegro
 from tacforce_ros.devices.allegro import AllegroConfig, AllegroError, AllegroV4Driver
@@ -43,12 +43,13 @@ def test_a_closed_link_stops_the_driver_at_once():
     driver = AllegroV4Driver(config(hand.address[1], silent_timeout=30.0))
     try:
         driver.start()
-        assert driver.wait_for_samples(10, timeout=5)
+        assert driver.wait_for_samples(10, timeout=EVENT_TIMEOUT)
         hand.close()
-        assert wait_until(lambda: driver.fatal_error is not None, 3.0)
+        assert wait_until(lambda: driver.fatal_error is not None, EVENT_TIMEOUT)
         assert isinstance(driver.fatal_error, LinkLost)
         assert 'closed the connection' in str(driver.fatal_error)
-        assert wait_until(lambda: not driver._thread.is_alive(), 1.0), 'polling thread spins on'
+        assert wait_until(lambda: not driver._thread.is_alive(), EVENT_TIMEOUT), \
+            'polling thread spins on'
     finally:
         driver.close()
 
@@ -60,14 +61,40 @@ def test_a_silent_hand_is_made_safe_and_torques_are_refused():
         events = []
         driver.add_event_callback(lambda level, text: events.append((level, text)))
         driver.start()
-        assert driver.wait_for_samples(10, timeout=5)
+        assert driver.wait_for_samples(10, timeout=EVENT_TIMEOUT)
         driver.set_torques(np.full(16, 0.1))
         hand.pause_stream()
         started = time.monotonic()
-        assert wait_until(lambda: driver.safe_stop, 5.0)
+        # Bounds for a host that stalls: silence counts only while the driver runs.
+        assert wait_until(lambda: driver.safe_stop, 30.0)
         assert time.monotonic() - started >= 0.5
-        assert wait_until(lambda: not hand.servo_on, 2.0) and np.all(hand.torques == 0)
+        assert wait_until(lambda: not hand.servo_on, EVENT_TIMEOUT) and np.all(hand.torques == 0)
         with pytest.raises(AllegroError, match='torque refused: the hand sent no joint data'):
             driver.set_torques(np.zeros(16))
         levels = [level for level, _ in events]
         assert levels[levels.index(logging.WARNING):][:2] == [logging.WARNING, logging.ERROR]
+
+
+def test_time_the_driver_was_not_run_is_not_the_hands_silence():
+    """Nobody polls for 1 s (a host that does not run the driver, and stalls an emulated hand
+    with it): the first poll after it finds nothing queued, and that is not yet a silent hand;
+    a hand that stays silent is judged once the driver has run a while again."""
+    with AllegroEmulator(lambda: POSE, lambda tau: None) as hand, \
+            AllegroV4Driver(config(hand.address[1], silent_warn_after=0.1,
+                                   silent_timeout=0.5)) as driver:
+        events = []
+        driver.add_event_callback(lambda level, text: events.append((level, text)))
+        assert wait_until(lambda: driver.poll(0.01) and driver.latest() is not None, EVENT_TIMEOUT)
+        hand.pause_stream()
+        assert wait_until(lambda: not driver.poll(0.01), EVENT_TIMEOUT)    # queue drained
+        before = driver.diagnostics.late_polls
+        time.sleep(1.0)
+        assert driver.poll(0.0) == []
+        assert driver.diagnostics.late_polls > before
+        assert not driver.safe_stop and not events
+        hand.pause_stream(False)
+        assert wait_until(lambda: driver.poll(0.01), EVENT_TIMEOUT)
+        driver.set_torques(np.full(16, 0.1))
+        hand.pause_stream()
+        assert wait_until(lambda: driver.poll(0.01) is not None and driver.safe_stop,
+                          EVENT_TIMEOUT)

@@ -4,7 +4,7 @@ import threading
 
 import numpy as np
 import pytest
-from devices_support import wait_until
+from devices_support import EVENT_TIMEOUT, wait_until
 from hypothesis import given
 from hypothesis import strategies as st
 
@@ -83,13 +83,13 @@ def test_stream_scales_counts_and_stops_on_close():
     source = CountingSource()
     with NetFtEmulator(source, rate_hz=500) as emulator:
         client = client_for(emulator)
-        assert client.wait_for_samples(20, timeout=5)
+        assert client.wait_for_samples(20, timeout=EVENT_TIMEOUT)
         sample = client.latest()
         np.testing.assert_allclose(sample.wrench[2:], [2.0, 0, 0, -0.5])
         assert sample.wrench.dtype == np.float64
         assert sample.stamp.monotonic > 0
         client.close()
-        assert wait_until(lambda: not emulator.streaming, 2.0)
+        assert wait_until(lambda: not emulator.streaming, EVENT_TIMEOUT)
         diag = client.diagnostics.snapshot()
         assert diag.gaps == diag.dropped == diag.malformed == 0
 
@@ -98,10 +98,10 @@ def test_bad_datagrams_are_counted_and_good_records_around_them_all_arrive():
     source = CountingSource()
     with NetFtEmulator(source, rate_hz=500) as emulator:
         client = client_for(emulator)
-        assert client.wait_for_samples(5, timeout=5)
+        assert client.wait_for_samples(5, timeout=EVENT_TIMEOUT)
         for payload in (bytes(20), bytes(41), bytes(36 * 2 + 1)):    # truncated, oversized
             emulator.send_raw(payload)
-        assert client.wait_for_samples(10, timeout=5)
+        assert client.wait_for_samples(10, timeout=EVENT_TIMEOUT)
         client.close()
     diag = client.diagnostics.snapshot()
     assert diag.malformed == 3 and diag.dropped == 3
@@ -116,11 +116,11 @@ def test_skipped_and_reordered_records_are_counted():
         client = client_for(emulator)
         sequences = []
         client.add_callback(lambda s: sequences.append(s.rdt_sequence))
-        assert client.wait_for_samples(5, timeout=5)
+        assert client.wait_for_samples(5, timeout=EVENT_TIMEOUT)
         emulator.skip(3)
-        assert client.wait_for_samples(5, timeout=5)
+        assert client.wait_for_samples(5, timeout=EVENT_TIMEOUT)
         emulator.reorder_next()
-        assert client.wait_for_samples(5, timeout=5)
+        assert client.wait_for_samples(5, timeout=EVENT_TIMEOUT)
         client.close()
     diag = client.diagnostics.snapshot()
     # 3 skipped + 1 held back (a gap when its successor arrives, then reordered on arrival).
@@ -135,7 +135,7 @@ def test_wrap_around_is_not_a_gap():
         client = client_for(emulator)
         sequences = []
         client.add_callback(lambda s: sequences.append(s.rdt_sequence))
-        assert client.wait_for_samples(15, timeout=5)
+        assert client.wait_for_samples(15, timeout=EVENT_TIMEOUT)
         client.close()
     assert 2**32 - 1 in sequences and 0 in sequences
     assert client.diagnostics.gaps == 0 and client.diagnostics.reordered == 0
@@ -148,11 +148,11 @@ def test_monitor_warnings_are_delivered_and_serious_status_records_withheld():
         events, delivered = [], []
         client.add_event_callback(lambda level, text: events.append((level, text)))
         client.add_callback(lambda s: delivered.append(s.status))
-        assert client.wait_for_samples(3, timeout=5)
+        assert client.wait_for_samples(3, timeout=EVENT_TIMEOUT)
         source.status = 0x80020000          # a serious word: no record may pass
-        assert wait_until(lambda: client.diagnostics.status_errors >= 20, 5.0)
+        assert wait_until(lambda: client.diagnostics.status_errors >= 20, EVENT_TIMEOUT)
         source.status = 0
-        assert client.wait_for_samples(3, timeout=5)
+        assert client.wait_for_samples(3, timeout=EVENT_TIMEOUT)
         client.close()
     diag = client.diagnostics.snapshot()
     assert diag.status_warnings >= 3 and diag.dropped >= diag.status_errors >= 20
@@ -166,7 +166,7 @@ def test_serious_status_records_stay_out_of_the_host_bias():
     source = CountingSource(status=0x80020000)
     with NetFtEmulator(source, rate_hz=500) as emulator:
         client = client_for(emulator)
-        assert wait_until(lambda: client.diagnostics.status_errors >= 10, 5.0)
+        assert wait_until(lambda: client.diagnostics.status_errors >= 10, EVENT_TIMEOUT)
         with pytest.raises(RuntimeError, match='no wrench received'):
             client.set_host_bias()
         client.close()
@@ -176,14 +176,14 @@ def test_device_bias_and_host_bias_zero_the_reading():
     source = CountingSource()
     with NetFtEmulator(source, rate_hz=500) as emulator:
         client = client_for(emulator)
-        assert client.wait_for_samples(5, timeout=5)
+        assert client.wait_for_samples(5, timeout=EVENT_TIMEOUT)
         bias = client.set_host_bias()
         assert bias[2] == pytest.approx(2.0)
-        assert client.wait_for_samples(2, timeout=5)
+        assert client.wait_for_samples(2, timeout=EVENT_TIMEOUT)
         assert client.latest().wrench[2] == pytest.approx(0.0)
         client.clear_host_bias()
         client.bias_device()
-        assert wait_until(lambda: client.latest().counts[2] == 0, 2.0)
+        assert wait_until(lambda: client.latest().counts[2] == 0, EVENT_TIMEOUT)
         client.close()
 
 
@@ -192,17 +192,17 @@ def test_wrong_request_header_is_ignored_by_the_box():
     with NetFtEmulator(CountingSource(), rate_hz=500) as emulator:
         with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
             sock.sendto(bytes.fromhex('4321000200000000'), emulator.address)
-            assert wait_until(lambda: emulator.diagnostics.malformed == 1, 2.0)
+            assert wait_until(lambda: emulator.diagnostics.malformed == 1, EVENT_TIMEOUT)
         assert not emulator.streaming
 
 
 def test_stale_when_the_box_stops_sending():
     with NetFtEmulator(CountingSource(), rate_hz=500) as emulator:
         client = client_for(emulator, stale_after=0.25)
-        assert client.wait_for_samples(3, timeout=5)
+        assert client.wait_for_samples(3, timeout=EVENT_TIMEOUT)
         assert not client.is_stale()
         emulator.skip(10**9)
-        assert wait_until(client.is_stale, 2.0)
+        assert wait_until(client.is_stale, EVENT_TIMEOUT)
         client.close()
 
 

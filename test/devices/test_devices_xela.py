@@ -3,7 +3,7 @@ import json
 
 import numpy as np
 import pytest
-from devices_support import wait_until
+from devices_support import EVENT_TIMEOUT, wait_until
 from hypothesis import given
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
@@ -77,7 +77,7 @@ def test_frames_are_stamped_split_per_array_and_complete():
     with XelaServerEmulator(source, rate_hz=200) as server:
         client = XelaClient(XelaConfig(url=server.url), HAND)
         client.start()
-        assert client.wait_for_samples(20, timeout=5)
+        assert client.wait_for_samples(20, timeout=EVENT_TIMEOUT)
         client.close()
     frame = client.latest()
     assert frame.counts.shape == (368, 3) and frame.counts.dtype == np.uint16
@@ -97,14 +97,14 @@ def test_bad_frames_are_counted_and_the_good_ones_around_them_all_arrive():
         sequences = []
         client.add_callback(lambda f: sequences.append(f.sequence))
         client.start()
-        assert client.wait_for_samples(5, timeout=5)
+        assert client.wait_for_samples(5, timeout=EVENT_TIMEOUT)
         server.inject_text('{"message": 1, "type": "routine", ')
-        assert wait_until(lambda: client.diagnostics.malformed == 1, 2.0)
+        assert wait_until(lambda: client.diagnostics.malformed == 1, EVENT_TIMEOUT)
         short = routine_message(10**6, np.zeros((300, 3), np.uint16), np.zeros(300), 0.0)
         server.inject_text(short)
-        assert wait_until(lambda: client.diagnostics.malformed == 2, 2.0)
+        assert wait_until(lambda: client.diagnostics.malformed == 2, EVENT_TIMEOUT)
         assert 'reports 300 taxels, expected 368' in client.diagnostics.last_error
-        assert client.wait_for_samples(5, timeout=5)
+        assert client.wait_for_samples(5, timeout=EVENT_TIMEOUT)
         client.close()
     assert sequences == list(range(sequences[0], sequences[-1] + 1))
     assert client.diagnostics.gaps == 0
@@ -115,13 +115,13 @@ def test_server_that_disappears_and_comes_back_is_reconnected():
         client = XelaClient(XelaConfig(url=server.url, reconnect_initial=0.02,
                                        reconnect_max=0.1, stale_after=0.05))
         client.start()
-        assert client.wait_for_samples(5, timeout=5)
+        assert client.wait_for_samples(5, timeout=EVENT_TIMEOUT)
         server.stop()
-        assert wait_until(lambda: not client.connected and client.is_stale(), 3.0)
+        assert wait_until(lambda: not client.connected and client.is_stale(), EVENT_TIMEOUT)
         assert 'failed' in client.diagnostics.last_error or 'closed' in \
             client.diagnostics.last_error
         server.start()
-        assert client.wait_for_samples(5, timeout=5)
+        assert client.wait_for_samples(5, timeout=EVENT_TIMEOUT)
         client.close()
     diag = client.diagnostics.snapshot()
     assert diag.reconnects == 1 and diag.malformed == 0
@@ -132,7 +132,7 @@ def test_client_gives_up_after_the_configured_attempts():
         url = server.url
     client = XelaClient(XelaConfig(url=url, reconnect_initial=0.01, max_attempts=3))
     client.start()
-    assert wait_until(lambda: client.fatal_error is not None, 5.0)
+    assert wait_until(lambda: client.fatal_error is not None, EVENT_TIMEOUT)
     assert 'gave up after 3 attempts' in str(client.fatal_error)
     client.close()
 

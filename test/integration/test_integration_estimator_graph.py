@@ -25,12 +25,16 @@ from tacforce_ros.paths import config_dir
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from graph_support import (Graph, graph_nodes, session_args, synthetic_model_set,  # noqa: E402
-                           unique_domain_id, wait_until, with_overrides)
+                           unique_domain_id, wait_until, wait_while_progressing, with_overrides)
 
 pytestmark = pytest.mark.ros
 DOMAIN = unique_domain_id(offset=83)
 NODES = ('sim_world', 'xela_driver', 'estimator', 'allegro_driver')
 SAFE_MODES = ('safe', 'hold')
+# A starved machine runs the graph slower (4 Hz of estimates seen on a CI host): wait while
+# messages keep coming, fail when none came for STALLED_AFTER_S.
+STALLED_AFTER_S = 60.0
+TIMEOUT_S = 900.0
 
 
 @pytest.fixture(scope='module')
@@ -79,9 +83,10 @@ def test_third_party_sees_every_array_wrench_at_100_hz(graph, hand):
                                      receiver(a.name), qos)
             for a in hand.arrays]
     try:
-        assert wait_until(lambda: all(len(s) > 300 for s in stamps.values()), 60.0,
-                          lambda: spin(node)), (
-            {k: len(v) for k, v in stamps.items()}, running.logs())
+        assert wait_while_progressing(
+            lambda: all(len(s) > 300 for s in stamps.values()),
+            lambda: sum(len(s) for s in stamps.values()), STALLED_AFTER_S, TIMEOUT_S,
+            lambda: spin(node)), ({k: len(v) for k, v in stamps.items()}, running.logs())
     finally:
         for sub in subs:
             node.destroy_subscription(sub)
@@ -115,15 +120,18 @@ def test_stale_tactile_stream_makes_the_controller_safe_within_100_ms(graph):
         command.publish(Vector3Stamped())
         spin(node)
     try:
-        assert wait_until(lambda: states and states[-1].mode == 'closed_loop'
-                          and states[-1].estimate_fresh, 60.0, commanding), \
+        assert wait_while_progressing(
+            lambda: states and states[-1].mode == 'closed_loop' and states[-1].estimate_fresh,
+            lambda: len(states), STALLED_AFTER_S, TIMEOUT_S, commanding), \
             ([s.mode for s in states[-5:]], running.logs())
-        assert pause.wait_for_service(timeout_sec=10.0)
+        assert pause.wait_for_service(timeout_sec=30.0)
         future = pause.call_async(SetBool.Request(data=True))
-        assert wait_until(future.done, 10.0, lambda: spin(node)) and future.result().success
+        assert wait_until(future.done, 30.0, lambda: spin(node)) and future.result().success
         paused_from = len(states)
-        assert wait_until(lambda: any(s.mode == 'hold' for s in states[paused_from:]), 10.0,
-                          lambda: spin(node)), [s.mode for s in states[paused_from:]][:20]
+        assert wait_while_progressing(
+            lambda: any(s.mode == 'hold' for s in states[paused_from:]),
+            lambda: len(states), STALLED_AFTER_S, TIMEOUT_S, lambda: spin(node)), \
+            [s.mode for s in states[paused_from:]][:20]
         # Every valid estimate carries its tactile frame's stamp: both bound the last frame.
         valid = [stamp_ns(e.header.stamp) for e in estimates
                  if e.estimates and all(x.valid for x in e.estimates)]
@@ -144,10 +152,12 @@ def test_stale_tactile_stream_makes_the_controller_safe_within_100_ms(graph):
         assert stale and all(not x.valid for e in stale for x in e.estimates)
         # The stream returns: the controller ramps back into closed loop.
         future = pause.call_async(SetBool.Request(data=False))
-        assert wait_until(future.done, 10.0, lambda: spin(node)) and future.result().success
+        assert wait_until(future.done, 30.0, lambda: spin(node)) and future.result().success
         resumed_from = len(states)
-        assert wait_until(lambda: any(s.mode == 'closed_loop' and s.estimate_fresh
-                                      for s in states[resumed_from:]), 30.0, lambda: spin(node))
+        assert wait_while_progressing(
+            lambda: any(s.mode == 'closed_loop' and s.estimate_fresh
+                        for s in states[resumed_from:]),
+            lambda: len(states), STALLED_AFTER_S, TIMEOUT_S, lambda: spin(node))
     finally:
         for sub in subs:
             node.destroy_subscription(sub)

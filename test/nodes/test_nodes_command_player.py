@@ -62,7 +62,7 @@ def start_when_matched(ros_node, sub):
         assert spin_until(ros_node, lambda: client.service_is_ready()
                           and sub.get_publisher_count() > 0, 20.0), 'player never appeared'
         future = client.call_async(Trigger.Request())
-        assert spin_until(ros_node, future.done, 10.0), '~/start did not answer'
+        assert spin_until(ros_node, future.done, 30.0), '~/start did not answer'
         return future.result()
     finally:
         ros_node.destroy_client(client)
@@ -121,7 +121,7 @@ def test_waits_for_the_start_service_when_not_autostarting(ros_node, sequence_fi
         assert received == [], 'published before ~/start'
         reply = start_when_matched(ros_node, sub)
         assert reply.success and reply.message.startswith('started')
-        assert spin_until(ros_node, lambda: len(received) >= 5, 10.0)
+        assert spin_until(ros_node, lambda: len(received) >= 5, 30.0)
         assert received[0].vector.z == 0.0
         assert start_when_matched(ros_node, sub).message.startswith('restarted')
     finally:

@@ -72,7 +72,7 @@ def test_estimates_follow_the_model_set_with_the_node_tare(models, tmp_path):
                 return stamp[0]
 
             def check(sent: dict[int, np.ndarray]) -> None:
-                assert spin_until(node, lambda: all(s in estimates for s in sent), 10.0)
+                assert spin_until(node, lambda: all(s in estimates for s in sent), 30.0)
                 for s, counts in sent.items():
                     expected = reference.estimate(counts)
                     got = estimates[s].estimates
@@ -82,7 +82,7 @@ def test_estimates_follow_the_model_set_with_the_node_tare(models, tmp_path):
                     np.testing.assert_allclose(force, expected.force, rtol=0, atol=1e-9)
                     np.testing.assert_allclose([e.ood_score for e in got], expected.ood_score,
                                                rtol=1e-6)
-                    assert spin_until(node, lambda: len(wrenches.get(s, ())) == len(got), 5.0)
+                    assert spin_until(node, lambda: len(wrenches.get(s, ())) == len(got), 30.0)
                     for k, wrench in wrenches[s].items():
                         assert wrench.header.frame_id == HAND.arrays[k].frame_id
                         np.testing.assert_array_equal(
@@ -115,12 +115,12 @@ def test_estimates_follow_the_model_set_with_the_node_tare(models, tmp_path):
                     [[e.force.x, e.force.y, e.force.z] for e in estimates[s].estimates],
                     at_rest, rtol=0, atol=1e-9)
 
-            assert spin_until(node, retared, 10.0)
+            assert spin_until(node, retared, 30.0)
             check({send(c): c for c in frames(6, rest, 3, press=400.0)})
 
             estimates.clear()
             assert spin_until(node, lambda: any(
-                m.estimates[0].status == 'stale' for m in estimates.values()), 5.0)
+                m.estimates[0].status == 'stale' for m in estimates.values()), 30.0)
             stale = [m for m in estimates.values() if m.estimates[0].status == 'stale']
             assert all(not e.valid and e.ood_score == np.inf for m in stale for e in m.estimates)
     finally:
@@ -158,7 +158,7 @@ def test_low_pass_estimates_are_the_core_filter_on_the_frames_received(models):
                 publisher.publish(tactile_hand(stamp, HAND, counts, None, 0.0, 1))
                 sent[stamp] = counts
                 spin_until(node, lambda: False, 0.02)
-            assert spin_until(node, lambda: max(sent) in estimates, 10.0), 'no estimate of the end'
+            assert spin_until(node, lambda: max(sent) in estimates, 30.0), 'no estimate of the end'
     finally:
         output = stop(proc)
     assert proc.returncode == EXIT_OK, output

@@ -65,17 +65,18 @@ def test_stale_watchdog_follows_the_simulated_clock(tmp_path):
             # clock from 0 to CLOCK_START_NS before any frame).
             for _ in range(30):
                 tick(with_frame=True)
-            assert spin_until(node, lambda: 'ok' in statuses(), 10.0), statuses()
+            assert spin_until(node, lambda: 'ok' in statuses(), 30.0), statuses()
             # Frames stop, the clock stands still: 0.6 s of wall time, 24 stale timeouts of
-            # wall time, yet nothing stale.
+            # wall time, yet nothing stale (estimates of the last frames may still come: a
+            # stalled host delays them).
             spin_until(node, lambda: False, 0.3)
             received.clear()
             spin_until(node, lambda: False, 0.6)
-            assert received == [], [m.estimates[0].status for m in received]
+            assert 'stale' not in statuses(), [m.estimates[0].status for m in received]
             # The simulated clock moves on without frames: stale, stamped in simulated time.
             for _ in range(8):
                 tick(with_frame=False)
-            assert spin_until(node, lambda: 'stale' in statuses(), 10.0), statuses()
+            assert spin_until(node, lambda: 'stale' in statuses(), 30.0), statuses()
             stale = [m for m in received if m.estimates[0].status == 'stale']
             assert all(not e.valid for m in stale for e in m.estimates)
             first_stale_ns = min(stamp_ns(m.header.stamp) for m in stale)
@@ -86,7 +87,7 @@ def test_stale_watchdog_follows_the_simulated_clock(tmp_path):
             for _ in range(10):
                 tick(with_frame=True)
             assert spin_until(node, lambda: any(m.estimates[0].status == 'ok'
-                                                for m in received[-3:]), 10.0), statuses()
+                                                for m in received[-3:]), 30.0), statuses()
     finally:
         output = stop(proc)
     assert proc.returncode == EXIT_OK, output

@@ -69,16 +69,29 @@ def spin_until(node, done, timeout: float) -> bool:
     return done()
 
 
-def call_service(node, srv_type, name: str, request, timeout: float = 20.0):
-    """Call a service from a test node, waiting (bounded) for it to appear and answer."""
-    client = node.create_client(srv_type, name)
-    try:
-        assert spin_until(node, client.service_is_ready, timeout), f'{name} never appeared'
-        future = client.call_async(request)
-        assert spin_until(node, future.done, timeout), f'{name} did not answer'
-        return future.result()
-    finally:
-        node.destroy_client(client)
+def call_service(node, srv_type, name: str, request, timeout: float = 60.0,
+                 resend_after: float | None = None):
+    """Call a service from a test node, waiting (bounded) for it to appear and answer.
+
+    One client per node and service, kept for the node's life: rmw_fastrtps drops a response
+    when the server has not yet matched the client's response reader (it waits ~100 ms for it:
+    ros2/rmw_fastrtps#390, #467), which a stalling host makes likely on a new client's first
+    call. `resend_after` (idempotent requests only): send again if no answer came within that
+    many seconds; a first answered call then proves the client's path for the next ones."""
+    clients = node.__dict__.setdefault('_test_service_clients', {})
+    client = clients.get(name)
+    if client is None:
+        client = clients[name] = node.create_client(srv_type, name)
+    deadline = time.monotonic() + timeout
+    assert spin_until(node, client.service_is_ready, timeout), f'{name} never appeared'
+    futures = []
+    while time.monotonic() < deadline and not any(f.done() for f in futures):
+        futures.append(client.call_async(request))
+        wait = deadline - time.monotonic() if resend_after is None else resend_after
+        spin_until(node, lambda: any(f.done() for f in futures), max(0.0, wait))
+    answered = [f for f in futures if f.done()]
+    assert answered, f'{name} did not answer ({len(futures)} request(s) sent)'
+    return answered[0].result()
 
 
 @contextlib.contextmanager

@@ -43,7 +43,7 @@ def test_parameters_come_from_the_params_file(tmp_path):
         assert spin_until(node, lambda: len(received) >= 3, 60.0), 'no command arrived'
         names = ['sequence', 'rate_hz', 'frame_id', 'autostart']
         reply = call_service(node, GetParameters, '/command_player/get_parameters',
-                             GetParameters.Request(names=names), timeout=60.0)
+                             GetParameters.Request(names=names), resend_after=5.0)
     finally:
         output = stop(proc)
         node.destroy_node()

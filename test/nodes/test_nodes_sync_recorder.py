@@ -143,6 +143,13 @@ def test_session_started_and_stopped_by_services_records_everything(ros_node, st
     proc = recorder(tmp_path, '-p', 'plate:=button')
     try:
         assert streams.wait_for_recorder(), 'recorder never subscribed'
+        # Refused requests first (idempotent, so sent again if unanswered): they prove each
+        # client's response path before the calls that change state.
+        assert not call_service(ros_node, Trigger, '/sync_recorder/stop', Trigger.Request(),
+                                resend_after=5.0).success
+        assert not call_service(ros_node, StartRecording, '/sync_recorder/start',
+                                StartRecording.Request(array='no_such_array'),
+                                resend_after=5.0).success
         reply = call_service(
             ros_node, StartRecording, '/sync_recorder/start', StartRecording.Request(
             array='index_middle', plate='flat', operator_notes='test session'))
@@ -217,7 +224,7 @@ def test_unknown_array_is_refused_at_start_up_and_by_the_service(ros_node, tmp_p
     proc = recorder(tmp_path)
     try:
         reply = call_service(ros_node, StartRecording, '/sync_recorder/start',
-                     StartRecording.Request(array='pinky_tip'))
+                             StartRecording.Request(array='pinky_tip'), resend_after=5.0)
     finally:
         stop(proc)
     assert not reply.success and 'pinky_tip' in reply.message
@@ -316,7 +323,7 @@ def test_under_sim_time_nothing_is_recorded_before_the_first_clock(ros_node, str
     try:
         assert streams.wait_for_recorder(), 'recorder never subscribed'
         early = call_service(ros_node, StartRecording, '/sync_recorder/start',
-                             StartRecording.Request(array='index_middle'))
+                             StartRecording.Request(array='index_middle'), resend_after=5.0)
         streams.run(0.5)                       # frames before any /clock
         assert not early.success and 'no clock yet' in early.message, early.message
         assert list(tmp_path.iterdir()) == [], 'a session began before the clock'

@@ -77,3 +77,13 @@ class BatchLowPass:
             np.subtract(z[0], ay[0], out=z[0])
             np.subtract(bu[2], ay[1], out=z[1])
         return x
+
+    def run(self, samples: np.ndarray) -> np.ndarray:
+        """Filter a recorded sequence (N, n_channels) sample by sample, as it would be online;
+        returns a new float64 array."""
+        out = np.array(samples, dtype=np.float64)
+        if out.ndim != 2 or out.shape[1] != self._z.shape[2]:
+            raise ValueError(f'need samples (N, {self._z.shape[2]}), got {out.shape}')
+        for row in out:
+            self(row)
+        return out

@@ -22,11 +22,14 @@ if TYPE_CHECKING:
 
 
 def simulate_calibration(hand: HandDescription, kinematics: HandKinematics, scene_name: str,
-                         seed: int, seconds: float, start: float = 0.0) -> CalibrationDataset:
+                         seed: int, seconds: float, start: float = 0.0,
+                         zero_phase_tactile: bool = True) -> CalibrationDataset:
     """Simulate `scene_name` with `seed` and keep the stamps in [start, seconds] (simulated s).
 
     Stamps are the simulator's time at the end of each step, as sim_world stamps its messages,
     so a window cut from a node-recorded bag can be reproduced here exactly.
+    `zero_phase_tactile` False keeps the tactile frames as the estimator receives them online
+    (the force, the reference, is filtered either way).
     """
     scene = load_scene(scene_name)
     sim = make_simulator(scene, hand, seed=seed)
@@ -48,7 +51,9 @@ def simulate_calibration(hand: HandDescription, kinematics: HandKinematics, scen
         if len(samples) < 2:
             raise DatasetError(f'{scene_name} seed {seed}: only {len(samples)} {stream} samples')
     t_tac, t_ft, t_q = (np.asarray(times[s]) for s in ('tactile', 'ft', 'joints'))
-    tactile = lowpass(np.stack(values['tactile']), fs=scene.tactile_rate)
+    tactile = np.stack(values['tactile'])
+    if zero_phase_tactile:
+        tactile = lowpass(tactile, fs=scene.tactile_rate)
     force = lowpass(np.stack(values['ft']), fs=scene.tactile_rate)
     first, last = common_span(t_tac, t_ft, t_q)
     inside = (t_tac >= first) & (t_tac <= last)

@@ -7,6 +7,8 @@ recomputes only the units whose key it enters.
 from __future__ import annotations
 
 import dataclasses
+import json
+import subprocess
 import sys
 import time
 from concurrent.futures import ProcessPoolExecutor, as_completed
@@ -34,6 +36,9 @@ def controllers_for(obj: str) -> tuple[str, ...]:
     closed-loop controllers alone."""
     return CONTROLLERS if obj == HELD_OUT_PLATE else CONTROLLERS[1:]
 ONLINE_MODELS = ('M3-lambda', 'M4')                          # Table II rows
+# The estimator's input low-pass settings compared end to end (None: off, the node's default).
+FILTER_CUTOFFS_HZ = (None, 20.0, 10.0, 5.0)
+NODE_LATENCY_SECONDS = 10.0      # bench_ros's latency test, frames at 100 Hz
 
 
 @dataclass(frozen=True)
@@ -97,10 +102,12 @@ def _hand():
     return _WORKER['hand'], _WORKER['kinematics']
 
 
-def job_calibration(scene: str, seed: int, seconds: float, target: str) -> str:
+def job_calibration(scene: str, seed: int, seconds: float, target: str,
+                    zero_phase_tactile: bool = True) -> str:
     from tacforce_ros.experiments.calibration_data import simulate_calibration
     hand, kinematics = _hand()
-    dataset = simulate_calibration(hand, kinematics, scene, seed, seconds)
+    dataset = simulate_calibration(hand, kinematics, scene, seed, seconds,
+                                   zero_phase_tactile=zero_phase_tactile)
     tmp = Path(target).with_name(Path(target).name + '.tmp')
     dataset.save(tmp)
     tmp.replace(target)
@@ -149,12 +156,17 @@ def job_final_model(array: str, kind: str, hyper: dict, training_set: str, prove
 
 
 def job_closed_loop(scene: str, seed: int, controller: str, model_config: str | None,
-                    sequence: str, control_rate: float, target: str) -> str:
+                    sequence: str, control_rate: float, target: str,
+                    lowpass: tuple[float, int] | None = None) -> str:
+    """`lowpass`: (cut-off Hz, order) of the estimator's causal input low-pass, None: off."""
     from tacforce_ros.control.command_sequence import ForceSequence
+    from tacforce_ros.estimation.preprocessing import SAMPLE_RATE_HZ
     from tacforce_ros.experiments.closed_loop import run_closed_loop
     from tacforce_ros.nodes.model_set import load_model_set
     hand, kinematics = _hand()
     models = None if model_config is None else load_model_set(model_config, hand)
+    if lowpass is not None:
+        models.estimator.set_lowpass(lowpass[0], SAMPLE_RATE_HZ, lowpass[1])
     trace = run_closed_loop(hand, kinematics, scene, seed, controller_config(controller),
                             ForceSequence.load(sequence), models, control_rate=control_rate,
                             tare_frames=tare_frames())
@@ -178,10 +190,15 @@ def controller_config(controller: str):
         else config
 
 
-def tare_frames() -> int:
-    """Frames the estimator node tares on (config/params/estimator.yaml)."""
+def estimator_parameter(name: str):
+    """A parameter of the estimator node as the project ships it (config/params/estimator.yaml)."""
     doc = yaml.safe_load((config_dir() / 'params' / 'estimator.yaml').read_text())
-    return int(doc['estimator']['ros__parameters']['tare_frames'])
+    return doc['estimator']['ros__parameters'][name]
+
+
+def tare_frames() -> int:
+    """Frames the estimator node tares on."""
+    return int(estimator_parameter('tare_frames'))
 
 
 def hand_digest() -> str:
@@ -218,25 +235,35 @@ def run_units(ctx: Context, title: str, units: list[tuple[str, Callable, tuple]]
     return results
 
 
+def calibration_unit(ctx: Context, array: str, plate: str, session: int, seconds: float,
+                     zero_phase_tactile: bool = True) -> tuple[str, tuple | None]:
+    """(dataset path, job unit to run, or None when the cache has it) of one session."""
+    scene = f'calibration_{array}_{plate}'
+    seed = session_seed(array, plate, session, ctx.settings.seed)
+    key = digest({'scene': scene_digest(scene), 'seed': seed, 'seconds': seconds,
+                  'code': code_digest('sim', 'hand', 'estimation/preprocessing',
+                                      'estimation/dataset', 'experiments/calibration_data'),
+                  'hand': hand_digest(),
+                  **({} if zero_phase_tactile else {'zero_phase_tactile': False})})
+    path = ctx.cache.path('calibration', key, '.npz')
+    if ctx.cache.lookup('calibration', key, '.npz') is not None:
+        return str(path), None
+    path.parent.mkdir(parents=True, exist_ok=True)
+    return str(path), (str(path), job_calibration,
+                       (scene, seed, seconds, str(path), zero_phase_tactile))
+
+
 def calibration_stage(ctx: Context) -> dict[str, dict[str, list[str]]]:
     """Simulated sessions: {array: {plate: [dataset paths]}}, training plates + held-out."""
     s = ctx.settings
-    code = code_digest('sim', 'hand', 'estimation/preprocessing', 'estimation/dataset',
-                       'experiments/calibration_data')
     jobs, layout = [], {}
     plan = [(a, p, k, s.session_seconds) for a in ARRAYS for p in PLATES
             for k in range(s.sessions_per_plate)]
     plan.append(('index_tip', HELD_OUT_PLATE, 0, s.online_seconds))   # online test session
     for array, plate, session, seconds in plan:
-        scene = f'calibration_{array}_{plate}'
-        seed = session_seed(array, plate, session, s.seed)
-        key = digest({'scene': scene_digest(scene), 'seed': seed, 'seconds': seconds,
-                      'code': code, 'hand': hand_digest()})
-        path = ctx.cache.path('calibration', key, '.npz')
-        layout.setdefault(array, {}).setdefault(plate, []).append(str(path))
-        if ctx.cache.lookup('calibration', key, '.npz') is None:
-            path.parent.mkdir(parents=True, exist_ok=True)
-            jobs.append((str(path), job_calibration, (scene, seed, seconds, str(path))))
+        path, job = calibration_unit(ctx, array, plate, session, seconds)
+        layout.setdefault(array, {}).setdefault(plate, []).append(path)
+        jobs += [job] if job is not None else []
     ctx.log(f'stage calibration: {len(plan)} sessions, {len(jobs)} to simulate')
     run_units(ctx, 'calibration sessions', jobs)
     return layout
@@ -310,9 +337,13 @@ def timing_stage(ctx: Context, models: dict) -> dict:
     from tacforce_ros.estimation.model_io import load_model
     from tacforce_ros.tools.bench import hand_estimator, time_interleaved
     s = ctx.settings
+    from tacforce_ros.estimation.preprocessing import CUTOFF_HZ, SAMPLE_RATE_HZ
+    from tacforce_ros.estimation.runtime import RuntimeEstimator
+    order = int(estimator_parameter('lowpass_order'))
     key = digest({'models': {a: {m: Path(p).stem for m, p in by.items()}
                              for a, by in models.items()},
-                  'repeats': s.timing_repeats, 'code': code_digest('estimation', 'tools/bench')})
+                  'repeats': s.timing_repeats, 'lowpass_order': order,
+                  'code': code_digest('estimation', 'tools/bench')})
     cached = ctx.cache.load_json('timing', key)
     if cached is not None:
         return cached
@@ -323,6 +354,8 @@ def timing_stage(ctx: Context, models: dict) -> dict:
     for label in s.models:
         kind, hyper = model_hyper(label, s)
         estimator = hand_estimator(hand, kind, hyper, s.seed)
+        filtered = RuntimeEstimator(hand, estimator.bundles)    # its cost is the cut-off's too
+        filtered.set_lowpass(CUTOFF_HZ, SAMPLE_RATE_HZ, order)
         frame = np.clip(np.round(hand.merge([b.x_offset for b in estimator.bundles])), 0,
                         65535).astype(np.uint16)
         for array in ARRAYS:
@@ -333,6 +366,8 @@ def timing_stage(ctx: Context, models: dict) -> dict:
             calls[(array, label, 'batch_one')] = lambda b=batch, x=one: b(x)
             calls[(array, label, 'full_hand_tick')] = \
                 lambda e=estimator, f=frame: e.estimate(f)
+            calls[(array, label, 'full_hand_tick_lowpass')] = \
+                lambda e=filtered, f=frame: e.estimate(f)
     measured = time_interleaved(calls, s.timing_repeats)
     timing: dict[str, dict] = {}
     for (array, label, what), value in measured.items():
@@ -369,6 +404,102 @@ def online_stage(ctx: Context, layout: dict, models: dict) -> dict:
     return result
 
 
+def node_latency_stage(ctx: Context) -> dict:
+    """The estimator node's frame -> 18 wrenches latency over DDS at 100 Hz (bench_ros, normal
+    scheduler, synthetic models: the transport and wake-up dominate, not the model), with the
+    node path only. A failure is recorded with its reason, never replaced by a number."""
+    s = ctx.settings
+    if not s.node_path:
+        return {'measured': False,
+                'reason': 'the node path is switched off for this run (--quick or --no-node-path)'}
+    key = digest({'seconds': NODE_LATENCY_SECONDS,
+                  'code': code_digest('nodes', 'estimation', 'tools/bench_ros')})
+    cached = ctx.cache.load_json('node_latency', key)
+    if cached is not None:
+        return cached
+    target = ctx.cache.path('node_latency', key, '.bench_ros.json')
+    target.parent.mkdir(parents=True, exist_ok=True)
+    arguments = ['--parts', 'estimator', '--latency-seconds', f'{NODE_LATENCY_SECONDS:g}',
+                 '--rates', '100', '--seconds', '1', '--realtime-priority', '0']
+    ctx.log('stage node latency: bench_ros ' + ' '.join(arguments))
+    started = time.perf_counter()
+    try:
+        done = subprocess.run([sys.executable, '-m', 'tacforce_ros.tools.bench_ros', *arguments,
+                               '--out', str(target)], capture_output=True, text=True,
+                              timeout=NODE_LATENCY_SECONDS + 300.0)
+    except subprocess.TimeoutExpired:
+        return {'measured': False, 'reason': 'bench_ros did not finish within '
+                f'{NODE_LATENCY_SECONDS + 300.0:g} s'}
+    if done.returncode != 0 or not target.is_file():
+        tail = (done.stdout + done.stderr).strip().splitlines()[-1:] or ['no output']
+        return {'measured': False, 'reason': f'bench_ros exited {done.returncode}: {tail[0]}'}
+    measured = json.loads(target.read_text())
+    latency = measured['estimator']['latency']
+    result = {'measured': True, 'median_ms': latency['median_ms'], 'p99_ms': latency['p99_ms'],
+              'frames': latency['frames'], 'complete': latency['complete'],
+              'load_average': measured['load_average'],
+              'command': 'bench_ros ' + ' '.join(arguments)}
+    ctx.timings['node latency'] = time.perf_counter() - started
+    ctx.cache.store_json('node_latency', key, result)
+    return result
+
+
+def end_to_end_stage(ctx: Context, layout: dict, models: dict, timing: dict,
+                     latency: dict) -> dict:
+    """What accuracy costs in time online: every model on the held-out session of the index
+    fingertip as the estimator receives it (the same session simulated again without the
+    training data's zero-phase filter on the tactile frames; offsets from the filtered one),
+    with the estimator's causal input low-pass off and at FILTER_CUTOFFS_HZ. Time: the
+    full-hand tick (with the filter when on), the filter's group delay, the node's median
+    latency (when measured), and their sum."""
+    from tacforce_ros.estimation.causal_filter import BatchLowPass
+    from tacforce_ros.estimation.dataset import CalibrationDataset
+    from tacforce_ros.estimation.metrics import error_stats
+    from tacforce_ros.estimation.model_io import load_model
+    from tacforce_ros.estimation.preprocessing import SAMPLE_RATE_HZ
+    s = ctx.settings
+    filtered_path = layout['index_tip'][HELD_OUT_PLATE][0]
+    raw_path, job = calibration_unit(ctx, 'index_tip', HELD_OUT_PLATE, 0, s.online_seconds,
+                                     zero_phase_tactile=False)
+    run_units(ctx, 'raw held-out session', [job] if job is not None else [])
+    order = int(estimator_parameter('lowpass_order'))
+    key = digest({'sessions': [Path(filtered_path).stem, Path(raw_path).stem],
+                  'models': {m: Path(p).stem for m, p in models['index_tip'].items()},
+                  'cutoffs': FILTER_CUTOFFS_HZ, 'order': order, 'static_force': s.static_force,
+                  'code': code_digest('estimation')})
+    accuracy = ctx.cache.load_json('end_to_end', key)
+    if accuracy is None:
+        hand, _ = _hand()
+        filtered, raw = CalibrationDataset.load(filtered_path), CalibrationDataset.load(raw_path)
+        if not np.array_equal(filtered.time, raw.time):
+            raise ValueError(f'{raw_path}: not the same session as {filtered_path}')
+        X_filtered, F, _ = filtered.without_offsets(force_threshold=s.static_force)
+        X = raw.X - (filtered.X - X_filtered)       # the same static offsets removed
+        bundles = {label: load_model(models['index_tip'][label], hand.array('index_tip'))
+                   for label in s.models}
+        accuracy = []
+        for cutoff in FILTER_CUTOFFS_HZ:
+            design = None if cutoff is None else BatchLowPass(X[0].size, cutoff,
+                                                              SAMPLE_RATE_HZ, order)
+            X_in = X if design is None else design.run(X.reshape(len(X), -1)).reshape(X.shape)
+            for label, bundle in bundles.items():
+                stats = error_stats(F, bundle.predict(X_in, tare=np.zeros_like(bundle.x_offset)))
+                accuracy.append({'model': label, 'cutoff_hz': cutoff,
+                                 'group_delay_ms': 0.0 if design is None
+                                 else 1e3 * design.group_delay_s(), **stats.as_dict()})
+        ctx.cache.store_json('end_to_end', key, accuracy)
+    node_ms = latency['median_ms'] if latency.get('measured') else None
+    rows = []
+    for row in accuracy:
+        tick = timing['index_tip'][row['model']][
+            'full_hand_tick' if row['cutoff_hz'] is None else 'full_hand_tick_lowpass']
+        compute_ms = tick['median_us'] / 1e3
+        rows.append({**row, 'compute_ms': compute_ms, 'node_latency_ms': node_ms,
+                     'end_to_end_ms': compute_ms + row['group_delay_ms'] + (node_ms or 0.0)})
+    return {'array': 'index_tip', 'plate': HELD_OUT_PLATE, 'filter_order': order,
+            'node_latency': latency, 'rows': rows}
+
+
 def model_config_file(ctx: Context, label: str, models: dict) -> Path:
     """An estimator model list (nodes/model_set.py format) with the index fingertip's model."""
     path = ctx.out / 'models' / f'{label}.yaml'
@@ -383,36 +514,72 @@ def closed_loop_seed(obj: str, repeat: int, base: int) -> int:
     return session_seed('closed_loop', obj, repeat, base)
 
 
-def closed_loop_stage(ctx: Context, models: dict) -> dict[tuple[str, str], list[str]]:
-    """Table III runs: {(object, controller): [trace paths]}."""
+def closed_loop_unit(ctx: Context, obj: str, controller: str, repeat: int, models: dict,
+                     lowpass: tuple[float, int] | None = None) -> tuple[str, tuple | None]:
+    """(trace path, job unit to run, or None when the cache has it) of one closed-loop run."""
     s = ctx.settings
+    scene = f'closed_loop_{obj}'
     code = code_digest('sim', 'hand', 'control', 'estimation/runtime', 'nodes/model_set',
                        'experiments/closed_loop')
     inputs = file_digest(controller_params_file(), config_dir() / 'commands' / f'{s.sequence}.yaml',
                          config_dir() / 'params' / 'estimator.yaml')
+    model_config = None if controller == 'open_loop' else \
+        model_config_file(ctx, controller, models)
+    model_key = None if model_config is None else Path(models['index_tip'][controller]).stem
+    seed = closed_loop_seed(obj, repeat, s.seed)
+    key = digest({'scene': scene_digest(scene), 'seed': seed, 'model': model_key,
+                  'controller': controller, 'rate': s.control_rate, 'code': code,
+                  'inputs': inputs, 'hand': hand_digest(),
+                  **({} if lowpass is None else {'lowpass': lowpass,
+                                                 'filter_code': code_digest('estimation')})})
+    target = ctx.cache.path('closed_loop', key, '.npz')
+    if ctx.cache.lookup('closed_loop', key, '.npz') is not None:
+        return str(target), None
+    target.parent.mkdir(parents=True, exist_ok=True)
+    return str(target), (str(target), job_closed_loop,
+                         (scene, seed, controller,
+                          None if model_config is None else str(model_config),
+                          s.sequence, s.control_rate, str(target), lowpass))
+
+
+def closed_loop_stage(ctx: Context, models: dict) -> dict[tuple[str, str], list[str]]:
+    """Table III runs: {(object, controller): [trace paths]}."""
+    s = ctx.settings
     jobs, traces = [], {}
     for obj in s.objects:
-        scene = f'closed_loop_{obj}'
         for controller in controllers_for(obj):
-            model_config = None if controller == 'open_loop' else \
-                model_config_file(ctx, controller, models)
-            model_key = None if model_config is None else Path(models['index_tip'][controller]).stem
             for repeat in range(s.repeats):
-                seed = closed_loop_seed(obj, repeat, s.seed)
-                key = digest({'scene': scene_digest(scene), 'seed': seed, 'model': model_key,
-                              'controller': controller, 'rate': s.control_rate, 'code': code,
-                              'inputs': inputs, 'hand': hand_digest()})
-                target = ctx.cache.path('closed_loop', key, '.npz')
-                traces.setdefault((obj, controller), []).append(str(target))
-                if ctx.cache.lookup('closed_loop', key, '.npz') is None:
-                    target.parent.mkdir(parents=True, exist_ok=True)
-                    jobs.append((str(target), job_closed_loop,
-                                 (scene, seed, controller,
-                                  None if model_config is None else str(model_config),
-                                  s.sequence, s.control_rate, str(target))))
+                path, job = closed_loop_unit(ctx, obj, controller, repeat, models)
+                traces.setdefault((obj, controller), []).append(path)
+                jobs += [job] if job is not None else []
     ctx.log(f'stage closed loop: {sum(map(len, traces.values()))} runs, {len(jobs)} to simulate')
     run_units(ctx, 'closed-loop runs', jobs)
     return traces
+
+
+def filtered_closed_loop_stage(ctx: Context, models: dict, end_to_end: dict) -> dict:
+    """The closed-loop effect of the input low-pass: M3-lambda on the spherical plate, the same
+    repeats (seeds) as Table III's, with the estimator's input low-pass at the cut-off that gave
+    M3-lambda the lowest e_hat on the held-out session (the lowest of the cut-offs, when no
+    filter did best there). Returns the cut-off, its group delay and the trace paths."""
+    from tacforce_ros.experiments.report import best_cutoffs
+    s = ctx.settings
+    label = 'M3-lambda'
+    mine = [r for r in end_to_end['rows'] if r['model'] == label and r['cutoff_hz'] is not None]
+    best = best_cutoffs(end_to_end).get(label)
+    chosen = best if best is not None else min(mine, key=lambda r: r['e_hat_mean'])['cutoff_hz']
+    lowpass = (chosen, end_to_end['filter_order'])
+    jobs, paths = [], []
+    for repeat in range(s.repeats):
+        path, job = closed_loop_unit(ctx, HELD_OUT_PLATE, label, repeat, models, lowpass)
+        paths.append(path)
+        jobs += [job] if job is not None else []
+    ctx.log(f'stage filtered closed loop: {len(paths)} runs of {label} with a {chosen:g} Hz '
+            f'input low-pass, {len(jobs)} to simulate')
+    run_units(ctx, 'filtered closed-loop runs', jobs)
+    delay = next(r['group_delay_ms'] for r in mine if r['cutoff_hz'] == chosen)
+    return {'controller': label, 'object': HELD_OUT_PLATE, 'cutoff_hz': chosen,
+            'best_offline': best, 'group_delay_ms': delay, 'traces': paths}
 
 
 def load_trace(path: str):

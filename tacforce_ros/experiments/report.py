@@ -6,6 +6,8 @@ from paper_reference.py only.
 """
 from __future__ import annotations
 
+import math
+import statistics
 from typing import Any
 
 from tacforce_ros.experiments import paper_reference as paper
@@ -99,7 +101,98 @@ def must_show(rows: list[dict]) -> dict:
             'e_track_met': closed['e_track'] is not None and closed['e_track'] < E_TRACK_TARGET_N}
 
 
+def best_cutoffs(end_to_end: dict) -> dict[str, float | None]:
+    """Per model, the low-pass setting with the lowest e_hat on the held-out session."""
+    best: dict[str, dict] = {}
+    for row in end_to_end['rows']:
+        if row['model'] not in best or row['e_hat_mean'] < best[row['model']]['e_hat_mean']:
+            best[row['model']] = row
+    return {model: row['cutoff_hz'] for model, row in best.items()}
+
+
+def filter_closed_loop(filtered: dict, without: dict, with_filter: dict) -> dict:
+    """The input low-pass's closed-loop effect: `without` and `with_filter` are trace_metrics
+    of the same seeds; e~ per run differences are paired by seed. The effect is called clear when
+    the mean difference exceeds twice its standard error (about 95 %, normal approximation)."""
+    diffs = [w - o for w, o in zip(with_filter['e_tilde_per_run'], without['e_tilde_per_run'])]
+    n = len(diffs)
+    mean = statistics.fmean(diffs)
+    sd = statistics.stdev(diffs) if n > 1 else None
+    margin = None if sd is None else 2.0 * sd / math.sqrt(n)
+    if margin is None:
+        verdict = f'undetermined ({n} run each)'
+    elif abs(mean) <= margin:
+        verdict = 'no clear effect'
+    else:
+        verdict = 'the filter lowers e~' if mean < 0 else 'the filter raises e~'
+    return {**{k: v for k, v in filtered.items() if k != 'traces'}, 'runs': n,
+            'without': without, 'with': with_filter, 'e_tilde_difference_mean': mean,
+            'e_tilde_difference_std': sd, 'e_tilde_difference_margin': margin,
+            'verdict': verdict}
+
+
 # ---------------------------------------------------------------------------------- markdown
+
+def filter_closed_loop_section(effect: dict | None) -> list[str]:
+    lines = ["## Closed loop with the estimator's input low-pass (spherical plate, M3λ)", '']
+    if effect is None:
+        return lines + ['* not evaluated: this run has no M3λ runs on the spherical plate', '']
+    chosen = (f"{effect['cutoff_hz']:g} Hz" + (
+        ', the lowest e_hat of M3λ on the held-out session' if effect['best_offline'] is not None
+        else '; no filter gave M3λ its lowest e_hat offline, so the best of the cut-offs'))
+    lines += [f"Same seeds as Table III's (1)-M3λ, {effect['runs']} run(s) each; input low-pass "
+              f"at {chosen}, group delay {cell(effect['group_delay_ms'], digits=1)} ms.", '',
+              '| estimator input | e~ [N] | e_track [N] | e_hat [N] |', '|---|---|---|---|']
+    for name, m in (('no filter', effect['without']),
+                    (f"{effect['cutoff_hz']:g} Hz low-pass", effect['with'])):
+        lines.append(f"| {name} | {cell(m['e_tilde_mean'], m['e_tilde_std'], 3)} | "
+                     f"{cell(m['e_track_mean'], m['e_track_std'], 3)} | "
+                     f"{cell(m['e_hat_mean'], m['e_hat_std'], 3)} |")
+    margin = effect['e_tilde_difference_margin']
+    lines += ['', f"e~ with the filter minus without, paired by seed: "
+              f"{cell(effect['e_tilde_difference_mean'], digits=4)} N"
+              + ('' if margin is None else f" (± {cell(margin, digits=4)} N, twice its standard "
+                                          'error)')
+              + f": **{effect['verdict']}**.", '']
+    return lines
+
+
+def end_to_end_section(e2e: dict) -> list[str]:
+    latency = e2e['node_latency']
+    if latency.get('measured'):
+        node = (f"the estimator node's median frame -> 18 wrenches latency over DDS, "
+                f"{cell(latency['median_ms'], digits=2)} ms (p99 "
+                f"{cell(latency['p99_ms'], digits=2)} ms, {latency['complete']}/"
+                f"{latency['frames']} frames complete; `{latency['command']}`, load average "
+                f"{latency['load_average']['before'][0]:.1f})")
+    else:
+        node = (f"the estimator node's latency, **not measured in this run** "
+                f"({latency['reason']}) and so left out of the sum")
+    lines = [f"## What accuracy costs in time, end to end ({e2e['array']}, held-out "
+             f"{e2e['plate']} plate)", '',
+             'Every model on the held-out session as the estimator receives it (the same '
+             'session simulated again without the training data\'s zero-phase filter on the '
+             'tactile frames), with the estimator\'s causal input low-pass (Butterworth, order '
+             f"{e2e['filter_order']}, parameter `lowpass_hz`) off and at a few cut-offs. Time "
+             'per tick: compute (one full-hand tick of the runtime estimator, 18 arrays of the '
+             'kind, with the filter when on), the filter\'s group delay at 0 Hz, and ' + node
+             + '; end to end is their sum.', '',
+             '| Model | low-pass | e_hat [N] | e_r [%] | compute [ms] | group delay [ms] '
+             '| node latency [ms] | end to end [ms] |', '|---|---|---|---|---|---|---|---|']
+    for row in e2e['rows']:
+        lines.append('| ' + ' | '.join([
+            MODEL_NAMES.get(row['model'], row['model']),
+            'off' if row['cutoff_hz'] is None else f"{row['cutoff_hz']:g} Hz",
+            cell(row['e_hat_mean'], row['e_hat_std'], 3),
+            cell(_percent(row['e_r_mean']), _percent(row['e_r_std']), 1),
+            cell(row['compute_ms'], digits=3), cell(row['group_delay_ms'], digits=1),
+            cell(row['node_latency_ms'], digits=2), cell(row['end_to_end_ms'], digits=2)]) + ' |')
+    best = best_cutoffs(e2e)
+    lines += ['', 'Lowest e_hat per model at: ' + ', '.join(
+        f"{MODEL_NAMES.get(m, m)} {'no filter' if c is None else f'{c:g} Hz'}"
+        for m, c in best.items()) + '.', '']
+    return lines
+
 
 def _sim_paper(sim_mean, sim_std, ref: tuple | None, digits: int) -> list[str]:
     ref = ref or (None, None)
@@ -168,6 +261,8 @@ def markdown(doc: dict) -> str:
             ) + ' |')
     lines.append('')
 
+    lines += end_to_end_section(doc['end_to_end'])
+
     lines += ['## Table III — closed-loop force control', '',
               '(1) spherical plate, (2) foam brick, (3) softball, (4) abrasive sponge, '
               '(5) bleach cleanser. Mean ± std over the samples of all runs in t = 16..70 s. '
@@ -186,6 +281,8 @@ def markdown(doc: dict) -> str:
             + _sim_paper(sim['e_track'], sim['e_track_std'], _pair(ref, 'e_track'), 2)
             + _sim_paper(sim['e_tilde'], sim['e_tilde_std'], _pair(ref, 'e_tilde'), 2)) + ' |')
     lines.append('')
+
+    lines += filter_closed_loop_section(doc['filter_closed_loop'])
 
     check = doc['must_show']
     lines += ['## Closed loop against open loop (spherical plate)', '']

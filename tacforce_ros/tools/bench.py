@@ -125,24 +125,16 @@ def lowpass_cell(row: dict) -> str:
     return f'{filtered:.1f} (x {filtered / plain:.2f})'
 
 
-def plot(rows: list[dict], path: Path, title: str) -> None:
-    import matplotlib
-    matplotlib.use('Agg')
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(6, 4))
-    for r in rows:
-        ax.errorbar(r['full_hand_tick']['median_us'], r['e_hat_mean'], fmt='o')
-        ax.annotate(r['label'], (r['full_hand_tick']['median_us'], r['e_hat_mean']),
-                    textcoords='offset points', xytext=(4, 4))
-    ax.set_xscale('log')
-    ax.set_xlabel('full-hand tick, 18 arrays [us] (median)')
-    ax.set_ylabel('e_hat, mean absolute error [N]')
-    ax.set_title(title, fontsize=9)
-    ax.grid(True, which='both', alpha=0.3)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+def plot(rows: list[dict], array: str, source: str, path: Path) -> None:
+    """The report's accuracy-against-time panel for this benchmark's rows."""
+    from tacforce_ros.experiments.paper_reference import TABLE_I
+    from tacforce_ros.experiments.plots import accuracy_vs_time
+    table = {array: {r['label']: {
+        'sim': {'e_hat': r['e_hat_mean'], 'per_plate': r['per_fold'],
+                'tau_full_hand_ms': r['full_hand_tick']['median_us'] / 1e3,
+                'tau_single_ms': r['predict_one']['median_us'] / 1e3},
+        'paper': TABLE_I.get(array, {}).get(r['label'])} for r in rows}}
+    accuracy_vs_time(table, None, path, source)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -212,7 +204,7 @@ def main(argv: list[str] | None = None) -> int:
     (args.out / 'bench.json').write_text(json.dumps(result, indent=2))
     text = table(rows, title)
     (args.out / 'bench.md').write_text(text)
-    plot(rows, args.out / 'bench.png', title)
+    plot(rows, array.name, dataset.source.upper(), args.out / 'bench.png')
     print(text)
     print(f"wrote {args.out / 'bench.json'}, bench.md, bench.png")
     return 0

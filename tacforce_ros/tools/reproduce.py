@@ -55,17 +55,10 @@ def code_version() -> str:
     return git_version()
 
 
-def figures(out: Path, tables: dict, traces: dict) -> list[str]:
+def figures(out: Path, cv: dict, table_i: dict, end_to_end: dict, traces: dict) -> list[str]:
     from tacforce_ros.experiments import plots
-    from tacforce_ros.tools.bench import plot as bench_plot
-    names = []
-    for array, by_model in tables['cv'].items():
-        rows = [{'label': label, **summary, **tables['timing'][array][label]}
-                for label, summary in by_model.items()]
-        name = f'accuracy_vs_time_{array}.png'
-        bench_plot(rows, out / name, f'SIMULATION: {array}, e_hat vs full-hand tick')
-        names.append(name)
-    names.append(plots.per_plate_errors(tables['cv'], out / 'per_plate_errors.png').name)
+    names = [plots.accuracy_vs_time(table_i, end_to_end, out / 'accuracy_vs_time.png').name,
+             plots.per_plate_errors(cv, out / 'per_plate_errors.png').name]
     by_object: dict[str, dict] = {}
     for (obj, controller), paths in traces.items():
         by_object.setdefault(obj, {})[controller] = [pipeline.load_trace(p) for p in paths]
@@ -87,20 +80,30 @@ def run(settings: pipeline.Settings, out: Path, jobs: int) -> dict:
         cv, models = pipeline.benchmark_stage(ctx, layout)
         timing = pipeline.timing_stage(ctx, models)
         online = pipeline.online_stage(ctx, layout, models)
+        end_to_end = pipeline.end_to_end_stage(ctx, layout, models, timing,
+                                               pipeline.node_latency_stage(ctx))
         traces = pipeline.closed_loop_stage(ctx, models)
+        plain = traces.get((pipeline.HELD_OUT_PLATE, 'M3-lambda'))
+        filtered = None if plain is None else \
+            pipeline.filtered_closed_loop_stage(ctx, models, end_to_end)
     node = pipeline.node_path_stage(ctx, models)
     closed = {key: trace_metrics([pipeline.load_trace(p) for p in paths])
               for key, paths in traces.items()}
+    filter_effect = None if filtered is None else report.filter_closed_loop(
+        filtered, closed[(pipeline.HELD_OUT_PLATE, 'M3-lambda')],
+        trace_metrics([pipeline.load_trace(p) for p in filtered['traces']]))
     rows = report.table_iii(closed)
+    table_i = report.table_i(cv, timing)
     doc = {
         'label': 'SIMULATION: every sim number comes from the simulated hand, not hardware',
         'settings': dataclasses.asdict(settings), 'plates': list(pipeline.PLATES),
         'controllers': list(pipeline.CONTROLLERS), 'paths': PATHS,
-        'table_I': report.table_i(cv, timing), 'online': online,
-        'table_II': report.table_ii(online), 'table_III': rows,
+        'table_I': table_i, 'online': online,
+        'table_II': report.table_ii(online), 'end_to_end': end_to_end, 'table_III': rows,
+        'filter_closed_loop': filter_effect,
         'must_show': report.must_show(rows), 'node_path': node,
         'node_tolerance_reason': NODE_TOLERANCE_REASON,
-        'figures': figures(out, {'cv': cv, 'timing': timing}, traces),
+        'figures': figures(out, cv, table_i, end_to_end, traces),
     }
     # What differs between two runs of the same inputs lives under 'run' only.
     doc['run'] = {'date': time.strftime('%Y-%m-%dT%H:%M:%S%z'), 'code_version': code_version(),

@@ -28,6 +28,18 @@ def test_matches_scipy_sosfilt_started_at_steady_state(cutoff, order, seed, n_ch
     np.testing.assert_allclose(got, expected, rtol=1e-9, atol=1e-9 * np.abs(x).max())
 
 
+def test_a_recorded_sequence_is_filtered_as_online_and_left_untouched():
+    rng = np.random.default_rng(3)
+    x = rng.normal(0.0, 50.0, (40, 6))
+    online = BatchLowPass(6, 10.0, RATE_HZ, 2)
+    expected = np.stack([online(row.copy()) for row in x])
+    before = x.copy()
+    np.testing.assert_array_equal(BatchLowPass(6, 10.0, RATE_HZ, 2).run(x), expected)
+    np.testing.assert_array_equal(x, before)
+    with pytest.raises(ValueError, match=r'need samples \(N, 6\)'):
+        BatchLowPass(6, 10.0, RATE_HZ).run(x[:, :5])
+
+
 @pytest.mark.parametrize('cutoff', [0.0, -1.0, 50.0, 80.0])
 def test_a_cutoff_outside_the_band_is_refused(cutoff):
     with pytest.raises(FilterDesignError, match='half the frame rate'):

@@ -15,6 +15,8 @@ from tacforce_ros.experiments.calibration_data import simulate_calibration
 from tacforce_ros.experiments.closed_loop import ClosedLoopTrace, run_closed_loop, trace_metrics
 from tacforce_ros.experiments.node_path import _free_ports, compare_closed_loop
 from tacforce_ros.experiments.pipeline import controller_config
+from tacforce_ros.experiments.plots import pareto_front
+from tacforce_ros.experiments.report import filter_closed_loop
 from tacforce_ros.hand.description import load_hand
 from tacforce_ros.hand.kinematics import HandKinematics
 
@@ -145,3 +147,35 @@ def test_free_ports_are_distinct_and_bindable():
     for port in ports:
         with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as udp:
             udp.bind(('127.0.0.1', port))
+
+
+@given(st.lists(st.tuples(st.floats(0.001, 1e3), st.floats(0.0, 10.0)), min_size=1,
+                max_size=30))
+def test_pareto_front_holds_exactly_the_points_nothing_beats(points):
+    front = pareto_front(points)
+    xs = [x for x, _ in front]
+    assert xs == sorted(xs) and len(set(xs)) == len(xs)
+
+    def beaten(p):
+        return any(q[0] <= p[0] and q[1] <= p[1] and q != p for q in points)
+    for p in front:
+        assert not beaten(p)
+    # every other point is matched or beaten by one on the front
+    for p in points:
+        assert any(q[0] <= p[0] and q[1] <= p[1] for q in front)
+
+
+@pytest.mark.parametrize('without, with_filter, verdict', [
+    ([0.10, 0.12, 0.11], [0.08, 0.10, 0.09], 'the filter lowers e~'),
+    ([0.10, 0.12, 0.11], [0.12, 0.14, 0.13], 'the filter raises e~'),
+    ([0.10, 0.12, 0.11], [0.12, 0.10, 0.11], 'no clear effect'),
+    ([0.10, 0.12, 0.11], [0.10, 0.12, 0.11], 'no clear effect'),     # zero spread, no change
+    ([0.10], [0.05], 'undetermined (1 run each)')])
+def test_the_filter_effect_is_paired_by_seed_and_called_only_beyond_its_noise(
+        without, with_filter, verdict):
+    effect = filter_closed_loop({'cutoff_hz': 10.0, 'traces': ['a']},
+                                {'e_tilde_per_run': without}, {'e_tilde_per_run': with_filter})
+    assert effect['verdict'] == verdict
+    assert effect['e_tilde_difference_mean'] == pytest.approx(
+        np.mean(np.subtract(with_filter, without)))
+    assert 'traces' not in effect and effect['cutoff_hz'] == 10.0

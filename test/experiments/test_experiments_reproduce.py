@@ -6,7 +6,9 @@ import re
 import numpy as np
 import pytest
 
+from tacforce_ros.estimation.causal_filter import BatchLowPass
 from tacforce_ros.experiments import paper_reference as paper
+from tacforce_ros.experiments.pipeline import FILTER_CUTOFFS_HZ
 from tacforce_ros.experiments.report import MODEL_NAMES
 from tacforce_ros.tools import reproduce
 
@@ -93,6 +95,53 @@ def test_markdown_tables_show_the_json_numbers(runs):
             assert_shows(cells[2 + 2 * k], *ref.get(key, (None, None)), 2)
 
 
+def test_end_to_end_costs_add_up_and_the_table_shows_them(runs):
+    _, doc, md, _ = runs
+    e2e = doc['end_to_end']
+    models = doc['settings']['models']
+    assert [(r['model'], r['cutoff_hz']) for r in e2e['rows']] == \
+        [(m, c) for c in FILTER_CUTOFFS_HZ for m in models]
+    # --quick has no node path: the latency is not measured, and not made up.
+    assert e2e['node_latency']['measured'] is False and 'not measured in this run' in md
+    for r in e2e['rows']:
+        timing = doc['table_I']['index_tip'][r['model']]['sim']['timing_us']
+        tick = timing['full_hand_tick' if r['cutoff_hz'] is None else 'full_hand_tick_lowpass']
+        delay = 0.0 if r['cutoff_hz'] is None else 1e3 * BatchLowPass(
+            1, r['cutoff_hz'], 100.0, e2e['filter_order']).group_delay_s()
+        assert r['compute_ms'] == pytest.approx(tick['median_us'] / 1e3)
+        assert r['group_delay_ms'] == pytest.approx(delay)
+        assert r['node_latency_ms'] is None
+        assert r['end_to_end_ms'] == pytest.approx(r['compute_ms'] + r['group_delay_ms'])
+    (rows,) = [rows for heading, rows in tables(md).items()
+               if heading.startswith('What accuracy costs in time, end to end')]
+    assert len(rows) == len(e2e['rows'])
+    for cells, r in zip(rows, e2e['rows']):
+        assert LABELS.get(cells[0], cells[0]) == r['model']
+        assert cells[1] == ('off' if r['cutoff_hz'] is None else f"{r['cutoff_hz']:g} Hz")
+        assert_shows(cells[2], r['e_hat_mean'], r['e_hat_std'], 3)
+        assert_shows(cells[4], r['compute_ms'], None, 3)
+        assert_shows(cells[5], r['group_delay_ms'], None, 1)
+        assert cells[6] == '–'
+        assert_shows(cells[7], r['end_to_end_ms'], None, 2)
+
+
+def test_the_closed_loop_filter_comparison_is_reported(runs):
+    _, doc, md, _ = runs
+    effect = doc['filter_closed_loop']
+    assert effect['cutoff_hz'] in FILTER_CUTOFFS_HZ[1:] and effect['runs'] == \
+        doc['settings']['repeats']
+    plain = next(r for r in doc['table_III'] if r['row'] == '(1)-M3λ')['sim']
+    assert effect['without']['e_tilde_mean'] == pytest.approx(plain['e_tilde'])
+    # the same seeds, another estimator input: another trajectory
+    assert effect['with']['e_tilde_mean'] != effect['without']['e_tilde_mean']
+    (rows,) = [rows for heading, rows in tables(md).items()
+               if heading.startswith("Closed loop with the estimator's input low-pass")]
+    for cells, m in zip(rows, (effect['without'], effect['with'])):
+        assert_shows(cells[1], m['e_tilde_mean'], m['e_tilde_std'], 3)
+        assert_shows(cells[2], m['e_track_mean'], m['e_track_std'], 3)
+    assert f"**{effect['verdict']}**" in md
+
+
 def test_report_holds_every_stage_and_labels_it_simulation(runs):
     _, doc, md, _ = runs
     assert 'SIMULATION' in md.splitlines()[0]
@@ -122,7 +171,7 @@ def test_report_holds_every_stage_and_labels_it_simulation(runs):
 def test_figures_are_png_images(runs):
     import matplotlib.image
     out, doc, _, _ = runs
-    assert len(doc['figures']) == 3 + len(doc['settings']['objects'])
+    assert len(doc['figures']) == 2 + len(doc['settings']['objects'])
     for name in doc['figures']:
         path = out / name
         assert path.read_bytes()[:8] == b'\x89PNG\r\n\x1a\n', name

@@ -138,7 +138,7 @@ def filter_closed_loop_section(effect: dict | None) -> list[str]:
     if effect is None:
         return lines + ['* not evaluated: this run has no M3λ runs on the spherical plate', '']
     chosen = (f"{effect['cutoff_hz']:g} Hz" + (
-        ', the lowest e_hat of M3λ on the held-out session' if effect['best_offline'] is not None
+        ', the lowest e_hat of M3λ on the held-out session' if effect['best_offline']
         else '; no filter gave M3λ its lowest e_hat offline, so the best of the cut-offs'))
     lines += [f"Same seeds as Table III's (1)-M3λ, {effect['runs']} run(s) each; input low-pass "
               f"at {chosen}, group delay {cell(effect['group_delay_ms'], digits=1)} ms.", '',

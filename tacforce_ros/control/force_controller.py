@@ -10,14 +10,17 @@ convention for f_d and f_hat would be positive feedback; the closed-loop test in
 test/control/ checks the sign used here removes a constant plant error.
 
 Around the law, in this order per tick:
-1. Watchdog. `f_hat_age` and `q_age` come from the caller. A stale or non-finite estimate ramps the
-   force terms (J^T f_d and the integral) to zero within `ramp_time` and blends the position
-   target to the joint angles latched at the moment it went stale: the finger ends in a pure
-   position hold (gravity + PD on where it is), so it neither keeps pushing an unmonitored force
-   nor falls. Stale joints make the PD meaningless, so then the WHOLE torque ramps to zero.
+1. Watchdog. `f_hat_age` and `q_age` come from the caller. A stale or non-finite estimate ramps
+   from the law's torque to a position hold at the joint angles latched at the moment it went
+   stale (gravity + PD on where the finger is), a linear blend of the two saturated torques over
+   `ramp_time`: the finger neither keeps pushing an unmonitored force nor falls, and no joint's
+   |torque| leaves the range between the two. Stale joints make every feedback term meaningless
+   (the law would be evaluated at an old q), so then the command of the last tick with fresh
+   joints fades linearly to zero: no joint's |torque| ever rises above its value at that moment.
    The integral is frozen while ramping and reset once the force terms reach zero; when the
    streams come back, the gains ramp in again at the same rate (no torque step). Worst case
    from the last good message to safe: timeout + ramp_time + one tick (defaults: 50 + 50 ms).
+   Each state says why the controller is in its mode (`reason`), for the log of its transitions.
 2. Integral with a rate limiter (each axis of e_f clipped to `integral_rate_limit` N before
    integrating, so one bad estimate moves the integral by at most that many N s per second),
    clamped to +/- `integral_limit`, and conditional integration: while saturated, a step that
@@ -152,6 +155,8 @@ class ControllerState:
     joints_fresh: bool
     force_gain: float            # 1 normal, ramps to 0 when a stream goes stale
     hold_gain: float             # 1 normal, ramps to 0 only when the joints go stale
+    reason: str                  # why this mode: cause, then ': ' and figures if any,
+    #                              e.g. 'estimate stale: age 0.061 s > 0.05 s'
 
 
 @dataclass
@@ -161,6 +166,9 @@ class _Memory:
     force_gain: float = 1.0
     hold_gain: float = 1.0
     q_hold: np.ndarray | None = None
+    tau: np.ndarray = field(default_factory=lambda: np.zeros(4))   # last command sent
+    faded: np.ndarray | None = None     # command latched when the joints went stale
+    faded_gain: float = 1.0             # hold_gain at that moment
 
 
 def saturation_scale(tau: np.ndarray, limits: np.ndarray) -> float:
@@ -203,6 +211,19 @@ class ForceController:
         """Forget time, integral and watchdog state (e.g. after the sim clock jumped back)."""
         self._mem = _Memory()
 
+    def _reason(self, joints_fresh: bool, estimate_fresh: bool, q_age: float,
+                f_hat_age: float) -> str:
+        cfg = self.config
+        if not joints_fresh:
+            return (f'joints stale: age {q_age:.3f} s > {cfg.joints_timeout:g} s'
+                    if q_age > cfg.joints_timeout else 'joints not finite')
+        if estimate_fresh or self.open_loop:
+            return 'streams fresh'
+        if not np.isfinite(f_hat_age):
+            return 'no valid estimate'
+        return (f'estimate stale: age {f_hat_age:.3f} s > {cfg.estimate_timeout:g} s'
+                if f_hat_age > cfg.estimate_timeout else 'estimate not finite')
+
     def update(self, t: float, q: np.ndarray, qdot: np.ndarray, f_hat: np.ndarray,
                f_hat_age: float, q_age: float, f_d: np.ndarray
                ) -> tuple[np.ndarray, ControllerState]:
@@ -230,11 +251,13 @@ class ForceController:
                             and np.all(np.isfinite(qdot)))
         estimate_fresh = bool(f_hat.shape == (3,) and f_hat_age <= cfg.estimate_timeout
                               and np.all(np.isfinite(f_hat)))
+        reason = self._reason(joints_fresh, estimate_fresh, q_age, f_hat_age)
         step = elapsed / cfg.ramp_time
         # Open loop does not use the estimate, so only closed loop depends on its freshness.
         force_target = 1.0 if joints_fresh and (estimate_fresh or self.open_loop) else 0.0
         mem.force_gain = float(np.clip(force_target, mem.force_gain - step, mem.force_gain + step))
         hold_target = 1.0 if joints_fresh else 0.0
+        hold_gain_before = mem.hold_gain
         mem.hold_gain = float(np.clip(hold_target, mem.hold_gain - step, mem.hold_gain + step))
 
         qf, qdf = q[self.joints], qdot[self.joints]
@@ -244,8 +267,6 @@ class ForceController:
             mem.integral = np.zeros(3)          # fully safe: forget the old correction
         if mem.force_gain == 1.0:
             mem.q_hold = None
-        q_target = (self._q_d if mem.q_hold is None
-                    else mem.force_gain * self._q_d + (1.0 - mem.force_gain) * mem.q_hold)
 
         jacobian = np.asarray(self.kinematics.fingertip_jacobian(q, cfg.finger), np.float64)
         rotation = np.asarray(
@@ -253,12 +274,13 @@ class ForceController:
         if estimate_fresh and cfg.estimate_frame and cfg.estimate_frame != cfg.force_frame:
             f_hat = np.asarray(self.kinematics.rotation_between(
                 q, cfg.estimate_frame, cfg.force_frame), np.float64) @ f_hat
-        hold = (np.asarray(self.kinematics.gravity_torques(q), np.float64)[self.joints]
-                - self._k_d * qdf - self._k_p * (qf - q_target))
+        gravity_damping = (np.asarray(self.kinematics.gravity_torques(q), np.float64)[self.joints]
+                           - self._k_d * qdf)
 
         def torque(integral: np.ndarray) -> np.ndarray:
             f_cmd = f_d + self._k_i * integral
-            return mem.force_gain * (jacobian.T @ (rotation @ f_cmd)) + mem.hold_gain * hold
+            return (jacobian.T @ (rotation @ f_cmd) + gravity_damping
+                    - self._k_p * (qf - self._q_d))
 
         tau_raw = torque(mem.integral)
         error = f_d - f_hat if estimate_fresh else np.zeros(3)
@@ -278,6 +300,22 @@ class ForceController:
 
         scale = saturation_scale(tau_raw, self._limits)
         tau = scale * tau_raw
+        if mem.q_hold is not None:      # blend the law into the position hold (or back)
+            hold_raw = gravity_damping - self._k_p * (qf - mem.q_hold)
+            hold_scale = saturation_scale(hold_raw, self._limits)
+            tau = mem.force_gain * tau + (1.0 - mem.force_gain) * hold_scale * hold_raw
+            tau_raw = mem.force_gain * tau_raw + (1.0 - mem.force_gain) * hold_raw
+            if mem.force_gain == 0.0:
+                scale = hold_scale
+        if joints_fresh:
+            mem.faded = None
+            tau = mem.hold_gain * tau
+        else:
+            if mem.faded is None:
+                mem.faded, mem.faded_gain = mem.tau.copy(), hold_gain_before
+            tau = (mem.hold_gain / mem.faded_gain if mem.faded_gain > 0.0 else 0.0) * mem.faded
+        mem.tau = tau.copy()
+
         if force_target == 1.0:     # running, or ramping back in after a stale spell
             mode = MODE_OPEN_LOOP if self.open_loop else MODE_CLOSED_LOOP
         elif joints_fresh and mem.force_gain == 0.0:
@@ -289,5 +327,5 @@ class ForceController:
             estimated_force=f_hat.copy() if f_hat.shape == (3,) else np.full(3, np.nan),
             integral_error=mem.integral.copy(), tau_cmd=tau.copy(), tau_unsaturated=tau_raw,
             saturation_scale=scale, estimate_fresh=estimate_fresh, joints_fresh=joints_fresh,
-            force_gain=mem.force_gain, hold_gain=mem.hold_gain)
+            force_gain=mem.force_gain, hold_gain=mem.hold_gain, reason=reason)
         return tau, state

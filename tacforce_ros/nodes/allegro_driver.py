@@ -170,6 +170,7 @@ class AllegroDriver(TacforceNode):
         self._desired: np.ndarray | None = None      # None until the first command
         self._start_hold: ForceController | None = None  # holds the start pose until engaged
         self._engaged = False
+        self._mode: tuple[str, str] | None = None        # mode, cause: logged on change
         self._estimate: tuple[np.ndarray, int] | None = None     # f_hat, stamp ns
         self.refused_commands = 0
         if not p['silent_warn_after'] < p['silent_timeout']:
@@ -299,6 +300,10 @@ class AllegroDriver(TacforceNode):
                                               (now - q_ns) * 1e-9, desired)
         if not self._engaged and state.force_gain == 1.0:
             state.mode = MODE_HOLD
+            state.reason = ('start pose hold, waiting for a valid estimate of '
+                            f'{self.params["estimate_array"]}' if self._desired is not None
+                            else 'start pose hold, no desired force yet')
+        self._log_mode(state)
         tau = state.hold_gain * self._hold_others(q, qdot)
         tau[self.controller.joints] = tau_finger
         try:
@@ -312,6 +317,15 @@ class AllegroDriver(TacforceNode):
             raise
         self._tau = tau
         self.state_publisher.publish(self._state_message(now, state, q, qdot))
+
+    def _log_mode(self, state) -> None:
+        """One line per change of mode or of its cause (the reason up to any ':'; what follows
+        are figures that change every tick), not one per tick."""
+        now = (state.mode, state.reason.split(':')[0])
+        if now != self._mode:
+            previous = 'start' if self._mode is None else self._mode[0]
+            self.get_logger().info(f'controller {previous} -> {state.mode}: {state.reason}')
+            self._mode = now
 
     def _acting_controller(self, q: np.ndarray, have_estimate: bool, now: int
                            ) -> tuple[ForceController, np.ndarray]:

@@ -216,6 +216,75 @@ def test_stale_stream_ramps_to_safe_within_ramp_time(stale):
     assert not (state.estimate_fresh if stale == 'estimate' else state.joints_fresh)
 
 
+finite = st.floats(-1.0, 1.0)
+
+
+def run_until_stale(ctrl, q, qdot, f_d, f_hats):
+    """Fresh ticks with the given estimates; returns the last command and the next tick's time."""
+    tau = np.zeros(4)
+    for k, f_hat in enumerate(f_hats):
+        tau, _ = ctrl.update(k * DT, q, qdot, np.asarray(f_hat), 0.0, 0.0, f_d)
+    return tau, len(f_hats) * DT
+
+
+@given(q=st.lists(finite, min_size=4, max_size=4), qdot=st.lists(finite, min_size=4, max_size=4),
+       f_d=st.lists(st.floats(-3.0, 3.0), min_size=3, max_size=3),
+       f_hats=st.lists(st.lists(st.floats(-3.0, 3.0), min_size=3, max_size=3),
+                       min_size=1, max_size=30),
+       k_p=st.lists(st.floats(0.0, 1.0), min_size=4, max_size=4),
+       k_i=st.floats(0.0, 5.0))
+def test_stale_joints_never_raise_any_joints_torque(q, qdot, f_d, f_hats, k_p, k_i):
+    """With stale joints every feedback term is evaluated at an old q; the command of the last
+    fresh tick fades: per joint |tau| never rises above its value then and is 0 after ramp_time."""
+    ctrl = ForceController(config(k_p=tuple(k_p), k_i=(k_i,) * 3), KIN)
+    q16 = np.r_[q, np.zeros(12)]
+    qdot16 = np.r_[qdot, np.zeros(12)]
+    tau0, t_stale = run_until_stale(ctrl, q16, qdot16, np.asarray(f_d), f_hats)
+    previous = np.abs(tau0)
+    for k in range(8):       # the last joint message stays what it was
+        tau, state = ctrl.update(t_stale + k * DT, q16, qdot16, np.asarray(f_hats[-1]), 0.0,
+                                 0.03 + k * DT, np.asarray(f_d))
+        assert np.all(np.abs(tau) <= previous + 1e-12), (tau, previous)
+        previous = np.abs(tau)
+        assert state.mode == MODE_SAFE and state.reason.startswith('joints stale')
+    np.testing.assert_array_equal(tau, 0.0)
+
+
+@given(q=st.lists(finite, min_size=4, max_size=4), qdot=st.lists(finite, min_size=4, max_size=4),
+       f_d=st.lists(st.floats(-3.0, 3.0), min_size=3, max_size=3),
+       f_hats=st.lists(st.lists(st.floats(-3.0, 3.0), min_size=3, max_size=3),
+                       min_size=1, max_size=30),
+       k_i=st.floats(0.1, 5.0))
+def test_stale_estimate_moves_each_torque_only_between_the_law_and_the_hold(
+        q, qdot, f_d, f_hats, k_i):
+    """Estimate stale, joints fresh: the command blends from the law's torque to the position
+    hold's, so no joint's |torque| leaves the range between the two (q as it was)."""
+    ctrl = ForceController(config(k_i=(k_i,) * 3), KIN)
+    q16 = np.r_[q, np.zeros(12)]
+    qdot16 = np.r_[qdot, np.zeros(12)]
+    tau0, t_stale = run_until_stale(ctrl, q16, qdot16, np.asarray(f_d), f_hats)
+    taus = [ctrl.update(t_stale + k * DT, q16, qdot16, np.full(3, np.nan), np.inf, 0.0,
+                        np.asarray(f_d)) for k in range(8)]
+    hold = taus[-1][0]
+    assert taus[-1][1].mode == MODE_HOLD and taus[-1][1].reason == 'no valid estimate'
+    bound = np.maximum(np.abs(tau0), np.abs(hold)) + 1e-12
+    for tau, _ in taus:
+        assert np.all(np.abs(tau) <= bound), (tau, tau0, hold)
+
+
+def test_reason_names_the_stale_stream_and_its_age():
+    ctrl = ForceController(config(), KIN)
+    f_d = np.array([0.0, 0.0, 1.0])
+    _, state = ctrl.update(0.0, Q16, ZERO16, f_d, 0.0, 0.0, f_d)
+    assert state.reason == 'streams fresh'
+    _, state = ctrl.update(DT, Q16, ZERO16, f_d, 0.08, 0.0, f_d)
+    assert state.reason == 'estimate stale: age 0.080 s > 0.05 s'
+    _, state = ctrl.update(2 * DT, Q16, ZERO16, f_d, 0.0, 0.5, f_d)
+    assert state.reason == 'joints stale: age 0.500 s > 0.02 s'
+    _, state = ctrl.update(3 * DT, np.full(16, np.nan), ZERO16, f_d, 0.0, 0.0, f_d)
+    assert state.reason == 'joints not finite'
+
+
 def test_non_finite_estimate_is_treated_as_stale_and_recovery_ramps_in():
     ctrl = ForceController(config(ramp_time=0.05), KIN)
     f_d = np.array([0.0, 0.0, 1.0])

@@ -7,6 +7,7 @@ every array) -> allegro_driver's force controller.
   invalid ("stale") and the controller is safe within 100 ms of the last tactile frame; it
   comes back to closed loop when the stream returns.
 """
+import re
 import sys
 from pathlib import Path
 
@@ -148,6 +149,11 @@ def test_stale_tactile_stream_makes_the_controller_safe_within_100_ms(graph):
         assert to_safe <= 0.1
         assert np.allclose([first_hold.integral_error.x, first_hold.integral_error.y,
                             first_hold.integral_error.z], 0.0)
+        # The transition is logged once, with its cause (the estimator marks the stale array
+        # invalid, so the controller has no valid estimate).
+        driver_log = (running.log_dir / 'allegro_driver.log').read_text()
+        assert re.search(r'controller (closed_loop|safe) -> (safe|hold): no valid estimate',
+                         driver_log), driver_log[-3000:]
         stale = [e for e in estimates if e.estimates and e.estimates[0].status == 'stale']
         assert stale and all(not x.valid for e in stale for x in e.estimates)
         # The stream returns: the controller ramps back into closed loop.

@@ -14,9 +14,11 @@ import numpy as np
 
 from tacforce_ros.estimation.dataset import CalibrationDataset
 from tacforce_ros.estimation.preprocessing import SAMPLE_RATE_HZ, lowpass
+from tacforce_ros.estimation.runtime import RuntimeEstimator
+from tacforce_ros.estimation.training import fit_bundle
 
 if TYPE_CHECKING:
-    from tacforce_ros.hand.description import TaxelArray
+    from tacforce_ros.hand.description import HandDescription, TaxelArray
 
 PLATES = ('button', 'flat', 'fillet', 'convex', 'edge')   # paper Fig. 2d, spherical held out
 # Contact spread [m] per plate, by position in the plate list (indenter sharpness stand-in).
@@ -85,3 +87,15 @@ def _response(array: TaxelArray, force: np.ndarray, contact: np.ndarray, spread:
     local = np.einsum('tji,sj->sti', array.rotations, force) * share[..., None]   # R_i^T f
     saturated = _SATURATION_N * np.tanh(local / _SATURATION_N)
     return np.einsum('ij,stj->sti', coupling, saturated) * taxel_gain
+
+
+def synthetic_hand_estimator(hand: HandDescription, kind: str, hyper: dict, seed: int
+                             ) -> RuntimeEstimator:
+    """A runtime estimator over every array of `hand`, each model of `kind` fitted on 8 s of
+    synthetic flat and edge presses: for timing, where only the shapes matter."""
+    bundles = []
+    for array in hand.arrays:
+        data = synthetic_dataset(array, plates=('flat', 'edge'), seconds=8.0, seed=seed)
+        X, F, offset = data.without_offsets()
+        bundles.append(fit_bundle(array, kind, hyper, X, F, data.plates, x_offset=offset))
+    return RuntimeEstimator(hand, bundles)

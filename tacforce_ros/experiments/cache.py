@@ -8,14 +8,17 @@ renamed, so an interrupted run never leaves a half-written entry behind.
 """
 from __future__ import annotations
 
+import ast
 import dataclasses
 import hashlib
 import json
 import os
+from importlib.metadata import entry_points
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 PACKAGE_ROOT = Path(__file__).resolve().parents[1]
+PACKAGE = PACKAGE_ROOT.name
 
 
 def digest(value: Any) -> str:
@@ -32,17 +35,77 @@ def file_digest(*paths: str | Path) -> str:
     return h.hexdigest()
 
 
-def code_digest(*parts: str) -> str:
-    """sha256 of the package sources under `parts` (subpackages or module files)."""
-    files: list[Path] = []
-    for part in parts:
-        path = PACKAGE_ROOT / part
-        files += sorted(path.rglob('*.py')) if path.is_dir() else [path.with_suffix('.py')]
+def _module_file(module: str) -> Path | None:
+    """The source file of a dotted module name of this package, or None."""
+    base = PACKAGE_ROOT.joinpath(*module.split('.')[1:])
+    for path in (base.with_suffix('.py'), base / '__init__.py'):
+        if path.is_file():
+            return path
+    return None
+
+
+def _imported_modules(path: Path) -> set[str]:
+    """This package's modules that a source file imports anywhere (function bodies included)."""
+    found: set[str] = set()
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.Import):
+            found |= {a.name for a in node.names if a.name.split('.')[0] == PACKAGE}
+        elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module \
+                and node.module.split('.')[0] == PACKAGE:
+            found.add(node.module)
+            found |= {f'{node.module}.{a.name}' for a in node.names
+                      if _module_file(f'{node.module}.{a.name}') is not None}
+    return found
+
+
+def source_files(*modules: str) -> list[Path]:
+    """The files of `modules` and of everything of this package they import, transitively, with
+    the packages on the way (their __init__ runs on import)."""
+    seen: dict[str, Path] = {}
+    todo = list(modules)
+    while todo:
+        module = todo.pop()
+        parts = module.split('.')
+        for name in ('.'.join(parts[:k]) for k in range(1, len(parts) + 1)):
+            if name in seen:
+                continue
+            path = _module_file(name)
+            if path is None:
+                if name == module:
+                    raise ValueError(f'{module}: no such module in {PACKAGE}')
+                continue
+            seen[name] = path
+            todo += sorted(_imported_modules(path))
+    return sorted(set(seen.values()))
+
+
+def source_digest(*targets: str | Callable | type) -> str:
+    """sha256 of the source code behind `targets` (functions, classes, or dotted module names for
+    what runs in a subprocess): their modules and everything those import, so a cache key follows
+    the code that computes its entry without a list of folders to keep up to date."""
+    modules = [t if isinstance(t, str) else t.__module__ for t in targets]
     h = hashlib.sha256()
-    for path in files:
+    for path in source_files(*modules):
         h.update(str(path.relative_to(PACKAGE_ROOT)).encode())
         h.update(path.read_bytes())
     return h.hexdigest()
+
+
+def node_modules() -> list[str]:
+    """Modules of this package's node executables: what a session started by name may run."""
+    return sorted(ep.module for ep in entry_points(group='console_scripts')
+                  if ep.module.startswith(f'{PACKAGE}.nodes.'))
+
+
+def atomic_write(path: str | Path, write: Callable[[Path], object]) -> Path:
+    """write(tmp) fills a temporary file beside `path` (same suffix, so writers that append one
+    do not), which is then renamed into place: readers never see a half-written file."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f'.{path.stem}.{os.getpid()}.tmp{path.suffix}')
+    write(tmp)
+    os.replace(tmp, path)
+    return path
 
 
 def scene_digest(scene_name: str | Path) -> str:
@@ -78,15 +141,8 @@ class StageCache:
 
     def store_json(self, stage: str, key: str, value: Any) -> Path:
         path = self.path(stage, key, '.json')
-        return self._commit(path, lambda tmp: tmp.write_text(json.dumps(value, indent=1)))
-
-    def _commit(self, path: Path, write) -> Path:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_name(f'.{path.name}.{os.getpid()}.tmp')
-        write(tmp)
-        os.replace(tmp, path)
-        return path
+        return atomic_write(path, lambda tmp: tmp.write_text(json.dumps(value, indent=1)))
 
     def store_file(self, stage: str, key: str, suffix: str, write) -> Path:
         """write(tmp_path) produces the entry; it is renamed into place afterwards."""
-        return self._commit(self.path(stage, key, suffix), write)
+        return atomic_write(self.path(stage, key, suffix), write)

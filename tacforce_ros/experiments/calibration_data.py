@@ -14,7 +14,7 @@ import numpy as np
 from tacforce_ros.estimation.dataset import CalibrationDataset, DatasetError
 from tacforce_ros.estimation.preprocessing import common_span, lowpass, project_force, resample
 from tacforce_ros.sim import load_scene, make_simulator
-from tacforce_ros.tools.sim_record import session_seed
+from tacforce_ros.sim.scene import session_seed
 
 if TYPE_CHECKING:
     from tacforce_ros.hand.description import HandDescription

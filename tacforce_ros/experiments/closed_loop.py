@@ -23,7 +23,7 @@ if TYPE_CHECKING:
     from tacforce_ros.control.command_sequence import ForceSequence
     from tacforce_ros.hand.description import HandDescription
     from tacforce_ros.hand.kinematics import HandKinematics
-    from tacforce_ros.nodes.model_set import ModelSet
+    from tacforce_ros.estimation.model_set import ModelSet
 
 METRIC_WINDOW = (16.0, 70.0)   # s; paper Sec. V-C: after the initial f_d = 0 phase
 

@@ -37,6 +37,7 @@ AGREEMENT_REASON = (
     '97c6695), 0.015 N once the tactile chain saw the contact on the skin (code 3f59c9e): '
     '0.08 N on e~ keeps the wider bound. Both loops hold their own estimate to ~0.02 N: '
     '0.03 N on e_track.')
+SESSION_MODULE = 'tacforce_ros.tools.session'   # run as a command, as a user would
 CALIBRATION_SECONDS = 40.0     # wall seconds of the node-graph calibration session
 START_MARGIN_S = 40.0          # wall seconds for the nodes to start and the recorder to open
 # Closed-loop runs go at half real time: the nine processes then keep their 100-333 Hz streams
@@ -76,7 +77,7 @@ def run_session(mode: str, scene: str, plate: str, out: Path, duration: float,
     if not session_exe.is_file():
         raise NodePathUnavailable(f'{session_exe} is not installed (run ./run.sh setup)')
     out.mkdir(parents=True, exist_ok=True)
-    command = [sys.executable, '-m', 'tacforce_ros.tools.session', mode, '--scene', scene,
+    command = [sys.executable, '-m', SESSION_MODULE, mode, '--scene', scene,
                '--array', 'index_tip', '--plate', plate, '--out', str(out),
                '--duration', f'{duration:g}', '--real-time-factor', f'{real_time_factor:g}',
                '--ports', *map(str, _free_ports(3))]

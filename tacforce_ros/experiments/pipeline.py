@@ -11,6 +11,7 @@ import json
 import subprocess
 import sys
 import time
+import warnings
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -20,9 +21,30 @@ import numpy as np
 import yaml
 from tqdm import tqdm
 
-from tacforce_ros.experiments.cache import (StageCache, code_digest, digest, file_digest,
-                                            scene_digest)
+from tacforce_ros.control.command_sequence import ForceSequence
+from tacforce_ros.control.force_controller import ForceControllerConfig
+from tacforce_ros.estimation.causal_filter import BatchLowPass
+from tacforce_ros.estimation.cross_validation import cross_validate
+from tacforce_ros.estimation.dataset import CalibrationDataset, concatenate
+from tacforce_ros.estimation.metrics import error_stats
+from tacforce_ros.estimation.model_io import load_model, save_model
+from tacforce_ros.estimation.model_set import load_model_set
+from tacforce_ros.estimation.preprocessing import CUTOFF_HZ, SAMPLE_RATE_HZ
+from tacforce_ros.estimation.registry import paper_configurations
+from tacforce_ros.estimation.runtime import RuntimeEstimator
+from tacforce_ros.estimation.synthetic import synthetic_hand_estimator
+from tacforce_ros.estimation.training import fit_bundle
+from tacforce_ros.experiments import node_path
+from tacforce_ros.experiments.cache import (StageCache, atomic_write, digest, file_digest,
+                                            node_modules, scene_digest, source_digest)
+from tacforce_ros.experiments.calibration_data import simulate_calibration
+from tacforce_ros.experiments.closed_loop import ClosedLoopTrace, run_closed_loop
+from tacforce_ros.hand.description import load_hand
+from tacforce_ros.hand.kinematics import HandKinematics
 from tacforce_ros.paths import config_dir
+from tacforce_ros.sim import load_scene
+from tacforce_ros.sim.scene import session_seed
+from tacforce_ros.timing import time_interleaved
 
 PLATES = ('button', 'flat', 'fillet', 'convex', 'edge')      # training plates (paper Fig. 2d)
 HELD_OUT_PLATE = 'spherical'
@@ -38,6 +60,7 @@ def controllers_for(obj: str) -> tuple[str, ...]:
 ONLINE_MODELS = ('M3-lambda', 'M4')                          # Table II rows
 # The estimator's input low-pass settings compared end to end (None: off, the node's default).
 FILTER_CUTOFFS_HZ = (None, 20.0, 10.0, 5.0)
+BENCH_ROS = 'tacforce_ros.tools.bench_ros'    # run as a command: it starts the estimator node
 NODE_LATENCY_SECONDS = 10.0      # bench_ros's latency test, frames at 100 Hz
 
 
@@ -87,10 +110,7 @@ _WORKER: dict[str, Any] = {}
 
 def init_worker() -> None:
     """Per-process hand and kinematics (loaded once per worker)."""
-    import warnings
 
-    from tacforce_ros.hand.description import load_hand
-    from tacforce_ros.hand.kinematics import HandKinematics
     warnings.simplefilter('ignore')     # sim warnings repeat per run; the report states effects
     _WORKER['hand'] = load_hand()
     _WORKER['kinematics'] = HandKinematics.for_hand(_WORKER['hand'])
@@ -104,25 +124,20 @@ def _hand():
 
 def job_calibration(scene: str, seed: int, seconds: float, target: str,
                     zero_phase_tactile: bool = True) -> str:
-    from tacforce_ros.experiments.calibration_data import simulate_calibration
     hand, kinematics = _hand()
     dataset = simulate_calibration(hand, kinematics, scene, seed, seconds,
                                    zero_phase_tactile=zero_phase_tactile)
-    tmp = Path(target).with_name(Path(target).name + '.tmp')
-    dataset.save(tmp)
-    tmp.replace(target)
+    atomic_write(target, dataset.save)
     return target
 
 
 def job_training_set(paths: list[str], static_force: float, target: str) -> str:
     """Join the sessions of one array, remove each session's offsets, store uncompressed (the
     fits of every model load it; compressed session files would be unpacked once per fit)."""
-    from tacforce_ros.estimation.dataset import CalibrationDataset, concatenate
     dataset = concatenate([CalibrationDataset.load(p) for p in paths])
     X, F, offset = dataset.without_offsets(force_threshold=static_force)
-    tmp = Path(target).with_name(Path(target).name + '.tmp.npz')
-    np.savez(tmp, X=X, F=F, plates=dataset.plates.astype(str), x_offset=offset)
-    tmp.replace(target)
+    atomic_write(target, lambda tmp: np.savez(tmp, X=X, F=F, plates=dataset.plates.astype(str),
+                                              x_offset=offset))
     return target
 
 
@@ -133,7 +148,6 @@ def load_training(path: str) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.nda
 
 
 def job_cross_validation(array: str, kind: str, hyper: dict, training_set: str) -> dict:
-    from tacforce_ros.estimation.cross_validation import cross_validate
     hand, _ = _hand()
     X, F, plates, _ = load_training(training_set)
     return cross_validate(hand.array(array), kind, hyper, X, F, plates).summary()
@@ -141,17 +155,13 @@ def job_cross_validation(array: str, kind: str, hyper: dict, training_set: str) 
 
 def job_final_model(array: str, kind: str, hyper: dict, training_set: str, provenance: dict,
                     target: str) -> str:
-    from tacforce_ros.estimation.model_io import save_model
-    from tacforce_ros.estimation.training import fit_bundle
     hand, _ = _hand()
     X, F, plates, offset = load_training(training_set)
     provenance = {**provenance, 'plates': list(dict.fromkeys(plates.tolist())),
                   'samples': int(X.shape[0])}
     bundle = fit_bundle(hand.array(array), kind, hyper, X, F, plates, x_offset=offset,
                         provenance=provenance)
-    tmp = Path(target).with_name(Path(target).name + '.tmp')
-    save_model(tmp, bundle)
-    tmp.replace(target)
+    atomic_write(target, lambda tmp: save_model(tmp, bundle))
     return target
 
 
@@ -159,10 +169,6 @@ def job_closed_loop(scene: str, seed: int, controller: str, model_config: str | 
                     sequence: str, control_rate: float, target: str,
                     lowpass: tuple[float, int] | None = None) -> str:
     """`lowpass`: (cut-off Hz, order) of the estimator's causal input low-pass, None: off."""
-    from tacforce_ros.control.command_sequence import ForceSequence
-    from tacforce_ros.estimation.preprocessing import SAMPLE_RATE_HZ
-    from tacforce_ros.experiments.closed_loop import run_closed_loop
-    from tacforce_ros.nodes.model_set import load_model_set
     hand, kinematics = _hand()
     models = None if model_config is None else load_model_set(model_config, hand)
     if lowpass is not None:
@@ -170,9 +176,7 @@ def job_closed_loop(scene: str, seed: int, controller: str, model_config: str | 
     trace = run_closed_loop(hand, kinematics, scene, seed, controller_config(controller),
                             ForceSequence.load(sequence), models, control_rate=control_rate,
                             tare_frames=tare_frames())
-    tmp = Path(target).with_name(Path(target).name + '.tmp.npz')
-    np.savez(tmp, **trace.arrays())
-    tmp.replace(target)
+    atomic_write(target, lambda tmp: np.savez(tmp, **trace.arrays()))
     return target
 
 
@@ -184,7 +188,6 @@ def controller_params_file() -> Path:
 
 def controller_config(controller: str):
     """The project's controller parameters; open loop is the same with K_i = 0 (paper)."""
-    from tacforce_ros.control.force_controller import ForceControllerConfig
     config = ForceControllerConfig.from_yaml(controller_params_file())
     return dataclasses.replace(config, k_i=(0.0, 0.0, 0.0)) if controller == 'open_loop' \
         else config
@@ -207,14 +210,8 @@ def hand_digest() -> str:
                        *sorted((config_dir() / 'urdf').glob('*.urdf')))
 
 
-def session_seed(array: str, plate: str, session: int, base: int) -> int:
-    from tacforce_ros.tools.sim_record import session_seed as seed_of
-    return seed_of(base, array, plate, session)
-
-
 def model_hyper(label: str, settings: Settings) -> tuple[str, dict]:
-    from tacforce_ros.tools.bench import configurations
-    return configurations(settings.seed, settings.epochs)[label]
+    return paper_configurations(settings.seed, settings.epochs)[label]
 
 
 # ---------------------------------------------------------------------------------- running
@@ -239,10 +236,9 @@ def calibration_unit(ctx: Context, array: str, plate: str, session: int, seconds
                      zero_phase_tactile: bool = True) -> tuple[str, tuple | None]:
     """(dataset path, job unit to run, or None when the cache has it) of one session."""
     scene = f'calibration_{array}_{plate}'
-    seed = session_seed(array, plate, session, ctx.settings.seed)
+    seed = session_seed(ctx.settings.seed, array, plate, session)
     key = digest({'scene': scene_digest(scene), 'seed': seed, 'seconds': seconds,
-                  'code': code_digest('sim', 'hand', 'estimation/preprocessing',
-                                      'estimation/dataset', 'experiments/calibration_data'),
+                  'code': source_digest(simulate_calibration, load_hand, HandKinematics),
                   'hand': hand_digest(),
                   **({} if zero_phase_tactile else {'zero_phase_tactile': False})})
     path = ctx.cache.path('calibration', key, '.npz')
@@ -272,7 +268,8 @@ def calibration_stage(ctx: Context) -> dict[str, dict[str, list[str]]]:
 def _training_key(paths: list[str], label: str, settings: Settings) -> str:
     return digest({'data': sorted(Path(p).stem for p in paths),
                    'model': model_hyper(label, settings),
-                   'static_force': settings.static_force, 'code': code_digest('estimation')})
+                   'static_force': settings.static_force,
+                   'code': source_digest(cross_validate, fit_bundle)})
 
 
 def benchmark_stage(ctx: Context, layout: dict) -> tuple[dict, dict]:
@@ -285,7 +282,7 @@ def benchmark_stage(ctx: Context, layout: dict) -> tuple[dict, dict]:
     for array in ARRAYS:
         paths = [p for plate in PLATES for p in layout[array][plate]]
         key = digest({'data': sorted(Path(p).stem for p in paths),
-                      'static_force': s.static_force, 'code': code_digest('estimation')})
+                      'static_force': s.static_force, 'code': source_digest(concatenate)})
         sets[array] = str(ctx.cache.path('training_set', key, '.npz'))
         if ctx.cache.lookup('training_set', key, '.npz') is None:
             Path(sets[array]).parent.mkdir(parents=True, exist_ok=True)
@@ -310,7 +307,7 @@ def benchmark_stage(ctx: Context, layout: dict) -> tuple[dict, dict]:
                 target.parent.mkdir(parents=True, exist_ok=True)
                 provenance = {'dataset': f'reproduce cache {key[:24]}', 'date':
                               time.strftime('%Y-%m-%dT%H:%M:%S%z'), 'seed': s.seed,
-                              'code_version': code_digest('estimation')[:12], 'metrics': None}
+                              'code_version': source_digest(fit_bundle)[:12], 'metrics': None}
                 fit_jobs.append((name, job_final_model, (array, kind, hyper, sets[array],
                                                          provenance, str(target))))
     ctx.log(f'stage benchmark: {len(cv_jobs)} cross-validations and {len(fit_jobs)} final fits '
@@ -334,16 +331,13 @@ def timing_stage(ctx: Context, models: dict) -> dict:
     """Inference cost per array and model: one prediction, the compiled batch of one, and a
     full-hand tick (18 arrays of the kind), timed round-robin by the bench tool's timer so every
     model sees the same machine load. Runs in this process while the pool is idle."""
-    from tacforce_ros.estimation.model_io import load_model
-    from tacforce_ros.tools.bench import hand_estimator, time_interleaved
-    from tacforce_ros.estimation.preprocessing import CUTOFF_HZ, SAMPLE_RATE_HZ
-    from tacforce_ros.estimation.runtime import RuntimeEstimator
     s = ctx.settings
     order = int(estimator_parameter('lowpass_order'))
     key = digest({'models': {a: {m: Path(p).stem for m, p in by.items()}
                              for a, by in models.items()},
                   'repeats': s.timing_repeats, 'lowpass_order': order,
-                  'code': code_digest('estimation', 'tools/bench')})
+                  'code': source_digest(time_interleaved, synthetic_hand_estimator, load_model,
+                                        paper_configurations)})
     cached = ctx.cache.load_json('timing', key)
     if cached is not None:
         return cached
@@ -353,7 +347,7 @@ def timing_stage(ctx: Context, models: dict) -> dict:
     calls = {}
     for label in s.models:
         kind, hyper = model_hyper(label, s)
-        estimator = hand_estimator(hand, kind, hyper, s.seed)
+        estimator = synthetic_hand_estimator(hand, kind, hyper, s.seed)
         filtered = RuntimeEstimator(hand, estimator.bundles)    # its cost is the cut-off's too
         filtered.set_lowpass(CUTOFF_HZ, SAMPLE_RATE_HZ, order)
         frame = np.clip(np.round(hand.merge([b.x_offset for b in estimator.bundles])), 0,
@@ -381,9 +375,6 @@ def online_stage(ctx: Context, layout: dict, models: dict) -> dict:
     """Table II: the final models on the held-out spherical session of the index fingertip,
     beside the same models on their own training sessions (in distribution), so the report
     shows how much harder the unseen plate is."""
-    from tacforce_ros.estimation.dataset import CalibrationDataset, concatenate
-    from tacforce_ros.estimation.metrics import error_stats
-    from tacforce_ros.estimation.model_io import load_model
     hand, _ = _hand()
     static = {'force_threshold': ctx.settings.static_force}
     dataset = CalibrationDataset.load(layout['index_tip'][HELD_OUT_PLATE][0])
@@ -413,7 +404,7 @@ def node_latency_stage(ctx: Context) -> dict:
         return {'measured': False,
                 'reason': 'the node path is switched off for this run (--quick or --no-node-path)'}
     key = digest({'seconds': NODE_LATENCY_SECONDS,
-                  'code': code_digest('nodes', 'estimation', 'tools/bench_ros')})
+                  'code': source_digest(BENCH_ROS, *node_modules())})
     cached = ctx.cache.load_json('node_latency', key)
     if cached is not None:
         return cached
@@ -424,7 +415,7 @@ def node_latency_stage(ctx: Context) -> dict:
     ctx.log('stage node latency: bench_ros ' + ' '.join(arguments))
     started = time.perf_counter()
     try:
-        done = subprocess.run([sys.executable, '-m', 'tacforce_ros.tools.bench_ros', *arguments,
+        done = subprocess.run([sys.executable, '-m', BENCH_ROS, *arguments,
                                '--out', str(target)], capture_output=True, text=True,
                               timeout=NODE_LATENCY_SECONDS + 300.0)
     except subprocess.TimeoutExpired:
@@ -452,11 +443,6 @@ def end_to_end_stage(ctx: Context, layout: dict, models: dict, timing: dict,
     with the estimator's causal input low-pass off and at FILTER_CUTOFFS_HZ. Time: the
     full-hand tick (with the filter when on), the filter's group delay, the node's median
     latency (when measured), and their sum."""
-    from tacforce_ros.estimation.causal_filter import BatchLowPass
-    from tacforce_ros.estimation.dataset import CalibrationDataset
-    from tacforce_ros.estimation.metrics import error_stats
-    from tacforce_ros.estimation.model_io import load_model
-    from tacforce_ros.estimation.preprocessing import SAMPLE_RATE_HZ
     s = ctx.settings
     filtered_path = layout['index_tip'][HELD_OUT_PLATE][0]
     raw_path, job = calibration_unit(ctx, 'index_tip', HELD_OUT_PLATE, 0, s.online_seconds,
@@ -466,7 +452,7 @@ def end_to_end_stage(ctx: Context, layout: dict, models: dict, timing: dict,
     key = digest({'sessions': [Path(filtered_path).stem, Path(raw_path).stem],
                   'models': {m: Path(p).stem for m, p in models['index_tip'].items()},
                   'cutoffs': FILTER_CUTOFFS_HZ, 'order': order, 'static_force': s.static_force,
-                  'code': code_digest('estimation')})
+                  'code': source_digest(load_model, RuntimeEstimator, error_stats, BatchLowPass)})
     accuracy = ctx.cache.load_json('end_to_end', key)
     if accuracy is None:
         hand, _ = _hand()
@@ -501,7 +487,7 @@ def end_to_end_stage(ctx: Context, layout: dict, models: dict, timing: dict,
 
 
 def model_config_file(ctx: Context, label: str, models: dict) -> Path:
-    """An estimator model list (nodes/model_set.py format) with the index fingertip's model."""
+    """An estimator model list (estimation/model_set.py format) with the index fingertip's model."""
     path = ctx.out / 'models' / f'{label}.yaml'
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(yaml.safe_dump({'models': {'index_tip': str(Path(
@@ -511,7 +497,7 @@ def model_config_file(ctx: Context, label: str, models: dict) -> Path:
 
 def closed_loop_seed(obj: str, repeat: int, base: int) -> int:
     """Repeat k of every controller on one object shares its seed (a paired comparison)."""
-    return session_seed('closed_loop', obj, repeat, base)
+    return session_seed(base, 'closed_loop', obj, repeat)
 
 
 def closed_loop_unit(ctx: Context, obj: str, controller: str, repeat: int, models: dict,
@@ -519,8 +505,7 @@ def closed_loop_unit(ctx: Context, obj: str, controller: str, repeat: int, model
     """(trace path, job unit to run, or None when the cache has it) of one closed-loop run."""
     s = ctx.settings
     scene = f'closed_loop_{obj}'
-    code = code_digest('sim', 'hand', 'control', 'estimation/runtime', 'nodes/model_set',
-                       'experiments/closed_loop')
+    code = source_digest(run_closed_loop, load_model_set, ForceSequence, load_hand, HandKinematics)
     inputs = file_digest(controller_params_file(), config_dir() / 'commands' / f'{s.sequence}.yaml',
                          config_dir() / 'params' / 'estimator.yaml')
     model_config = None if controller == 'open_loop' else \
@@ -531,7 +516,7 @@ def closed_loop_unit(ctx: Context, obj: str, controller: str, repeat: int, model
                   'controller': controller, 'rate': s.control_rate, 'code': code,
                   'inputs': inputs, 'hand': hand_digest(),
                   **({} if lowpass is None else {'lowpass': lowpass,
-                                                 'filter_code': code_digest('estimation')})})
+                                                 'filter_code': source_digest(BatchLowPass)})})
     target = ctx.cache.path('closed_loop', key, '.npz')
     if ctx.cache.lookup('closed_loop', key, '.npz') is not None:
         return str(target), None
@@ -583,7 +568,6 @@ def filtered_closed_loop_stage(ctx: Context, models: dict, end_to_end: dict) -> 
 
 
 def load_trace(path: str):
-    from tacforce_ros.experiments.closed_loop import ClosedLoopTrace
     with np.load(path) as npz:
         return ClosedLoopTrace(**{k: npz[k] for k in ('t', 'f_d', 'f_hat', 'f_tilde')})
 
@@ -592,11 +576,6 @@ def node_path_stage(ctx: Context, models: dict) -> dict:
     """One calibration session and one closed-loop run (M3-lambda, spherical plate) through the
     node graph, each compared with the direct path on the same scene and seed. Cached like the
     other stages; a failure is recorded with its reason, never replaced by direct results."""
-    from tacforce_ros.control.command_sequence import ForceSequence
-    from tacforce_ros.experiments import node_path
-    from tacforce_ros.experiments.closed_loop import run_closed_loop
-    from tacforce_ros.nodes.model_set import load_model_set
-    from tacforce_ros.sim import load_scene
     s = ctx.settings
     if not s.node_path:
         return {'ran': False, 'reason': 'switched off for this run (--quick or --no-node-path)'}
@@ -605,9 +584,8 @@ def node_path_stage(ctx: Context, models: dict) -> dict:
     loop_scene = 'closed_loop_spherical'
     model = models['index_tip']['M3-lambda']
     key = digest({'scenes': [scene_digest(calibration_scene), scene_digest(loop_scene)],
-                  'model': Path(model).stem, 'code': code_digest(
-                      'nodes', 'tools/session', 'devices', 'recording', 'sim', 'control',
-                      'experiments/node_path', 'experiments/closed_loop'),
+                  'model': Path(model).stem, 'code': source_digest(node_path.run_session, node_path.SESSION_MODULE,
+                                            run_closed_loop, *node_modules()),
                   'inputs': file_digest(*sorted((config_dir() / 'params').glob('*.yaml')),
                                         config_dir() / 'commands' / f'{s.sequence}.yaml')})
     cached = ctx.cache.load_json('node_path', key)

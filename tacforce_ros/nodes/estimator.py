@@ -7,7 +7,7 @@ One batched RuntimeEstimator pass per tactile frame publishes
 * /tactile/markers (visualization_msgs/MarkerArray, force arrows) at `marker_rate_hz`.
 
 Models come from `model_config` (a YAML listing one model file per array, see
-nodes/model_set.py); arrays without a model are skipped, and said so at start-up.
+estimation/model_set.py); arrays without a model are skipped, and said so at start-up.
 A watchdog timer on the node clock (sim time under use_sim_time), restarted by every frame, fires
 only when no frame came for `stale_timeout`: it then publishes estimates flagged invalid (status
 "stale") at `stale_check_rate_hz` until frames return, so consumers and the force controller go
@@ -56,7 +56,7 @@ from tacforce_ros.nodes.common import (REALTIME_PRIORITY, RELIABLE_QOS, Paramete
                                        subscriber_qos)
 from tacforce_ros.nodes.messages import (SerializedMessages, TactileHandDecoder, stamp,
                                          serialized_estimates, serialized_wrenches)
-from tacforce_ros.nodes.model_set import ModelConfigError, load_model_set
+from tacforce_ros.estimation.model_set import ModelConfigError, load_model_set
 from tacforce_ros.paths import config_dir
 
 TOPIC_ESTIMATES = '/tactile/estimates'

@@ -6,10 +6,12 @@ Files whose stem starts with `_` hold shared defaults and are not scenes on thei
 """
 from __future__ import annotations
 
+import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import yaml
 
 from tacforce_ros.paths import config_dir
@@ -224,3 +226,9 @@ def load_scene(name_or_path: str | Path) -> Scene:
         operator=_get(raw, 'operator', dict, where) if kind == 'calibration' else {},
         finger=_finger(raw, where) if kind == 'closed_loop' else {},
         soft_object=_soft_object(raw, where), path=path, sensor_seed=sensor_seed)
+
+
+def session_seed(base: int, array: str, plate: str, session: int) -> int:
+    """A distinct, reproducible seed per (array, plate, session)."""
+    entropy = [base, zlib.crc32(array.encode()), zlib.crc32(plate.encode()), session]
+    return int(np.random.SeedSequence(entropy).generate_state(1)[0])

@@ -14,7 +14,6 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-import time
 from collections.abc import Callable
 from pathlib import Path
 
@@ -24,58 +23,13 @@ from tqdm import tqdm
 from tacforce_ros.estimation.causal_filter import BatchLowPass
 from tacforce_ros.estimation.cross_validation import cross_validate
 from tacforce_ros.estimation.dataset import CalibrationDataset, DatasetError
-from tacforce_ros.estimation.m3_lambda import DEFAULT_GRID, PAPER_LAMBDA
 from tacforce_ros.estimation.preprocessing import CUTOFF_HZ, SAMPLE_RATE_HZ
+from tacforce_ros.estimation.registry import PAPER_LABELS, paper_configurations
 from tacforce_ros.estimation.runtime import RuntimeEstimator
-from tacforce_ros.estimation.synthetic import synthetic_dataset
+from tacforce_ros.estimation.synthetic import synthetic_dataset, synthetic_hand_estimator
 from tacforce_ros.estimation.training import fit_bundle
 from tacforce_ros.paths import output_folder
-
-
-LABELS = ('M1', 'M2', 'M3', 'M3-lambda', 'M3-lambda-cv', 'M4', 'M5')
-
-
-def configurations(seed: int, epochs: int) -> dict[str, tuple[str, dict]]:
-    """Row label -> (kind, hyper-parameters)."""
-    torch_hyper = {'seed': seed, 'epochs': epochs}
-    return {
-        'M1': ('M1', {}), 'M2': ('M2', {}), 'M3': ('M3', {}),
-        'M3-lambda': ('M3-lambda', {'lam': PAPER_LAMBDA, 'lambda_grid': None}),
-        'M3-lambda-cv': ('M3-lambda', {'lam': PAPER_LAMBDA, 'lambda_grid': list(DEFAULT_GRID)}),
-        'M4': ('M4', dict(torch_hyper)), 'M5': ('M5', dict(torch_hyper)),
-    }
-
-
-def time_interleaved(calls: dict[tuple[str, str], Callable[[], object]], repeats: int,
-                     rounds: int = 10) -> dict[tuple[str, str], dict[str, float]]:
-    """Median and p99 wall time [us] of each call, `repeats` calls each.
-
-    The calls are timed round-robin in `rounds` slices, so on a shared machine every model sees
-    the same background load and the ratios between models stay meaningful.
-    """
-    per_round = max(1, repeats // rounds)
-    samples: dict[tuple[str, str], list[int]] = {key: [] for key in calls}
-    for call in calls.values():
-        for _ in range(50):         # warm-up: caches, lazy buffers
-            call()
-    for _ in range(rounds):
-        for key, call in calls.items():
-            record = samples[key].append
-            for _ in range(per_round):
-                start = time.perf_counter_ns()
-                call()
-                record(time.perf_counter_ns() - start)
-    return {key: {'median_us': float(np.median(v) / 1e3),
-                  'p99_us': float(np.percentile(v, 99) / 1e3)} for key, v in samples.items()}
-
-
-def hand_estimator(hand, kind: str, hyper: dict, seed: int) -> RuntimeEstimator:
-    bundles = []
-    for array in hand.arrays:
-        data = synthetic_dataset(array, plates=('flat', 'edge'), seconds=8.0, seed=seed)
-        X, F, offset = data.without_offsets()
-        bundles.append(fit_bundle(array, kind, hyper, X, F, data.plates, x_offset=offset))
-    return RuntimeEstimator(hand, bundles)
+from tacforce_ros.timing import time_interleaved
 
 
 def bench_model(array, hand, label: str, kind: str, hyper: dict, dataset: CalibrationDataset,
@@ -87,7 +41,7 @@ def bench_model(array, hand, label: str, kind: str, hyper: dict, dataset: Calibr
     bundle = fit_bundle(array, kind, hyper, X, F, dataset.plates, x_offset=offset)
     one = bundle.x_scaler.transform(X[:1])
     batch_one = type(bundle.model).compile_batch([bundle.model])
-    estimator = hand_estimator(hand, kind, hyper, seed)
+    estimator = synthetic_hand_estimator(hand, kind, hyper, seed)
     frame = np.clip(np.round(hand.merge([b.x_offset for b in estimator.bundles])), 0, 65535
                     ).astype(np.uint16)
     calls = {'predict_one': lambda: bundle.model.predict(one),
@@ -147,7 +101,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--array', default='index_tip', help='array for --synthetic')
     parser.add_argument('--seconds', type=float, default=60.0,
                         help='synthetic seconds per plate (default 60)')
-    parser.add_argument('--models', nargs='+', default=list(LABELS), choices=LABELS,
+    parser.add_argument('--models', nargs='+', default=list(PAPER_LABELS), choices=PAPER_LABELS,
                         help='rows to run; M3-lambda-cv selects the damping by nested CV')
     parser.add_argument('--epochs', type=int, default=40, help='M4/M5 epochs (paper: 40)')
     parser.add_argument('--repeats', type=int, default=2000,
@@ -180,7 +134,7 @@ def main(argv: list[str] | None = None) -> int:
     except (DatasetError, ValueError, KeyError) as exc:
         print(f'bench: {exc}', file=sys.stderr)
         return 2
-    configs = configurations(args.seed, args.epochs)
+    configs = paper_configurations(args.seed, args.epochs)
     rows, calls = [], {}
     for label in tqdm(args.models, desc='models', unit='model'):
         kind, hyper = configs[label]

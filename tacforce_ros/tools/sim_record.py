@@ -12,7 +12,6 @@ from __future__ import annotations
 import argparse
 import sys
 import time
-import zlib
 from pathlib import Path
 
 import numpy as np
@@ -22,15 +21,10 @@ from tacforce_ros import bagio
 from tacforce_ros.hand.description import HandDescription, load_hand
 from tacforce_ros.paths import output_folder
 from tacforce_ros.sim import load_scene, make_simulator
+from tacforce_ros.sim.scene import session_seed
 
 PLATES = ('button', 'flat', 'fillet', 'convex', 'edge', 'spherical')
 ARRAYS = ('index_tip', 'index_middle')
-
-
-def session_seed(base: int, array: str, plate: str, session: int) -> int:
-    """A distinct, reproducible seed per (array, plate, session)."""
-    entropy = [base, zlib.crc32(array.encode()), zlib.crc32(plate.encode()), session]
-    return int(np.random.SeedSequence(entropy).generate_state(1)[0])
 
 
 def record_session(out_dir: Path, hand: HandDescription, array: str, plate: str,

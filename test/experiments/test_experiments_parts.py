@@ -10,7 +10,8 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from tacforce_ros.control.command_sequence import ForceSequence
-from tacforce_ros.experiments.cache import StageCache, digest, scene_digest
+from tacforce_ros.experiments.cache import (PACKAGE_ROOT, StageCache, atomic_write, digest,
+                                            scene_digest, source_digest, source_files)
 from tacforce_ros.experiments.calibration_data import simulate_calibration
 from tacforce_ros.experiments.closed_loop import ClosedLoopTrace, run_closed_loop, trace_metrics
 from tacforce_ros.experiments.node_path import _free_ports, compare_closed_loop
@@ -84,7 +85,30 @@ def test_cache_entries_are_written_whole(tmp_path):
     assert cache.load_json('stage', 'k' * 64) is None and cache.misses == 1
     cache.store_json('stage', 'k' * 64, {'a': [1, 2]})
     assert cache.load_json('stage', 'k' * 64) == {'a': [1, 2]} and cache.hits == 1
-    assert not list(tmp_path.rglob('*.tmp'))
+    assert not [p for p in tmp_path.rglob('*') if '.tmp' in p.name]
+
+
+def test_source_digest_follows_the_imports_of_the_code_it_names():
+    """A cache key covers the modules a job's code imports, transitively, function-local imports
+    and the packages on the way included, and nothing it does not import."""
+    from tacforce_ros.experiments.closed_loop import run_closed_loop
+    files = {str(p.relative_to(PACKAGE_ROOT)) for p in
+             source_files(run_closed_loop.__module__)}
+    assert {'experiments/closed_loop.py', 'control/force_controller.py', 'sim/__init__.py',
+            'sim/effects/transport.py',        # imported inside a function of sim/effects
+            'estimation/model_set.py'} <= files
+    assert not any(f.startswith(('nodes/', 'tools/')) for f in files)
+    assert source_digest(run_closed_loop) == source_digest('tacforce_ros.experiments.closed_loop')
+    assert source_digest(run_closed_loop) != source_digest(run_closed_loop, 'tacforce_ros.bagio')
+    with pytest.raises(ValueError, match='no such module'):
+        source_digest('tacforce_ros.no_such_module')
+
+
+def test_atomic_write_keeps_the_suffix_writers_append_and_leaves_no_temporary(tmp_path):
+    target = tmp_path / 'deep' / 'trace.npz'
+    atomic_write(target, lambda tmp: np.savez(tmp, x=np.arange(3)))   # savez appends no .npz
+    assert np.load(target)['x'].tolist() == [0, 1, 2]
+    assert sorted(p.name for p in target.parent.iterdir()) == ['trace.npz']
 
 
 def test_direct_calibration_session_is_seeded_and_windowed(hand, kinematics):

@@ -8,7 +8,7 @@ import sys
 import time
 from pathlib import Path
 
-from tacforce_ros.nodes.model_set import write_synthetic_model_set as synthetic_model_set
+from tacforce_ros.estimation.model_set import write_synthetic_model_set as synthetic_model_set
 from tacforce_ros.nodes.session_plan import NodeLaunch, SessionArgs, plan
 from tacforce_ros.tools.session import start_nodes, stop_nodes
 

@@ -1,9 +1,11 @@
+import dataclasses
 import textwrap
+from typing import ClassVar
 
 import pytest
 
 from tacforce_ros.sim import SceneError, list_scenes, load_scene
-from tacforce_ros.sim.effects import EFFECTS
+from tacforce_ros.sim.effects import EFFECTS, Effect, Pipeline
 
 
 def write(tmp_path, text, name='scene.yaml'):
@@ -61,3 +63,16 @@ def test_unknown_scene_lists_the_known_ones():
 
 def test_every_effect_has_a_distinct_registered_name():
     assert all(cls.name == name for name, cls in EFFECTS.items())
+
+
+def test_a_misspelt_hook_fails_loudly():
+    @dataclasses.dataclass
+    class Misspelt(Effect):
+        name: ClassVar[str] = 'misspelt'
+
+        def on_taxelforce(self, state):     # stage 'taxel_force'
+            raise AssertionError('never called')
+
+    with pytest.raises(TypeError, match=r"'misspelt': hooks \['on_taxelforce'\] name no stage"):
+        Pipeline([Misspelt()])
+    assert Pipeline([cls() for cls in EFFECTS.values()]).effects   # every shipped hook is known

@@ -47,6 +47,12 @@ class Pipeline:
 
     def __init__(self, effects: list[Effect]) -> None:
         self.effects = list(effects)
+        for effect in self.effects:
+            unknown = sorted(name for name in dir(effect) if name.startswith('on_')
+                             and name[3:] not in STAGES)
+            if unknown:     # a misspelt hook would otherwise never run, silently
+                raise TypeError(f'effect {effect.name!r}: hooks {unknown} name no stage; '
+                                f'stages are {list(STAGES)}')
         self.hooks: dict[str, tuple] = {
             stage: tuple(getattr(e, f'on_{stage}') for e in self.effects
                          if hasattr(e, f'on_{stage}'))

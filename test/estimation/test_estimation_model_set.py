@@ -5,9 +5,9 @@ import pytest
 import yaml
 
 from tacforce_ros.estimation.model_io import load_model
+from tacforce_ros.estimation.model_set import (ModelConfigError, load_model_set,
+                                               write_synthetic_model_set)
 from tacforce_ros.hand.description import load_hand
-from tacforce_ros.nodes.model_set import (ModelConfigError, load_model_set,
-                                          write_synthetic_model_set)
 
 
 @pytest.fixture(scope='module')

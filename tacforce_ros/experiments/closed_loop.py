@@ -2,28 +2,29 @@
 
 The same core objects the node graph wires over DDS, called directly and faster than real time:
 the MuJoCo closed-loop simulator, the estimator's ModelSet (runtime estimator over the modelled
-arrays, tared on the first frames as the estimator node tares), the ForceController, and the
-force command sequence. Control and estimation tick at `control_rate` (paper: 100 Hz); the torque
+arrays, tared on the first frames as the estimator node tares), the FingerSession (start-pose
+hold, engagement, force law and watchdog: the object the controller node runs), and the force
+command sequence. Control and estimation tick at `control_rate` (paper: 100 Hz); the torque
 is held over the physics steps in between, as the Allegro firmware holds the last command.
 """
 from __future__ import annotations
 
-import dataclasses
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
 
-from tacforce_ros.control.force_controller import ForceController, ForceControllerConfig
+from tacforce_ros.control.finger_session import FingerSession, Transition
 from tacforce_ros.estimation.metrics import error_stats
 from tacforce_ros.sim import load_scene, make_simulator
 
 if TYPE_CHECKING:
     from tacforce_ros.control.command_sequence import ForceSequence
+    from tacforce_ros.control.force_controller import ForceControllerConfig
+    from tacforce_ros.estimation.model_set import ModelSet
     from tacforce_ros.hand.description import HandDescription
     from tacforce_ros.hand.kinematics import HandKinematics
-    from tacforce_ros.estimation.model_set import ModelSet
 
 METRIC_WINDOW = (16.0, 70.0)   # s; paper Sec. V-C: after the initial f_d = 0 phase
 
@@ -36,9 +37,11 @@ class ClosedLoopTrace:
     f_d: np.ndarray        # (T, 3) desired
     f_hat: np.ndarray      # (T, 3) estimate (NaN while there is none: open loop, before tare)
     f_tilde: np.ndarray    # (T, 3) F/T measurement
+    transitions: list[str] = field(default_factory=list)   # the session's, in order
 
     def arrays(self) -> dict[str, np.ndarray]:
-        return {'t': self.t, 'f_d': self.f_d, 'f_hat': self.f_hat, 'f_tilde': self.f_tilde}
+        return {'t': self.t, 'f_d': self.f_d, 'f_hat': self.f_hat, 'f_tilde': self.f_tilde,
+                'transitions': np.asarray(self.transitions, dtype=str)}
 
 
 def run_closed_loop(hand: HandDescription, kinematics: HandKinematics, scene: str | Path,
@@ -54,8 +57,8 @@ def run_closed_loop(hand: HandDescription, kinematics: HandKinematics, scene: st
     other sessions). Then the controller runs the sequence from t = 0, its q_d bringing the
     fingertip into contact.
     """
-    controller = ForceController(config, kinematics)
-    if models is None and not controller.open_loop:
+    session = FingerSession(config, kinematics)
+    if models is None and not session.controller.open_loop:
         raise ValueError('a closed-loop controller (k_i != 0) needs force models')
     scene = load_scene(scene)
     sim = make_simulator(scene, hand, seed=seed)
@@ -64,15 +67,13 @@ def run_closed_loop(hand: HandDescription, kinematics: HandKinematics, scene: st
         raise ValueError(f'control rate {control_rate} Hz must divide the physics rate '
                          f'{1.0 / sim.dt:g} Hz')
     row = None if models is None else [a.name for a in models.arrays].index(scene.array)
-    joints = kinematics.finger_joints(config.finger)
     settle_ticks = int(round(settle_seconds * control_rate))
     if settle_ticks < tare_frames:
         raise ValueError(f'settle_seconds {settle_seconds} s holds fewer than the '
                          f'{tare_frames} frames the tare needs at {control_rate:g} Hz')
-    hold = ForceController(dataclasses.replace(config, k_i=(0.0, 0.0, 0.0),
-                                               q_d=tuple(sim.pose)), kinematics)
     tare: list[np.ndarray] = []
     wrenches: list[np.ndarray] = []
+    transitions: list[Transition] = []
     ft_zero = np.zeros(3)
     q = qdot = None
     q_time = estimate_time = -np.inf
@@ -93,33 +94,35 @@ def run_closed_loop(hand: HandDescription, kinematics: HandKinematics, scene: st
             q, qdot = sample.q, sample.qdot
         if sample.delivered['joints']:
             q, qdot, q_time = sample.q, sample.qdot, t
-        if tick < 0:
-            if tick >= -tare_frames:
-                wrenches.append(sample.ft_wrench[:3])
-                if models is not None and frame is not None:
-                    tare.append(frame.astype(np.float64))
-            tau, _ = hold.update(t, q, qdot, f_hat, np.inf, t - q_time, np.zeros(3))
-            torque = np.zeros(16)
-            torque[joints] = tau
-            continue
+        f_d = None      # no command during the settle: the session holds the start pose
+        if tick < 0 and tick >= -tare_frames:
+            wrenches.append(sample.ft_wrench[:3])
+            if models is not None and frame is not None:
+                tare.append(frame.astype(np.float64))
         if tick == 0:
             ft_zero = np.mean(wrenches, axis=0)
             if models is not None:
                 models.set_tare(np.stack(tare))
-        if models is not None and frame is not None:
-            estimate = models.estimate(frame)
-            if estimate.valid[row]:
-                f_hat, estimate_time = estimate.force[row], t
-        f_d = sequence.force_at(t)
-        tau, state = controller.update(t, q, qdot, f_hat, t - estimate_time, t - q_time, f_d)
+        if tick >= 0:
+            if models is not None and frame is not None:
+                estimate = models.estimate(frame)
+                if estimate.valid[row]:
+                    f_hat, estimate_time = estimate.force[row], t
+            f_d = sequence.force_at(t)
+        tau, state, transition = session.update(t, q, qdot, f_hat, t - estimate_time,
+                                                t - q_time, f_d)
+        if transition is not None:
+            transitions.append(transition)
         torque = np.zeros(16)
-        torque[joints] = tau
+        torque[session.joints] = tau
+        if tick < 0:
+            continue
         log_t[tick] = t
         log['f_d'][tick] = f_d
         if state.estimate_fresh:
             log['f_hat'][tick] = state.estimated_force
         log['f_tilde'][tick] = sample.ft_wrench[:3] - ft_zero
-    return ClosedLoopTrace(t=log_t, **log)
+    return ClosedLoopTrace(t=log_t, transitions=[str(x) for x in transitions], **log)
 
 
 def trace_metrics(traces: list[ClosedLoopTrace],

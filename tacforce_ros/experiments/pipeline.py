@@ -569,7 +569,8 @@ def filtered_closed_loop_stage(ctx: Context, models: dict, end_to_end: dict) -> 
 
 def load_trace(path: str):
     with np.load(path) as npz:
-        return ClosedLoopTrace(**{k: npz[k] for k in ('t', 'f_d', 'f_hat', 'f_tilde')})
+        return ClosedLoopTrace(**{k: npz[k] for k in ('t', 'f_d', 'f_hat', 'f_tilde')},
+                               transitions=npz['transitions'].tolist())
 
 
 def node_path_stage(ctx: Context, models: dict) -> dict:

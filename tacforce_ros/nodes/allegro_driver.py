@@ -4,8 +4,9 @@ Joint states (sensor_msgs/JointState, 16 joints in Allegro order, position rad, 
 finite differences on the node clock, effort = last commanded torque N m) are published for
 every complete FINGER_POSE cycle (333 Hz at `position_period_ms` = 3).
 
-`control` = force runs the paper's law (tacforce_ros/control/force_controller.py, parameters
-`force_controller.*`, see config/params/force_controller.yaml) for the selected finger at
+`control` = force runs one finger's closed loop (tacforce_ros/control/finger_session.py: the same
+object the in-process experiments run) with the paper's law (control/force_controller.py,
+parameters `force_controller.*`, see config/params/force_controller.yaml) for the selected finger at
 `control_rate_hz` on the node clock (sim time under use_sim_time): f_d from
 /force_controller/desired (geometry_msgs/Vector3Stamped, in force_controller.force_frame),
 f_hat from /tactile/estimates (the entry of `estimate_array`; invalid or missing entries count as
@@ -16,8 +17,9 @@ then the finger holds the pose it had at start-up with the law's own PD and grav
 force terms (k_i = 0, q_d = that pose, reported as mode "hold"), so a session starts as a lab
 run does: clear of the plate, the estimator tared, then q_d brings the tip into contact. The
 controller's watchdog ramps the force terms to a position hold when the estimate goes stale and
-the whole torque to zero when the joint stream does; every tick is published as
-tacforce_msgs/ControllerState on /force_controller/state.
+fades the last command to zero torque when the joint stream does; every tick is published as
+tacforce_msgs/ControllerState on /force_controller/state, and every change of mode or of its
+cause is logged once.
 `control` = off (calibration sessions) only publishes joint states and never commands torque.
 On shutdown the driver stops the stream, sends zero torque and switches the servos off.
 
@@ -30,7 +32,6 @@ servos off, logged at ERROR; with `control` = force the node then exits with cod
 """
 from __future__ import annotations
 
-import dataclasses
 import sys
 from dataclasses import fields
 
@@ -42,8 +43,8 @@ from sensor_msgs.msg import JointState
 from tacforce_msgs.msg import ControllerState, ForceEstimateArray
 
 from tacforce_ros.bagio import TOPIC_CONTROLLER_STATE, TOPIC_DESIRED, TOPIC_JOINTS
-from tacforce_ros.control.force_controller import (MODE_HOLD, ControllerConfigError,
-                                                   ForceController, ForceControllerConfig)
+from tacforce_ros.control.finger_session import FingerSession
+from tacforce_ros.control.force_controller import ControllerConfigError, ForceControllerConfig
 from tacforce_ros.devices.allegro import (N_JOINTS, AllegroConfig, AllegroError, AllegroV4Driver,
                                           JointSample)
 from tacforce_ros.devices.polling import LinkLost
@@ -158,9 +159,9 @@ class AllegroDriver(TacforceNode):
             self.kin = HandKinematics.for_hand(self.hand, gravity=np.asarray(p['gravity']))
         except (HandConfigError, OSError, ValueError) as exc:
             raise ParameterError(f'hand_config/gravity: {exc}') from None
-        self.controller: ForceController | None = None
+        self.session: FingerSession | None = None
         if p['control'] == 'force':
-            self.controller = self._make_controller()
+            self.session = FingerSession(self._controller_config(), self.kin)
         self.joint_publisher = self.create_publisher(JointState, TOPIC_JOINTS,
                                                      publisher_qos(TOPIC_JOINTS))
         self.velocity = JointVelocity(p['velocity_cutoff_hz'])
@@ -168,9 +169,6 @@ class AllegroDriver(TacforceNode):
         self._q_hold: np.ndarray | None = None
         self._tau = np.zeros(N_JOINTS)
         self._desired: np.ndarray | None = None      # None until the first command
-        self._start_hold: ForceController | None = None  # holds the start pose until engaged
-        self._engaged = False
-        self._mode: tuple[str, str] | None = None        # mode, cause: logged on change
         self._estimate: tuple[np.ndarray, int] | None = None     # f_hat, stamp ns
         self.refused_commands = 0
         if not p['silent_warn_after'] < p['silent_timeout']:
@@ -188,7 +186,7 @@ class AllegroDriver(TacforceNode):
         self.status = LinkStatusReporter(self, self.driver)
         self.create_timer(LINK_CHECK_PERIOD_S, self._check_hand,
                           clock=Clock(clock_type=ClockType.STEADY_TIME))
-        if self.controller is not None:
+        if self.session is not None:
             self.create_subscription(Vector3Stamped, TOPIC_DESIRED, self._on_desired,
                                      subscriber_qos(TOPIC_DESIRED))
             self.create_subscription(ForceEstimateArray, TOPIC_ESTIMATES, self._on_estimates,
@@ -201,11 +199,11 @@ class AllegroDriver(TacforceNode):
         self.get_logger().info(
             f'Allegro {self.driver.serial} ({info.side}, fw 0x{info.firmware_version:04x}) on '
             f'{p["interface"]}:{p["channel"]}; control '
-            + (f'force on {self.controller.config.finger} at {p["control_rate_hz"]:g} Hz, '
-               f'{"open loop" if self.controller.open_loop else "closed loop"} with '
-               f'{p["estimate_array"]}' if self.controller else 'off (joint states only)'))
+            + (f'force on {self.session.config.finger} at {p["control_rate_hz"]:g} Hz, '
+               f'{"open loop" if self.session.controller.open_loop else "closed loop"} with '
+               f'{p["estimate_array"]}' if self.session else 'off (joint states only)'))
 
-    def _make_controller(self) -> ForceController:
+    def _controller_config(self) -> ForceControllerConfig:
         group = {name.split('.', 1)[1]: value for name, value in self.params.items()
                  if name.startswith(CONTROLLER_GROUP + '.')}
         try:
@@ -223,7 +221,7 @@ class AllegroDriver(TacforceNode):
             if not self.kin.has_frame(getattr(config, name)):
                 raise ParameterError(f'{CONTROLLER_GROUP}.{name}: {getattr(config, name)!r} is '
                                      'not a frame of the URDF')
-        return ForceController(config, self.kin)
+        return config
 
     def _driver_config(self) -> AllegroConfig:
         p = self.params
@@ -246,7 +244,7 @@ class AllegroDriver(TacforceNode):
         on a hand the driver made safe: a controller cannot act on either."""
         if self.driver.fatal_error is not None:
             raise RuntimeError(f'Allegro link failed: {self.driver.fatal_error}')
-        if self.controller is not None and self.driver.safe_stop:
+        if self.session is not None and self.driver.safe_stop:
             raise RuntimeError(f'force control ended: {self.driver.safe_stop}')
 
     # --- inputs (joint callback runs in the driver's thread) --------------------------------
@@ -266,7 +264,7 @@ class AllegroDriver(TacforceNode):
         self.joint_publisher.publish(msg)
 
     def _on_desired(self, msg: Vector3Stamped) -> None:
-        frame = self.controller.config.force_frame
+        frame = self.session.config.force_frame
         if msg.header.frame_id not in ('', frame):
             self.refused_commands += 1
             self.get_logger().warn(f'desired force in {msg.header.frame_id!r} refused: the '
@@ -295,17 +293,12 @@ class AllegroDriver(TacforceNode):
         estimate = self._estimate
         f_hat, f_age = ((estimate[0], (now - estimate[1]) * 1e-9) if estimate is not None
                         else (np.full(3, np.nan), float('inf')))
-        controller, desired = self._acting_controller(q, estimate is not None, now)
-        tau_finger, state = controller.update(now * 1e-9, q, qdot, f_hat, f_age,
-                                              (now - q_ns) * 1e-9, desired)
-        if not self._engaged and state.force_gain == 1.0:
-            state.mode = MODE_HOLD
-            state.reason = ('start pose hold, waiting for a valid estimate of '
-                            f'{self.params["estimate_array"]}' if self._desired is not None
-                            else 'start pose hold, no desired force yet')
-        self._log_mode(state)
+        tau_finger, state, transition = self.session.update(
+            now * 1e-9, q, qdot, f_hat, f_age, (now - q_ns) * 1e-9, self._desired)
+        if transition is not None:
+            self.get_logger().info(str(transition))
         tau = state.hold_gain * self._hold_others(q, qdot)
-        tau[self.controller.joints] = tau_finger
+        tau[self.session.joints] = tau_finger
         try:
             self.driver.set_torques(tau)
         except LinkLost as error:
@@ -318,32 +311,6 @@ class AllegroDriver(TacforceNode):
         self._tau = tau
         self.state_publisher.publish(self._state_message(now, state, q, qdot))
 
-    def _log_mode(self, state) -> None:
-        """One line per change of mode or of its cause (the reason up to any ':'; what follows
-        are figures that change every tick), not one per tick."""
-        now = (state.mode, state.reason.split(':')[0])
-        if now != self._mode:
-            previous = 'start' if self._mode is None else self._mode[0]
-            self.get_logger().info(f'controller {previous} -> {state.mode}: {state.reason}')
-            self._mode = now
-
-    def _acting_controller(self, q: np.ndarray, have_estimate: bool, now: int
-                           ) -> tuple[ForceController, np.ndarray]:
-        """This tick's controller and f_d: the force controller once engaged (a command came
-        and, closed loop, a tared estimate), else the start-pose hold with f_d = 0."""
-        if not self._engaged:
-            self._engaged = self._desired is not None and (self.controller.open_loop
-                                                           or have_estimate)
-            if self._engaged:
-                self.get_logger().info(f'force control engaged at {now * 1e-9:.3f} s')
-        if self._engaged:
-            return self.controller, self._desired
-        if self._start_hold is None:
-            self._start_hold = ForceController(dataclasses.replace(
-                self.controller.config, k_i=(0.0, 0.0, 0.0),
-                q_d=tuple(q[self.controller.joints])), self.kin)
-        return self._start_hold, np.zeros(3)
-
     def _hold_others(self, q: np.ndarray, qdot: np.ndarray) -> np.ndarray:
         p = self.params
         return (self.kin.gravity_torques(q) - p['others_kd'] * qdot
@@ -351,8 +318,8 @@ class AllegroDriver(TacforceNode):
 
     def _state_message(self, now: int, state, q: np.ndarray, qdot: np.ndarray
                        ) -> ControllerState:
-        joints = self.controller.joints
-        msg = ControllerState(finger=self.controller.config.finger, mode=state.mode,
+        joints = self.session.joints
+        msg = ControllerState(finger=self.session.config.finger, mode=state.mode,
                               desired_force=vector3(state.desired_force),
                               estimated_force=vector3(state.estimated_force),
                               integral_error=vector3(state.integral_error),
@@ -362,7 +329,7 @@ class AllegroDriver(TacforceNode):
                               estimate_fresh=state.estimate_fresh,
                               joints_fresh=state.joints_fresh)
         msg.header.stamp = stamp(now)
-        msg.header.frame_id = self.controller.config.force_frame
+        msg.header.frame_id = self.session.config.force_frame
         return msg
 
     def on_shutdown(self) -> None:

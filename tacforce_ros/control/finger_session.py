@@ -1,0 +1,82 @@
+"""One finger's closed loop per tick, as a lab run goes: the object both the controller node and
+the in-process experiments call, so the two differ only in how inputs reach it.
+
+Until it engages, the finger holds the pose it had at the first tick with the law's own gravity
+and PD terms and no force terms (k_i = 0, q_d = that pose), reported as mode 'hold': a session
+starts clear of the plate while the F/T sensor is zeroed and the estimator tares. It engages on
+the first desired force once (closed loop) a fresh, finite estimate is there; from then on the
+force law runs with its watchdog (control/force_controller.py), which ramps to a position hold on
+a stale estimate, fades to zero torque on stale joints, and ramps back in when the streams
+return, holding the contact. Each change of mode, or of its cause, is kept as a transition for
+the caller to log.
+"""
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+import numpy as np
+
+from tacforce_ros.control.force_controller import (MODE_HOLD, ControllerState, ForceController,
+                                                   ForceControllerConfig, Kinematics)
+
+
+@dataclass(frozen=True)
+class Transition:
+    t: float
+    previous: str       # mode before ('start' at the first tick)
+    mode: str
+    reason: str
+
+    def __str__(self) -> str:
+        return f'controller {self.previous} -> {self.mode}: {self.reason}'
+
+
+class FingerSession:
+    """The start-pose hold, engagement, and the force law of one finger."""
+
+    def __init__(self, config: ForceControllerConfig, kinematics: Kinematics) -> None:
+        self.controller = ForceController(config, kinematics)
+        self.kinematics = kinematics
+        self.engaged = False
+        self._start_hold: ForceController | None = None
+        self._cause: tuple[str, str] | None = None      # mode, reason up to any ':'
+
+    @property
+    def config(self) -> ForceControllerConfig:
+        return self.controller.config
+
+    @property
+    def joints(self) -> slice:
+        return self.controller.joints
+
+    def update(self, t: float, q: np.ndarray, qdot: np.ndarray, f_hat: np.ndarray,
+               f_hat_age: float, q_age: float, f_d: np.ndarray | None
+               ) -> tuple[np.ndarray, ControllerState, Transition | None]:
+        """One tick, arguments as ForceController.update; f_d None: no command has come yet.
+        Returns the finger's 4 torques, the tick's state, and the transition this tick made
+        (None when mode and cause are unchanged)."""
+        if not self.engaged and f_d is not None:
+            fresh = (f_hat_age <= self.config.estimate_timeout
+                     and np.all(np.isfinite(np.asarray(f_hat, dtype=np.float64))))
+            self.engaged = bool(self.controller.open_loop or fresh)
+        if self.engaged:
+            tau, state = self.controller.update(t, q, qdot, f_hat, f_hat_age, q_age, f_d)
+        else:
+            if self._start_hold is None:
+                self._start_hold = ForceController(dataclasses.replace(
+                    self.config, k_i=(0.0, 0.0, 0.0),
+                    q_d=tuple(np.asarray(q, dtype=np.float64)[self.joints])), self.kinematics)
+            tau, state = self._start_hold.update(t, q, qdot, f_hat, f_hat_age, q_age,
+                                                 np.zeros(3))
+            if state.force_gain == 1.0:      # joints fresh: the start pose is being held
+                state.mode = MODE_HOLD
+                state.reason = ('start pose hold, no desired force yet' if f_d is None else
+                                'start pose hold, waiting for a valid estimate')
+        cause = (state.mode, state.reason.split(':')[0])
+        transition = None
+        if cause != self._cause:
+            transition = Transition(float(t), 'start' if self._cause is None else self._cause[0],
+                                    state.mode, state.reason)
+            self._cause = cause
+        return tau, state, transition

@@ -68,6 +68,11 @@ class Kinematics(Protocol):
     def rotation_between(self, q16: np.ndarray, from_frame: str, to_frame: str) -> np.ndarray: ...
 
 
+def _param(default: Any, description: str) -> Any:
+    """A configuration field with its description (the node's parameter help reads it)."""
+    return field(default=default, metadata={'help': description})
+
+
 class ControllerConfigError(ValueError):
     """A controller configuration that cannot be used; the message names the field."""
 
@@ -79,20 +84,27 @@ class ForceControllerConfig:
     The defaults repeat config/params/force_controller.yaml (where each value is argued), the
     file every path loads; a test keeps the two equal."""
 
-    finger: str = 'index'
-    base_frame: str = 'hand_root'
-    force_frame: str = 'ft_sensor'          # frame of f_d and of the integral ({F} in the paper)
-    estimate_frame: str = ''                # frame of f_hat, e.g. uskin_index_tip; '' = force_frame
-    k_i: tuple[float, ...] = (2.0, 2.0, 2.0)            # 1/s, diagonal; all zero = open loop
-    k_p: tuple[float, ...] = (0.25, 0.5, 0.12, 0.03)          # Nm/rad, diagonal
-    k_d: tuple[float, ...] = (0.012, 0.025, 0.006, 0.0015)    # Nm s/rad, diagonal
-    q_d: tuple[float, ...] = (0.0, 0.8, 0.8, 0.8)             # rad, finger's position target
-    torque_cap: float = 0.35                # Nm, paper: above it the actuators throttle
-    integral_rate_limit: float = 1.0        # N: |e_f| per axis clipped to this before integrating
-    integral_limit: float = 2.0             # N s per axis
-    estimate_timeout: float = 0.05          # s, older force estimates are stale
-    joints_timeout: float = 0.02            # s, older joint states are stale
-    ramp_time: float = 0.05                 # s, fresh -> safe (target: safe within 0.1 s)
+    finger: str = _param('index', 'finger under force control (index, middle, ring, thumb)')
+    base_frame: str = _param('hand_root', 'hand base frame of the URDF')
+    force_frame: str = _param(
+        'ft_sensor', 'frame of f_d and of the integral ({F} = ft_sensor in the paper)')
+    estimate_frame: str = _param(
+        '', 'frame of the force estimate (the array frame); empty = force_frame')
+    k_i: tuple[float, ...] = _param(
+        (2.0, 2.0, 2.0), 'integral gains per axis (1/s); all zero = open loop')
+    k_p: tuple[float, ...] = _param(
+        (0.25, 0.5, 0.12, 0.03), 'joint stiffness per finger joint (N m/rad)')
+    k_d: tuple[float, ...] = _param(
+        (0.012, 0.025, 0.006, 0.0015), 'joint damping per finger joint (N m s/rad)')
+    q_d: tuple[float, ...] = _param(
+        (0.0, 0.8, 0.8, 0.8), 'finger joint target (rad), chosen so the fingertip stays in contact')
+    torque_cap: float = _param(0.35, 'largest joint torque (N m), within the firmware clamps')
+    integral_rate_limit: float = _param(
+        1.0, '|f_d - f_hat| per axis clipped to this before integrating (N)')
+    integral_limit: float = _param(2.0, 'integral clamp per axis (N s)')
+    estimate_timeout: float = _param(0.05, 'force estimates older than this are stale (s)')
+    joints_timeout: float = _param(0.02, 'joint states older than this are stale (s)')
+    ramp_time: float = _param(0.05, 'time to ramp to the safe state once a stream is stale (s)')
 
     def __post_init__(self) -> None:
         if self.finger not in FINGERS:

@@ -585,8 +585,9 @@ def node_path_stage(ctx: Context, models: dict) -> dict:
     loop_scene = 'closed_loop_spherical'
     model = models['index_tip']['M3-lambda']
     key = digest({'scenes': [scene_digest(calibration_scene), scene_digest(loop_scene)],
-                  'model': Path(model).stem, 'code': source_digest(node_path.run_session, node_path.SESSION_MODULE,
-                                            run_closed_loop, *node_modules()),
+                  'model': Path(model).stem,
+                  'code': source_digest(node_path.run_session, node_path.SESSION_MODULE,
+                                        run_closed_loop, *node_modules()),
                   'inputs': file_digest(*sorted((config_dir() / 'params').glob('*.yaml')),
                                         config_dir() / 'commands' / f'{s.sequence}.yaml')})
     cached = ctx.cache.load_json('node_path', key)

@@ -63,24 +63,6 @@ MAX_CONTROL_RATE_HZ = 1000.0 / 3.0
 # a hand the driver made safe): the exit follows the fault within this.
 LINK_CHECK_PERIOD_S = 0.05
 
-_CONTROLLER_HELP = {
-    'finger': 'finger under force control (index, middle, ring, thumb)',
-    'base_frame': 'hand base frame of the URDF',
-    'force_frame': 'frame of f_d and of the integral ({F} = ft_sensor in the paper)',
-    'estimate_frame': 'frame of the force estimate (the array frame); empty = force_frame',
-    'k_i': 'integral gains per axis (1/s); all zero = open loop',
-    'k_p': 'joint stiffness per finger joint (N m/rad)',
-    'k_d': 'joint damping per finger joint (N m s/rad)',
-    'q_d': 'finger joint target (rad), chosen so the fingertip stays in contact',
-    'torque_cap': 'largest joint torque (N m), within the firmware clamps',
-    'integral_rate_limit': '|f_d - f_hat| per axis clipped to this before integrating (N)',
-    'integral_limit': 'integral clamp per axis (N s)',
-    'estimate_timeout': 'force estimates older than this are stale (s)',
-    'joints_timeout': 'joint states older than this are stale (s)',
-    'ramp_time': 'time to ramp to the safe state once a stream is stale (s)',
-}
-
-
 def _controller_parameters() -> tuple[ParamSpec, ...]:
     """force_controller.* parameters, defaults from ForceControllerConfig (one source)."""
     defaults = ForceControllerConfig()
@@ -88,7 +70,7 @@ def _controller_parameters() -> tuple[ParamSpec, ...]:
     for f in fields(ForceControllerConfig):
         value = getattr(defaults, f.name)
         value = [float(v) for v in value] if isinstance(value, tuple) else value
-        specs.append(ParamSpec(f'{CONTROLLER_GROUP}.{f.name}', value, _CONTROLLER_HELP[f.name]))
+        specs.append(ParamSpec(f'{CONTROLLER_GROUP}.{f.name}', value, f.metadata['help']))
     return tuple(specs)
 
 

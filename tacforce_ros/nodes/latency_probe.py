@@ -174,6 +174,10 @@ def bench_controller(probe: Probe, rate: float, seconds: float) -> dict:
         ControllerState, '/force_controller/state', lambda raw: stamps.append(_stamp_of(raw)),
         _probe_qos(int(rate * (seconds + 30.0))), raw=True)
     probe.spin_for(30.0, until=lambda: len(stamps) > 10)
+    if len(stamps) <= 10:
+        probe.node.destroy_subscription(sub)
+        raise RuntimeError(f'{len(stamps)} controller states within 30 s: the controller '
+                           'is not running')
     stamps.clear()
     probe.spin_for(seconds)
     probe.node.destroy_subscription(sub)

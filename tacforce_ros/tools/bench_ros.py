@@ -28,7 +28,9 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import sys
 import tempfile
+from collections.abc import Callable
 from pathlib import Path
 
 from tacforce_ros.estimation.model_set import write_synthetic_model_set
@@ -45,6 +47,10 @@ def table(result: dict) -> str:
     lines = ['| measurement | value | target |', '|---|---|---|']
     for key in ('estimator', 'estimator_realtime'):
         if key not in result:
+            continue
+        if 'latency' not in result[key]:
+            (outcome, why), = result[key].items()         # skipped or failed, and why
+            lines.append(f'| {key} | {outcome.upper()}: {why} | |')
             continue
         lat = result[key]['latency']
         first, span = lat['to_first_publish'], lat['publish_span']
@@ -68,7 +74,11 @@ def table(result: dict) -> str:
             lines.append(f"| input {s['rate_hz']:g} Hz (sent at {s['achieved_send_hz']:.0f} Hz),"
                          f" {how}: drops (CPU per frame) | {s['drops']} of {s['frames']} "
                          f"({s['cpu_ms_per_frame']:.2f} ms) | 0 at >= {RATE_TARGET_HZ:g} Hz |")
-    for c in result.get('controller', []):
+    controller = result.get('controller', [])
+    if isinstance(controller, dict):       # failed
+        lines.append(f"| controller | FAILED: {controller['failed']} | |")
+        controller = []
+    for c in controller:
         lines.append(f"| controller {c['rate_hz']:g} Hz: mean period / jitter p99 | "
                      f"{c['mean_period_ms']:.2f} ms / {c['jitter_p99_ms']:.2f} ms | |")
     load = result['load_average']
@@ -85,6 +95,9 @@ def run_estimator(probe: Probe, hand, args: argparse.Namespace, env: dict, tmp: 
         'realtime_priority': priority})], tmp / 'logs', 30.0, env)
     measured = False
     try:
+        if procs[0][1].poll() is not None:
+            raise RuntimeError(f'the estimator exited at start-up with code '
+                               f'{procs[0][1].returncode}')
         result = bench_estimator(probe, hand, args.rates, args.seconds, procs[0][1].pid,
                                  args.reliable_wrenches, args.latency_seconds)
         measured = True
@@ -113,10 +126,46 @@ def run_controller(probe: Probe, args: argparse.Namespace, env: dict, tmp: Path)
                 'port': can, 'rtr_requests': False, 'control_rate_hz': rate})],
             tmp / 'logs', 30.0, env)
         try:
+            if len(procs) < 2:
+                log = (tmp / 'logs' / 'sim_world.log').read_text().strip().splitlines()
+                raise RuntimeError(f'sim_world was not ready on port {can} within 30 s'
+                                   + (f': {log[-1]}' if log else ''))
             out.append(bench_controller(probe, rate, args.seconds))
         finally:
             stop_nodes(procs, grace=10.0)
     return out
+
+
+class RealtimeRefused(Exception):
+    """SCHED_FIFO is not available here: the real-time run is skipped, not failed."""
+
+
+def attempt(part: Callable[[], object]) -> object:
+    """A part's result, {'skipped': why} or {'failed': why}: one part that fails keeps the
+    others' results."""
+    try:
+        return part()
+    except RealtimeRefused as exc:
+        return {'skipped': str(exc)}
+    except (RuntimeError, OSError, TimeoutError) as exc:
+        return {'failed': f'{type(exc).__name__}: {exc}'}
+
+
+def run_realtime_estimator(probe: Probe, hand, args: argparse.Namespace, env: dict,
+                           tmp: Path) -> dict:
+    """The latency run with the estimator and the probe on SCHED_FIFO; fails, with the reason,
+    where the system refuses it or the estimator did not get it."""
+    try:
+        use_realtime_scheduling(args.realtime_priority)
+    except OSError as exc:
+        raise RealtimeRefused(f'SCHED_FIFO refused to the probe ({exc})') from None
+    try:
+        realtime = run_estimator(probe, hand, args, env, tmp, args.realtime_priority)
+    finally:
+        use_realtime_scheduling(0)
+    if realtime['realtime_priority'] == 0:
+        raise RealtimeRefused('the estimator ran without SCHED_FIFO (refused to it)')
+    return realtime
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -155,23 +204,14 @@ def main(argv: list[str] | None = None) -> None:
     try:
         with tempfile.TemporaryDirectory() as tmp:
             if 'estimator' in args.parts:
-                result['estimator'] = run_estimator(probe, hand, args, env, Path(tmp), 0)
+                result['estimator'] = attempt(
+                    lambda: run_estimator(probe, hand, args, env, Path(tmp), 0))
                 if args.realtime_priority > 0:
-                    realtime = None
-                    try:
-                        use_realtime_scheduling(args.realtime_priority)
-                        realtime = run_estimator(probe, hand, args, env, Path(tmp),
-                                                 args.realtime_priority)
-                    except OSError as exc:
-                        print(f'SCHED_FIFO refused ({exc}): normal scheduler only')
-                    finally:
-                        use_realtime_scheduling(0)
-                    if realtime is not None and realtime['realtime_priority'] > 0:
-                        result['estimator_realtime'] = realtime
-                    elif realtime is not None:
-                        print('the estimator ran without SCHED_FIFO: normal scheduler only')
+                    result['estimator_realtime'] = attempt(
+                        lambda: run_realtime_estimator(probe, hand, args, env, Path(tmp)))
             if 'controller' in args.parts:
-                result['controller'] = run_controller(probe, args, env, Path(tmp))
+                result['controller'] = attempt(lambda: run_controller(probe, args, env,
+                                                                      Path(tmp)))
     finally:
         probe.close()
     result['load_average']['after'] = os.getloadavg()
@@ -180,6 +220,11 @@ def main(argv: list[str] | None = None) -> None:
     if args.out is not None:
         args.out.write_text(json.dumps({**result, 'table': text}, indent=2))
         print(f'wrote {args.out}')
+    failed = [part for part, value in result.items()
+              if isinstance(value, dict) and 'failed' in value]
+    if failed:
+        sys.exit(f'bench_ros: {", ".join(failed)} failed: ' + '; '.join(
+            result[part]['failed'] for part in failed))
 
 
 if __name__ == '__main__':

@@ -25,16 +25,8 @@ from ruamel.yaml import YAML
 from ruamel.yaml.error import YAMLError
 
 from tacforce_ros.paths import share_dir
-
-TOPIC_TACTILE = '/tactile/raw'
-TOPIC_WRENCH = '/ft_sensor/wrench'
-TOPIC_JOINTS = '/joint_states'
-TOPIC_SAMPLE = '/calibration/sample'
-TOPIC_SESSION = '/session/metadata'
-TOPIC_SIM_CONTACT = '/sim/contact_force'
-# Closed-loop sessions also carry the command and the controller's ticks.
-TOPIC_DESIRED = '/force_controller/desired'
-TOPIC_CONTROLLER_STATE = '/force_controller/state'
+from tacforce_ros.topics import (TOPIC_JOINTS, TOPIC_SAMPLE, TOPIC_SESSION, TOPIC_SIM_CONTACT,
+                                 TOPIC_TACTILE, TOPIC_WRENCH)
 
 TOPIC_TYPES = {
     TOPIC_TACTILE: 'tacforce_msgs/msg/TactileHand',

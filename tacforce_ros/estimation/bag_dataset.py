@@ -40,19 +40,19 @@ def _seconds(stamp) -> float:
 
 def read_streams(path: str | Path, array_name: str, n_taxels: int,
                  joint_names: list[str]) -> BagStreams:
-    from tacforce_ros import bagio
+    from tacforce_ros import bagio, topics
 
     streams = BagStreams([], [], [], [], [], [])
-    topics = [bagio.TOPIC_TACTILE, bagio.TOPIC_WRENCH, bagio.TOPIC_JOINTS]
+    topics = [topics.TOPIC_TACTILE, topics.TOPIC_WRENCH, topics.TOPIC_JOINTS]
     for topic, _, msg in bagio.read_messages(path, topics):
-        if topic == bagio.TOPIC_TACTILE:
+        if topic == topics.TOPIC_TACTILE:
             entry = next((a for a in msg.arrays if a.name == array_name), None)
             if entry is None or not len(entry.x) == len(entry.y) == len(entry.z) == n_taxels:
                 streams.dropped += 1
                 continue
             streams.tactile_time.append(_seconds(msg.header.stamp))
             streams.tactile.append(np.stack([entry.x, entry.y, entry.z], axis=1))
-        elif topic == bagio.TOPIC_WRENCH:
+        elif topic == topics.TOPIC_WRENCH:
             f = msg.wrench.force
             streams.wrench_time.append(_seconds(msg.header.stamp))
             streams.force.append(np.array([f.x, f.y, f.z]))

@@ -116,14 +116,14 @@ def compare_calibration(bag: Path, hand: HandDescription, kinematics: HandKinema
                         scene: str, seed: int, model_path: str, static_force: float) -> dict:
     """e_hat of the trained model on the node-recorded session and on the same window simulated
     directly (same scene, seed and simulated-time span)."""
-    from tacforce_ros import bagio
+    from tacforce_ros import bagio, topics
     from tacforce_ros.estimation.bag_dataset import dataset_from_bag
     from tacforce_ros.estimation.model_io import load_model
     from tacforce_ros.experiments.calibration_data import simulate_calibration
     bundle = load_model(model_path, hand.array('index_tip'))
     # Frames stamped 0 were stamped before the first /clock: they say nothing about the window.
     tactile_time = [t for t in (_seconds(m.header.stamp) for _, _, m in
-                                bagio.read_messages(bag, [bagio.TOPIC_TACTILE])) if t > 0.0]
+                                bagio.read_messages(bag, [topics.TOPIC_TACTILE])) if t > 0.0]
     if not tactile_time:
         raise NodePathUnavailable(f'{bag}: no tactile frame stamped in simulated time')
     start, stop = min(tactile_time), max(tactile_time)
@@ -154,12 +154,12 @@ def node_trace(bag: Path, sequence, tare_frames: int) -> tuple[ClosedLoopTrace, 
     """
     from tacforce_ros import bagio
     states, desired, wrench = [], [], []
-    for topic, _, msg in bagio.read_messages(bag, [bagio.TOPIC_CONTROLLER_STATE,
-                                                   bagio.TOPIC_DESIRED, bagio.TOPIC_WRENCH]):
+    for topic, _, msg in bagio.read_messages(bag, [topics.TOPIC_CONTROLLER_STATE,
+                                                   topics.TOPIC_DESIRED, topics.TOPIC_WRENCH]):
         t = _seconds(msg.header.stamp)
-        if topic == bagio.TOPIC_DESIRED:
+        if topic == topics.TOPIC_DESIRED:
             desired.append(t)
-        elif topic == bagio.TOPIC_WRENCH:
+        elif topic == topics.TOPIC_WRENCH:
             f = msg.wrench.force
             wrench.append((t, f.x, f.y, f.z))
         else:

@@ -42,7 +42,6 @@ from rclpy.clock import Clock, ClockType
 from sensor_msgs.msg import JointState
 from tacforce_msgs.msg import ControllerState, ForceEstimateArray
 
-from tacforce_ros.bagio import TOPIC_CONTROLLER_STATE, TOPIC_DESIRED, TOPIC_JOINTS
 from tacforce_ros.control.finger_session import FingerSession
 from tacforce_ros.control.force_controller import ControllerConfigError, ForceControllerConfig
 from tacforce_ros.devices.allegro import (N_JOINTS, AllegroConfig, AllegroError, AllegroV4Driver,
@@ -54,8 +53,9 @@ from tacforce_ros.nodes.common import (REALTIME_PRIORITY, ParameterError, ParamS
                                        TacforceNode, publisher_qos, run_node, subscriber_qos)
 from tacforce_ros.nodes.link_status import STATUS_PARAMETERS, LinkStatusReporter
 from tacforce_ros.nodes.messages import stamp, stamp_ns, vector3
+from tacforce_ros.topics import (TOPIC_CONTROLLER_STATE, TOPIC_DESIRED, TOPIC_ESTIMATES,
+                                 TOPIC_JOINTS)
 
-TOPIC_ESTIMATES = '/tactile/estimates'
 CONTROLLER_GROUP = 'force_controller'
 # The Allegro's joint stream: one FINGER_POSE cycle every 3 ms.
 MAX_CONTROL_RATE_HZ = 1000.0 / 3.0

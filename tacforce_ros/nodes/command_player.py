@@ -14,10 +14,10 @@ import sys
 from geometry_msgs.msg import Vector3Stamped
 from std_srvs.srv import Trigger
 
-from tacforce_ros.bagio import TOPIC_DESIRED
 from tacforce_ros.control.command_sequence import ForceSequence, SequenceError
 from tacforce_ros.nodes.common import (ParameterError, ParamSpec, TacforceNode, publisher_qos,
                                       run_node)
+from tacforce_ros.topics import TOPIC_DESIRED
 
 
 

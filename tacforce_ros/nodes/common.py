@@ -8,7 +8,8 @@ refuses bad ones with one message naming each parameter, e.g. ``rate_hz: -5.0 is
 float parameter (``-p rate_hz:=50``) is accepted as that float. Writable (not read_only)
 parameters are checked again when changed at run time.
 
-QoS (one table, `TOPIC_QOS`, decides per topic; `publisher_qos()` / `subscriber_qos()` read it):
+QoS (one table, `TOPIC_QOS` in tacforce_ros/topics.py, decides per topic; `publisher_qos()` /
+`subscriber_qos()` read it):
 * high-rate sensor streams (/tactile/raw, /ft_sensor/wrench, /joint_states, estimates):
   publishers RELIABLE keep-last, subscribers best-effort sensor-data QoS, as REP 2003 advises:
   a reliable publisher matches both kinds of subscriber, and a best-effort subscriber never
@@ -54,6 +55,8 @@ from rclpy.utilities import remove_ros_args
 from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy,
                        qos_profile_sensor_data)
 
+from tacforce_ros.topics import SENSOR, qos_kind
+
 EXIT_OK = 0
 EXIT_FAILURE = 1          # an unexpected exception while running
 EXIT_BAD_PARAMETERS = 2   # refused at start-up: the log names each bad parameter
@@ -66,38 +69,14 @@ RELIABLE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
                           reliability=ReliabilityPolicy.RELIABLE,
                           durability=DurabilityPolicy.VOLATILE)
 
-SENSOR, RELIABLE = 'sensor', 'reliable'
-TOPIC_QOS = {
-    '/tactile/raw': SENSOR,
-    '/ft_sensor/wrench': SENSOR,
-    '/joint_states': SENSOR,
-    '/tactile/estimates': SENSOR,
-    '/sim/contact_force': SENSOR,
-    '/calibration/sample': RELIABLE,
-    '/force_controller/desired': RELIABLE,
-    '/force_controller/state': RELIABLE,
-}
-
-
-def _kind(topic: str) -> str:
-    # Per-array estimate topics /tactile/<array>/wrench are sensor streams too.
-    if topic.startswith('/tactile/') and topic.endswith('/wrench'):
-        return SENSOR
-    try:
-        return TOPIC_QOS[topic]
-    except KeyError:
-        raise KeyError(f'no QoS decided for {topic}; add it to TOPIC_QOS in nodes/common.py'
-                       ) from None
-
-
 def publisher_qos(topic: str) -> QoSProfile:
-    return SENSOR_PUBLISHER_QOS if _kind(topic) == SENSOR else RELIABLE_QOS
+    return SENSOR_PUBLISHER_QOS if qos_kind(topic) == SENSOR else RELIABLE_QOS
 
 
 def subscriber_qos(topic: str, depth: int | None = None) -> QoSProfile:
     """Subscriber QoS of `topic`; `depth` deepens the history for a consumer that must ride
     out CPU hiccups without losing samples (a recorder), keeping the reliability policy."""
-    base = SENSOR_SUBSCRIBER_QOS if _kind(topic) == SENSOR else RELIABLE_QOS
+    base = SENSOR_SUBSCRIBER_QOS if qos_kind(topic) == SENSOR else RELIABLE_QOS
     if depth is None:
         return base
     return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth,

@@ -47,8 +47,8 @@ try:        # Iron and later
 except ImportError:     # Humble
     from rclpy.qos_event import PublisherEventCallbacks
 
-from tacforce_ros.bagio import TOPIC_TACTILE
 from tacforce_ros.estimation.causal_filter import FilterDesignError
+from tacforce_ros.estimation.model_set import ModelConfigError, load_model_set
 from tacforce_ros.estimation.preprocessing import SAMPLE_RATE_HZ
 from tacforce_ros.hand.description import HandConfigError, load_hand
 from tacforce_ros.nodes.common import (REALTIME_PRIORITY, RELIABLE_QOS, ParameterError,
@@ -56,11 +56,10 @@ from tacforce_ros.nodes.common import (REALTIME_PRIORITY, RELIABLE_QOS, Paramete
                                        subscriber_qos)
 from tacforce_ros.nodes.messages import (SerializedMessages, TactileHandDecoder, stamp,
                                          serialized_estimates, serialized_wrenches)
-from tacforce_ros.estimation.model_set import ModelConfigError, load_model_set
 from tacforce_ros.paths import config_dir
+from tacforce_ros.topics import (TOPIC_ESTIMATES, TOPIC_MARKERS, TOPIC_TACTILE,
+                                 array_wrench_topic)
 
-TOPIC_ESTIMATES = '/tactile/estimates'
-TOPIC_MARKERS = '/tactile/markers'
 STATUS_STALE = 'stale'
 # Frames the best-effort subscription keeps: a scheduling stall of a busy machine delays frames
 # instead of losing them (bench_ros at 1 kHz, load 3-7 on 2 cores: 1 to 17 lost per 1000-3000
@@ -68,9 +67,6 @@ STATUS_STALE = 'stale'
 # backlog clears at ~0.3 ms a frame.
 FRAME_QUEUE_DEPTH = 20
 
-
-def wrench_topic(array: str) -> str:
-    return f'/tactile/{array}/wrench'
 
 
 class Estimator(TacforceNode):
@@ -122,8 +118,8 @@ class Estimator(TacforceNode):
         # topics still report an incompatible QoS on their side.
         quiet = PublisherEventCallbacks(use_default_callbacks=False)
         self.wrench_publishers = [
-            self.create_publisher(WrenchStamped, wrench_topic(n), publisher_qos(wrench_topic(n)),
-                                  event_callbacks=quiet)
+            self.create_publisher(WrenchStamped, array_wrench_topic(n),
+                                  publisher_qos(array_wrench_topic(n)), event_callbacks=quiet)
             for n in self.names]
         self.estimates_publisher = self.create_publisher(
             ForceEstimateArray, TOPIC_ESTIMATES, publisher_qos(TOPIC_ESTIMATES),

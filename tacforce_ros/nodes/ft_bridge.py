@@ -16,13 +16,13 @@ from geometry_msgs.msg import WrenchStamped
 from rclpy.clock import Clock, ClockType
 from std_srvs.srv import Trigger
 
-from tacforce_ros.bagio import TOPIC_WRENCH
 from tacforce_ros.devices.netft import (FORCE_UNITS_SI, TORQUE_UNITS_SI, NetFtClient, NetFtConfig,
                                         WrenchSample)
 from tacforce_ros.nodes.common import (ParameterError, ParamSpec, TacforceNode, publisher_qos,
                                        run_node)
 from tacforce_ros.nodes.link_status import STATUS_PARAMETERS, LinkStatusReporter
 from tacforce_ros.nodes.messages import wrench_stamped
+from tacforce_ros.topics import TOPIC_WRENCH
 
 
 class FtBridge(TacforceNode):

@@ -17,6 +17,8 @@ from tacforce_msgs.msg import ControllerState, ForceEstimateArray, TactileHand
 
 from tacforce_ros.nodes.common import publisher_qos
 from tacforce_ros.nodes.messages import tactile_hand
+from tacforce_ros.topics import (TOPIC_CONTROLLER_STATE, TOPIC_ESTIMATES, TOPIC_TACTILE,
+                                 array_wrench_topic)
 
 WARM_UP_TIMEOUT_S = 60.0
 # Every serialized message starts with a 4-byte encapsulation header and then std_msgs/Header,
@@ -76,7 +78,7 @@ def bench_estimator(probe: Probe, hand, rates: list[float], seconds: float, pid:
     `wrench_reliable`: the probe reads the 18 wrench topics reliably (else best-effort, as the
     project's sensor-data subscribers do)."""
     node = probe.node
-    publisher = node.create_publisher(TactileHand, '/tactile/raw', publisher_qos('/tactile/raw'))
+    publisher = node.create_publisher(TactileHand, TOPIC_TACTILE, publisher_qos(TOPIC_TACTILE))
     n_arrays = len(hand.arrays)
     depth = int(max(rates + [100.0]) * max(seconds, latency_seconds)) + 100
     # frame stamp -> [(reception, source) ns of each wrench]; estimate stamps as received
@@ -87,11 +89,11 @@ def bench_estimator(probe: Probe, hand, rates: list[float], seconds: float, pid:
         wrenches.setdefault(_stamp_of(raw), []).append(
             (info['received_timestamp'], info['source_timestamp']))
 
-    wrench_subs = [node.create_subscription(WrenchStamped, f'/tactile/{a.name}/wrench',
+    wrench_subs = [node.create_subscription(WrenchStamped, array_wrench_topic(a.name),
                                             on_wrench, _probe_qos(depth, wrench_reliable),
                                             raw=True)
                    for a in hand.arrays]
-    node.create_subscription(ForceEstimateArray, '/tactile/estimates',
+    node.create_subscription(ForceEstimateArray, TOPIC_ESTIMATES,
                              lambda raw: estimates.append(_stamp_of(raw)), _probe_qos(depth),
                              raw=True)
     # A few distinct frames, serialized once: per send only the stamp is written.
@@ -123,9 +125,9 @@ def bench_estimator(probe: Probe, hand, rates: list[float], seconds: float, pid:
         if time.monotonic() > deadline:
             raise RuntimeError(
                 f'the estimator published no estimate within {WARM_UP_TIMEOUT_S:.0f} s of '
-                f'frames at 100 Hz; /tactile/raw matched '
-                f'{publisher.get_subscription_count()} subscription(s), /tactile/estimates '
-                f'{node.count_publishers("/tactile/estimates")} publisher(s)')
+                f'frames at 100 Hz; {TOPIC_TACTILE} matched '
+                f'{publisher.get_subscription_count()} subscription(s), {TOPIC_ESTIMATES} '
+                f'{node.count_publishers(TOPIC_ESTIMATES)} publisher(s)')
         send(10, 100.0)
     send(100, 100.0)        # a second, steady, so start-up work is over before timing
     probe.spin_for(0.5)
@@ -171,7 +173,7 @@ def bench_estimator(probe: Probe, hand, rates: list[float], seconds: float, pid:
 def bench_controller(probe: Probe, rate: float, seconds: float) -> dict:
     stamps: list[int] = []
     sub = probe.node.create_subscription(
-        ControllerState, '/force_controller/state', lambda raw: stamps.append(_stamp_of(raw)),
+        ControllerState, TOPIC_CONTROLLER_STATE, lambda raw: stamps.append(_stamp_of(raw)),
         _probe_qos(int(rate * (seconds + 30.0))), raw=True)
     probe.spin_for(30.0, until=lambda: len(stamps) > 10)
     if len(stamps) <= 10:

@@ -32,7 +32,6 @@ from rosgraph_msgs.msg import Clock
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from std_srvs.srv import SetBool
 
-from tacforce_ros.bagio import TOPIC_SIM_CONTACT
 from tacforce_ros.hand.description import HandConfigError, load_hand
 from tacforce_ros.nodes.common import (ParameterError, ParamSpec, TacforceNode, publisher_qos,
                                        run_node)
@@ -42,6 +41,7 @@ from tacforce_ros.sim.emulators.allegro import AllegroEmulator
 from tacforce_ros.sim.emulators.base import Pacer
 from tacforce_ros.sim.emulators.netft import NetFtEmulator
 from tacforce_ros.sim.emulators.xela_server import XelaServerEmulator
+from tacforce_ros.topics import TOPIC_SIM_CONTACT
 
 # /clock as rosgraph's own publishers offer it: best effort, keep-last 1 (only the newest matters).
 CLOCK_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT,

@@ -33,13 +33,14 @@ from std_srvs.srv import Trigger
 from tacforce_msgs.msg import CalibrationSample, ControllerState, TactileHand
 from tacforce_msgs.srv import StartRecording
 
-from tacforce_ros.bagio import (TOPIC_CONTROLLER_STATE, TOPIC_DESIRED, TOPIC_JOINTS,
-                                TOPIC_SAMPLE, TOPIC_SIM_CONTACT, TOPIC_TACTILE, TOPIC_TYPES, TOPIC_WRENCH, BagError, CalibrationBagWriter,
-                                calibration_sample, session_metadata, typestore)
+from tacforce_ros.bagio import (TOPIC_TYPES, BagError, CalibrationBagWriter, calibration_sample,
+                                session_metadata, typestore)
 from tacforce_ros.hand.description import HandConfigError, load_hand
 from tacforce_ros.nodes.common import (ParameterError, ParamSpec, TacforceNode, publisher_qos,
                                        run_node, subscriber_qos)
 from tacforce_ros.recording.synchroniser import ApproximateTimeSynchroniser
+from tacforce_ros.topics import (TOPIC_CONTROLLER_STATE, TOPIC_DESIRED, TOPIC_JOINTS,
+                                 TOPIC_SAMPLE, TOPIC_SIM_CONTACT, TOPIC_TACTILE, TOPIC_WRENCH)
 
 INPUTS = (TOPIC_TACTILE, TOPIC_WRENCH, TOPIC_JOINTS)   # synchroniser input order
 # Written as received, outside the samples: present only when the graph publishes them.

@@ -13,13 +13,13 @@ import sys
 
 from tacforce_msgs.msg import TactileHand
 
-from tacforce_ros.bagio import TOPIC_TACTILE
 from tacforce_ros.devices.xela import XelaClient, XelaConfig, XelaFrame
 from tacforce_ros.hand.description import HandConfigError, load_hand
 from tacforce_ros.nodes.common import (ParameterError, ParamSpec, TacforceNode, publisher_qos,
                                        run_node)
 from tacforce_ros.nodes.link_status import STATUS_PARAMETERS, LinkStatusReporter
 from tacforce_ros.nodes.messages import tactile_hand
+from tacforce_ros.topics import TOPIC_TACTILE
 
 class XelaDriver(TacforceNode):
     """Publishes XELA uSkin whole-hand frames from xela_server on /tactile/raw."""

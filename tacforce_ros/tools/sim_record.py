@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from tacforce_ros import bagio
+from tacforce_ros import bagio, topics
 from tacforce_ros.hand.description import HandDescription, load_hand
 from tacforce_ros.paths import output_folder
 from tacforce_ros.sim import load_scene, make_simulator
@@ -47,19 +47,19 @@ def record_session(out_dir: Path, hand: HandDescription, array: str, plate: str,
             if sample.delivered['tactile']:
                 tactile = bagio.tactile_hand(stamp, hand, sample.taxel_counts,
                                              sample.temperatures, sample.t + start_ns * 1e-9, k)
-                writer.write(bagio.TOPIC_TACTILE, stamp, tactile)
+                writer.write(topics.TOPIC_TACTILE, stamp, tactile)
             if sample.delivered['ft']:
                 wrench = bagio.wrench_stamped(stamp, hand.ft_frame, sample.ft_wrench)
-                writer.write(bagio.TOPIC_WRENCH, stamp, wrench)
+                writer.write(topics.TOPIC_WRENCH, stamp, wrench)
             if sample.delivered['joints']:
                 joints = bagio.joint_state(stamp, joint_names, sample.q, sample.qdot)
-                writer.write(bagio.TOPIC_JOINTS, stamp, joints)
+                writer.write(topics.TOPIC_JOINTS, stamp, joints)
             if tactile is not None and wrench is not None and joints is not None:
                 pressed = tactile.arrays[hand.index(array)]
-                writer.write(bagio.TOPIC_SAMPLE, stamp,
+                writer.write(topics.TOPIC_SAMPLE, stamp,
                              bagio.calibration_sample(stamp, pressed, wrench, joints))
             truth = np.concatenate([sample.true_force, np.zeros(3)])
-            writer.write(bagio.TOPIC_SIM_CONTACT, stamp,
+            writer.write(topics.TOPIC_SIM_CONTACT, stamp,
                          bagio.wrench_stamped(stamp, taxel_array.frame_id, truth))
             progress.update(1)
     return path

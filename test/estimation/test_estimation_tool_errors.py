@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from tacforce_ros import bagio
+from tacforce_ros import bagio, topics
 from tacforce_ros.tools import reproduce, train
 
 
@@ -19,7 +19,7 @@ def good_bag(tmp_path_factory):
     with bagio.CalibrationBagWriter(path, meta, split_seconds=60.0) as writer:
         for i in range(50):
             stamp = 10**18 + i * 10**7
-            writer.write(bagio.TOPIC_WRENCH, stamp,
+            writer.write(topics.TOPIC_WRENCH, stamp,
                          bagio.wrench_stamped(stamp, 'ft_sensor', [0, 0, 1, 0, 0, 0]))
     return path
 

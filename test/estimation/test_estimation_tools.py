@@ -6,7 +6,7 @@ import sys
 import numpy as np
 import pytest
 
-from tacforce_ros import bagio
+from tacforce_ros import bagio, topics
 from tacforce_ros.estimation.bag_dataset import dataset_from_bag
 from tacforce_ros.estimation.dataset import CalibrationDataset, DatasetError, concatenate
 from tacforce_ros.estimation.model_io import load_model
@@ -62,12 +62,12 @@ def write_bag(path, hand, array, data, rows, q, kinematics, plate):
             msg = bagio.tactile_hand(stamp, hand, np.round(counts), None, stamp * 1e-9, i)
             if i == 7:
                 msg.arrays[hand.index(array.name)].x = msg.arrays[hand.index(array.name)].x[:3]
-            writer.write(bagio.TOPIC_TACTILE, stamp, msg)
+            writer.write(topics.TOPIC_TACTILE, stamp, msg)
             force_f = rotation.T @ data.F[row]          # what the F/T sensor measures
-            writer.write(bagio.TOPIC_WRENCH, stamp + 5_000_000, bagio.wrench_stamped(
+            writer.write(topics.TOPIC_WRENCH, stamp + 5_000_000, bagio.wrench_stamped(
                 stamp + 5_000_000, hand.ft_frame, [*force_f, 0.0, 0.0, 0.0]))
             if i % 2 == 0:
-                writer.write(bagio.TOPIC_JOINTS, stamp, bagio.joint_state(
+                writer.write(topics.TOPIC_JOINTS, stamp, bagio.joint_state(
                     stamp, kinematics.joint_names, q))
 
 

@@ -38,3 +38,22 @@ def test_the_model_set_lives_with_the_estimation_core():
     assert (ROOT / 'estimation' / 'model_set.py').is_file()
     assert not list((ROOT / 'nodes').glob('model_set*'))
     assert 'rclpy' not in {n.split('.')[0] for n in imports(ROOT / 'estimation' / 'model_set.py')}
+
+
+def test_topic_names_are_spelled_only_in_topics():
+    """Every topic name is a constant of tacforce_ros/topics.py (docstrings may mention them)."""
+    prefixes = ('/tactile', '/ft_sensor', '/joint_states', '/calibration', '/session', '/sim/',
+                '/force_controller')
+    spelled = []
+    for path in ROOT.rglob('*.py'):
+        if path.name == 'topics.py' and path.parent == ROOT:
+            continue
+        tree = ast.parse(path.read_text(), str(path))
+        docstrings = {id(node.body[0].value) for node in ast.walk(tree)
+                      if isinstance(node, (ast.Module, ast.ClassDef, ast.FunctionDef))
+                      and node.body and isinstance(node.body[0], ast.Expr)}
+        spelled += [f'{path.relative_to(ROOT)}:{node.lineno}: {node.value}'
+                    for node in ast.walk(tree)
+                    if isinstance(node, ast.Constant) and isinstance(node.value, str)
+                    and node.value.startswith(prefixes) and id(node) not in docstrings]
+    assert not spelled, spelled

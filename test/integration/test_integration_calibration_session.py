@@ -7,10 +7,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tacforce_ros.bagio import (TOPIC_JOINTS, TOPIC_SAMPLE, TOPIC_SESSION, TOPIC_SIM_CONTACT,
-                                TOPIC_TACTILE, TOPIC_WRENCH, read_messages,
-                                read_session_metadata)
+from tacforce_ros.bagio import read_messages, read_session_metadata
 from tacforce_ros.hand.description import load_hand
+from tacforce_ros.topics import (TOPIC_JOINTS, TOPIC_SAMPLE, TOPIC_SESSION, TOPIC_SIM_CONTACT,
+                                 TOPIC_TACTILE, TOPIC_WRENCH)
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from graph_support import free_ports, unique_domain_id  # noqa: E402

@@ -20,13 +20,13 @@ import rclpy
 import yaml
 from tacforce_msgs.msg import ControllerState
 
-from tacforce_ros.bagio import TOPIC_CONTROLLER_STATE as TOPIC_STATE
 from tacforce_ros.control.command_sequence import ForceSequence
 from tacforce_ros.experiments.closed_loop import trace_metrics
 from tacforce_ros.experiments.node_path import node_trace
 from tacforce_ros.experiments.pipeline import tare_frames
 from tacforce_ros.nodes.common import subscriber_qos
 from tacforce_ros.nodes.messages import stamp_ns
+from tacforce_ros.topics import TOPIC_CONTROLLER_STATE as TOPIC_STATE
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from graph_support import (Graph, graph_nodes, session_args, unique_domain_id,  # noqa: E402

@@ -10,12 +10,12 @@ from rclpy.time import Time
 from rosgraph_msgs.msg import Clock
 from tacforce_msgs.msg import TactileHand
 
-from tacforce_ros.bagio import TOPIC_TACTILE
 from tacforce_ros.hand.description import load_hand
 from tacforce_ros.nodes.common import EXIT_OK, subscriber_qos
 from tacforce_ros.nodes.sim_world import CLOCK_QOS
 from tacforce_ros.paths import config_dir
 from tacforce_ros.sim.emulators.xela_server import XelaServerEmulator
+from tacforce_ros.topics import TOPIC_TACTILE
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from ros_processes import (executable, rclpy_node, spin_until, start, stop,  # noqa: E402

@@ -15,7 +15,7 @@ from std_srvs.srv import Trigger
 from tacforce_msgs.msg import CalibrationSample, ControllerState, TactileArray, TactileHand
 from tacforce_msgs.srv import StartRecording
 
-from tacforce_ros import bagio
+from tacforce_ros import bagio, topics
 from tacforce_ros.hand.description import load_hand
 from tacforce_ros.nodes import sync_recorder
 from tacforce_ros.nodes.common import EXIT_OK, publisher_qos, subscriber_qos
@@ -46,9 +46,9 @@ class Streams:
     def __init__(self, node):
         self.node = node
         self.pubs = {topic: node.create_publisher(msg_type, topic, publisher_qos(topic))
-                     for topic, msg_type in ((bagio.TOPIC_TACTILE, TactileHand),
-                                             (bagio.TOPIC_WRENCH, WrenchStamped),
-                                             (bagio.TOPIC_JOINTS, JointState))}
+                     for topic, msg_type in ((topics.TOPIC_TACTILE, TactileHand),
+                                             (topics.TOPIC_WRENCH, WrenchStamped),
+                                             (topics.TOPIC_JOINTS, JointState))}
         self.rng = np.random.default_rng(7)
         self.published = {topic: {} for topic in self.pubs}   # stamp ns -> payload
 
@@ -59,7 +59,7 @@ class Streams:
     def tactile(self, stamp_ns):
         counts = self.rng.integers(30000, 40000, size=(HAND.n_taxels, 3)).astype(np.uint16)
         msg = TactileHand(server_time=stamp_ns * 1e-9, server_sequence=len(
-            self.published[bagio.TOPIC_TACTILE]))
+            self.published[topics.TOPIC_TACTILE]))
         msg.header.stamp = Time(nanoseconds=stamp_ns).to_msg()
         msg.header.frame_id = HAND.base_frame
         for array, part in zip(HAND.arrays, HAND.split(counts)):
@@ -95,10 +95,10 @@ class Streams:
             if late > 0.005:
                 t_start += late
             stamp = base + k * 5 * MS
-            due = [(bagio.TOPIC_WRENCH, self.wrench, stamp + 1 * MS)]
+            due = [(topics.TOPIC_WRENCH, self.wrench, stamp + 1 * MS)]
             if k % 2 == 0:
-                due += [(bagio.TOPIC_TACTILE, self.tactile, stamp),
-                        (bagio.TOPIC_JOINTS, self.joints, stamp + 2 * MS)]
+                due += [(topics.TOPIC_TACTILE, self.tactile, stamp),
+                        (topics.TOPIC_JOINTS, self.joints, stamp + 2 * MS)]
             for topic, build, at in due:
                 msg, payload = build(at)
                 self.pubs[topic].publish(msg)
@@ -109,7 +109,7 @@ class Streams:
     def wait_recorded(self, live, timeout=30.0):
         """Spin until the recorder's live samples reach the last tactile frame published
         (within 50 ms), bounded: what was sent has been taken in."""
-        last = max(self.published[bagio.TOPIC_TACTILE])
+        last = max(self.published[topics.TOPIC_TACTILE])
         return spin_until(self.node, lambda: live and Time.from_msg(
             live[-1].header.stamp).nanoseconds >= last - 50 * MS, timeout)
 
@@ -138,8 +138,8 @@ def recorder(tmp_path, *extra):
 
 def test_session_started_and_stopped_by_services_records_everything(ros_node, streams, tmp_path):
     live = []
-    sub = ros_node.create_subscription(CalibrationSample, bagio.TOPIC_SAMPLE, live.append,
-                                       subscriber_qos(bagio.TOPIC_SAMPLE))
+    sub = ros_node.create_subscription(CalibrationSample, topics.TOPIC_SAMPLE, live.append,
+                                       subscriber_qos(topics.TOPIC_SAMPLE))
     proc = recorder(tmp_path, '-p', 'plate:=button')
     try:
         assert streams.wait_for_recorder(), 'recorder never subscribed'
@@ -175,26 +175,26 @@ def test_session_started_and_stopped_by_services_records_everything(ros_node, st
     assert (meta['array'], meta['plate'], meta['operator_notes'], meta['hand_side'],
             meta['source']) == ('index_middle', 'flat', 'test session', 'right', 'lab')
     messages = list(bagio.read_messages(bag))
-    assert messages[0][0] == bagio.TOPIC_SESSION
+    assert messages[0][0] == topics.TOPIC_SESSION
     assert json.loads(messages[0][2].data)['array'] == 'index_middle'
     by_topic = {topic: [m for t, _, m in messages if t == topic] for topic in bagio.TOPIC_TYPES}
 
     # Raw streams: what was published arrived intact (best-effort: allow a few losses).
-    for topic in (bagio.TOPIC_TACTILE, bagio.TOPIC_WRENCH, bagio.TOPIC_JOINTS):
+    for topic in (topics.TOPIC_TACTILE, topics.TOPIC_WRENCH, topics.TOPIC_JOINTS):
         assert len(by_topic[topic]) >= 0.8 * len(streams.published[topic]), topic
-    for msg in by_topic[bagio.TOPIC_TACTILE][::20]:
-        sent = streams.published[bagio.TOPIC_TACTILE][stamp_ns(msg.header)]
+    for msg in by_topic[topics.TOPIC_TACTILE][::20]:
+        sent = streams.published[topics.TOPIC_TACTILE][stamp_ns(msg.header)]
         got = HAND.merge([np.stack([a.x, a.y, a.z], axis=1) for a in msg.arrays])
         np.testing.assert_array_equal(got, sent)
-    for msg in by_topic[bagio.TOPIC_WRENCH][::20]:
+    for msg in by_topic[topics.TOPIC_WRENCH][::20]:
         w = msg.wrench
         np.testing.assert_allclose([w.force.x, w.force.y, w.force.z, w.torque.x, w.torque.y,
                                     w.torque.z],
-                                   streams.published[bagio.TOPIC_WRENCH][stamp_ns(msg.header)])
+                                   streams.published[topics.TOPIC_WRENCH][stamp_ns(msg.header)])
 
     # Synchronised samples: the chosen array, partners within slop, each tactile frame once.
-    samples = by_topic[bagio.TOPIC_SAMPLE]
-    assert len(samples) >= 0.8 * len(by_topic[bagio.TOPIC_TACTILE])
+    samples = by_topic[topics.TOPIC_SAMPLE]
+    assert len(samples) >= 0.8 * len(by_topic[topics.TOPIC_TACTILE])
     index = HAND.index('index_middle')
     tactile_stamps = []
     for sample in samples:
@@ -203,12 +203,12 @@ def test_session_started_and_stopped_by_services_records_everything(ros_node, st
         assert stamp_ns(sample.tactile.header) == t
         assert abs(stamp_ns(sample.wrench.header) - t) <= SLOP * 1e9
         assert abs(stamp_ns(sample.joints.header) - t) <= SLOP * 1e9
-        sent = HAND.split(streams.published[bagio.TOPIC_TACTILE][t])[index]
+        sent = HAND.split(streams.published[topics.TOPIC_TACTILE][t])[index]
         np.testing.assert_array_equal(
             np.stack([sample.tactile.x, sample.tactile.y, sample.tactile.z], axis=1), sent)
         np.testing.assert_array_equal(
             sample.joints.position,
-            streams.published[bagio.TOPIC_JOINTS][stamp_ns(sample.joints.header)])
+            streams.published[topics.TOPIC_JOINTS][stamp_ns(sample.joints.header)])
         tactile_stamps.append(t)
     assert tactile_stamps == sorted(set(tactile_stamps))
     assert 'closed' in output and 'dropped by the synchroniser' in output
@@ -234,8 +234,8 @@ def test_unknown_array_is_refused_at_start_up_and_by_the_service(ros_node, tmp_p
 
 def test_sigterm_closes_the_bag_completely(ros_node, streams, tmp_path):
     live = []
-    sub = ros_node.create_subscription(CalibrationSample, bagio.TOPIC_SAMPLE, live.append,
-                                       subscriber_qos(bagio.TOPIC_SAMPLE))
+    sub = ros_node.create_subscription(CalibrationSample, topics.TOPIC_SAMPLE, live.append,
+                                       subscriber_qos(topics.TOPIC_SAMPLE))
     proc = recorder(tmp_path, '-p', 'autostart:=true', '-p', 'split_seconds:=60.0')
     try:
         assert streams.wait_for_recorder(), 'recorder never subscribed'
@@ -251,7 +251,7 @@ def test_sigterm_closes_the_bag_completely(ros_node, streams, tmp_path):
     # One long split, closed by on_shutdown: everything is listed, nothing left half-written.
     assert not any(p.name.endswith('.partial') for p in bag.iterdir())
     topics = [topic for topic, _, _ in bagio.read_messages(bag)]
-    assert topics.count(bagio.TOPIC_TACTILE) >= 0.8 * len(streams.published[bagio.TOPIC_TACTILE])
+    assert topics.count(topics.TOPIC_TACTILE) >= 0.8 * len(streams.published[topics.TOPIC_TACTILE])
     assert 'closed' in output
 
 def test_closed_loop_streams_are_recorded_when_published(ros_node, tmp_path):
@@ -261,7 +261,7 @@ def test_closed_loop_streams_are_recorded_when_published(ros_node, tmp_path):
                     '-p', "scene:='closed_loop_spherical'", '-p', 'seed:=7')
     topics = {sync_recorder.TOPIC_DESIRED: Vector3Stamped,
               sync_recorder.TOPIC_CONTROLLER_STATE: ControllerState,
-              bagio.TOPIC_SIM_CONTACT: WrenchStamped}
+              topics.TOPIC_SIM_CONTACT: WrenchStamped}
     pubs = {t: ros_node.create_publisher(m, t, publisher_qos(t)) for t, m in topics.items()}
     sent = {t: [] for t in topics}
     try:
@@ -280,7 +280,7 @@ def test_closed_loop_streams_are_recorded_when_published(ros_node, tmp_path):
             truth.wrench.force.z = 0.05 * k
             for topic, msg in ((sync_recorder.TOPIC_DESIRED, desired),
                                (sync_recorder.TOPIC_CONTROLLER_STATE, state),
-                               (bagio.TOPIC_SIM_CONTACT, truth)):
+                               (topics.TOPIC_SIM_CONTACT, truth)):
                 pubs[topic].publish(msg)
                 sent[topic].append(k)
             spin_until(ros_node, lambda: False, 0.01)
@@ -302,7 +302,7 @@ def test_closed_loop_streams_are_recorded_when_published(ros_node, tmp_path):
     states = got[sync_recorder.TOPIC_CONTROLLER_STATE]
     assert [stamp_ns(m.header) for m in states] == [(k + 1) * 10 * MS for k in range(50)]
     assert all(m.mode == 'closed_loop' and len(m.q) == 4 for m in states)
-    truth = got[bagio.TOPIC_SIM_CONTACT]
+    truth = got[topics.TOPIC_SIM_CONTACT]
     # Best effort: a stalling host lost 13 of the 50 here (the recorder's side of discovery can
     # lag the test's); every one that arrived must be exact.
     assert len(truth) >= 25
@@ -343,7 +343,7 @@ def test_under_sim_time_nothing_is_recorded_before_the_first_clock(ros_node, str
     (bag,) = tmp_path.iterdir()
     log_times = [t for _, t, _ in bagio.read_messages(bag)]
     assert log_times and min(log_times) == clock_ns, (min(log_times), output)
-    tactile = [m for topic, _, m in bagio.read_messages(bag) if topic == bagio.TOPIC_TACTILE]
+    tactile = [m for topic, _, m in bagio.read_messages(bag) if topic == topics.TOPIC_TACTILE]
     assert tactile, 'the frames after the first /clock are recorded'
     assert 'recording starts at the first /clock' in output, output
 
@@ -356,11 +356,11 @@ def test_killed_recorder_leaves_a_bag_readable_up_to_the_last_split(ros_node, st
         bags = list(tmp_path.iterdir())
         if not bags or not (bags[0] / 'metadata.yaml').exists():
             return 0
-        return sum(1 for _ in bagio.read_messages(bags[0], [bagio.TOPIC_TACTILE]))
+        return sum(1 for _ in bagio.read_messages(bags[0], [topics.TOPIC_TACTILE]))
     try:
         assert streams.wait_for_recorder(), 'recorder never subscribed'
         streams.run(1.5)
-        before = len(streams.published[bagio.TOPIC_TACTILE])
+        before = len(streams.published[topics.TOPIC_TACTILE])
         # Until the splits closed so far (every 0.5 s) hold most of those frames (bounded) ...
         assert spin_until(ros_node, lambda: closed_tactile_frames() >= 0.8 * before, 30.0), \
             'the frames never reached a closed split'
@@ -374,8 +374,8 @@ def test_killed_recorder_leaves_a_bag_readable_up_to_the_last_split(ros_node, st
     (bag,) = tmp_path.iterdir()
     assert bagio.read_session_metadata(bag)['plate'] == 'edge'
     topics = [topic for topic, _, _ in bagio.read_messages(bag)]
-    sent = len(streams.published[bagio.TOPIC_TACTILE])
-    assert 0.8 * before <= topics.count(bagio.TOPIC_TACTILE) <= sent
-    assert topics.count(bagio.TOPIC_SAMPLE) > 0.5 * topics.count(bagio.TOPIC_TACTILE)
+    sent = len(streams.published[topics.TOPIC_TACTILE])
+    assert 0.8 * before <= topics.count(topics.TOPIC_TACTILE) <= sent
+    assert topics.count(topics.TOPIC_SAMPLE) > 0.5 * topics.count(topics.TOPIC_TACTILE)
     assert any(p.name.endswith('.partial') for p in bag.iterdir()), \
         'the split open at the kill should be left behind unlisted'

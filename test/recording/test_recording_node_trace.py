@@ -5,7 +5,7 @@ estimate. Bags without what that needs are refused, saying why."""
 import numpy as np
 import pytest
 
-from tacforce_ros import bagio
+from tacforce_ros import bagio, topics
 from tacforce_ros.control.command_sequence import ForceSequence
 from tacforce_ros.experiments.node_path import NodePathUnavailable, node_trace
 from tacforce_ros.nodes.sync_recorder import (BAG_TOPICS, TOPIC_CONTROLLER_STATE,
@@ -41,7 +41,7 @@ def write_bag(path, ft_from_ns, commands=True):
         for t_ns in range(ft_from_ns, START_NS + 3_000 * MS, MS):
             force = BIAS + (SEQUENCE.force_at((t_ns - START_NS) * 1e-9) if t_ns >= START_NS
                             else 0.0)
-            writer.write(bagio.TOPIC_WRENCH, t_ns,
+            writer.write(topics.TOPIC_WRENCH, t_ns,
                          bagio.wrench_stamped(t_ns, 'ft_sensor', [*force, 0.0, 0.0, 0.0]))
         if not commands:
             return

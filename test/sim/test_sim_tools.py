@@ -4,7 +4,7 @@ from collections import Counter
 
 import numpy as np
 
-from tacforce_ros import bagio
+from tacforce_ros import bagio, topics
 from tacforce_ros.tools import bench_sim, sim_record
 
 
@@ -19,11 +19,11 @@ def test_sim_record_writes_one_bag_per_session_in_the_lab_layout(tmp_path, hand)
     assert meta[0]['scene'] == 'calibration_index_middle_edge' and meta[0]['plate'] == 'edge'
     messages = list(bagio.read_messages(tmp_path / bags[0]))
     counts = Counter(topic for topic, _, _ in messages)
-    assert counts[bagio.TOPIC_SESSION] == 1 and counts[bagio.TOPIC_SIM_CONTACT] == 600
-    assert 570 <= counts[bagio.TOPIC_TACTILE] <= 600    # transport may drop a few
-    tactile = next(m for t, _, m in messages if t == bagio.TOPIC_TACTILE)
+    assert counts[topics.TOPIC_SESSION] == 1 and counts[topics.TOPIC_SIM_CONTACT] == 600
+    assert 570 <= counts[topics.TOPIC_TACTILE] <= 600    # transport may drop a few
+    tactile = next(m for t, _, m in messages if t == topics.TOPIC_TACTILE)
     assert [a.name for a in tactile.arrays] == [a.name for a in hand.arrays]
-    truth = [m for t, _, m in messages if t == bagio.TOPIC_SIM_CONTACT]
+    truth = [m for t, _, m in messages if t == topics.TOPIC_SIM_CONTACT]
     assert truth[0].header.frame_id == 'uskin_index_middle'
     assert max(abs(m.wrench.force.z) for m in truth) > 0.1
 

@@ -1,0 +1,46 @@
+"""The node graph's topic names and the QoS kind each is published with: the one place they are
+spelled. ROS-free: the bag layout (bagio), the nodes and the tools all read them here."""
+from __future__ import annotations
+
+TOPIC_TACTILE = '/tactile/raw'
+TOPIC_WRENCH = '/ft_sensor/wrench'
+TOPIC_JOINTS = '/joint_states'
+TOPIC_SAMPLE = '/calibration/sample'
+TOPIC_SESSION = '/session/metadata'
+TOPIC_SIM_CONTACT = '/sim/contact_force'
+TOPIC_ESTIMATES = '/tactile/estimates'
+TOPIC_MARKERS = '/tactile/markers'
+# Closed-loop sessions also carry the command and the controller's ticks.
+TOPIC_DESIRED = '/force_controller/desired'
+TOPIC_CONTROLLER_STATE = '/force_controller/state'
+
+# Sensor streams are published reliable and subscribed best-effort (sensor-data QoS); commands,
+# calibration samples and controller states are reliable both ways (nodes/common.py builds the
+# profiles).
+SENSOR, RELIABLE = 'sensor', 'reliable'
+TOPIC_QOS = {
+    TOPIC_TACTILE: SENSOR,
+    TOPIC_WRENCH: SENSOR,
+    TOPIC_JOINTS: SENSOR,
+    TOPIC_ESTIMATES: SENSOR,
+    TOPIC_SIM_CONTACT: SENSOR,
+    TOPIC_SAMPLE: RELIABLE,
+    TOPIC_DESIRED: RELIABLE,
+    TOPIC_CONTROLLER_STATE: RELIABLE,
+}
+
+
+def array_wrench_topic(array: str) -> str:
+    """The estimated wrench of one array (geometry_msgs/WrenchStamped)."""
+    return f'/tactile/{array}/wrench'
+
+
+def qos_kind(topic: str) -> str:
+    """SENSOR or RELIABLE; a topic nobody decided for is refused, naming this module."""
+    if topic.startswith('/tactile/') and topic.endswith('/wrench'):
+        return SENSOR       # the per-array wrenches are sensor streams too
+    try:
+        return TOPIC_QOS[topic]
+    except KeyError:
+        raise KeyError(f'no QoS decided for {topic}; add it to TOPIC_QOS in '
+                       'tacforce_ros/topics.py') from None

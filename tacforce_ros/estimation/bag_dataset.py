@@ -43,8 +43,8 @@ def read_streams(path: str | Path, array_name: str, n_taxels: int,
     from tacforce_ros import bagio, topics
 
     streams = BagStreams([], [], [], [], [], [])
-    topics = [topics.TOPIC_TACTILE, topics.TOPIC_WRENCH, topics.TOPIC_JOINTS]
-    for topic, _, msg in bagio.read_messages(path, topics):
+    wanted = [topics.TOPIC_TACTILE, topics.TOPIC_WRENCH, topics.TOPIC_JOINTS]
+    for topic, _, msg in bagio.read_messages(path, wanted):
         if topic == topics.TOPIC_TACTILE:
             entry = next((a for a in msg.arrays if a.name == array_name), None)
             if entry is None or not len(entry.x) == len(entry.y) == len(entry.z) == n_taxels:

@@ -152,7 +152,7 @@ def node_trace(bag: Path, sequence, tare_frames: int) -> tuple[ClosedLoopTrace, 
     plate: the direct path zeroes it the same way at the end of its hold. (Not before the first
     command: the player may start before the recorder has its first F/T reading.)
     """
-    from tacforce_ros import bagio
+    from tacforce_ros import bagio, topics
     states, desired, wrench = [], [], []
     for topic, _, msg in bagio.read_messages(bag, [topics.TOPIC_CONTROLLER_STATE,
                                                    topics.TOPIC_DESIRED, topics.TOPIC_WRENCH]):

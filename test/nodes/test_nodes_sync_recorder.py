@@ -250,8 +250,9 @@ def test_sigterm_closes_the_bag_completely(ros_node, streams, tmp_path):
     (bag,) = tmp_path.iterdir()
     # One long split, closed by on_shutdown: everything is listed, nothing left half-written.
     assert not any(p.name.endswith('.partial') for p in bag.iterdir())
-    topics = [topic for topic, _, _ in bagio.read_messages(bag)]
-    assert topics.count(topics.TOPIC_TACTILE) >= 0.8 * len(streams.published[topics.TOPIC_TACTILE])
+    recorded = [topic for topic, _, _ in bagio.read_messages(bag)]
+    sent = streams.published[topics.TOPIC_TACTILE]
+    assert recorded.count(topics.TOPIC_TACTILE) >= 0.8 * len(sent)
     assert 'closed' in output
 
 def test_closed_loop_streams_are_recorded_when_published(ros_node, tmp_path):
@@ -259,11 +260,11 @@ def test_closed_loop_streams_are_recorded_when_published(ros_node, tmp_path):
     with the scene and seed in the metadata."""
     proc = recorder(tmp_path, '-p', 'autostart:=true', '-p', 'source:=sim',
                     '-p', "scene:='closed_loop_spherical'", '-p', 'seed:=7')
-    topics = {sync_recorder.TOPIC_DESIRED: Vector3Stamped,
+    types = {sync_recorder.TOPIC_DESIRED: Vector3Stamped,
               sync_recorder.TOPIC_CONTROLLER_STATE: ControllerState,
               topics.TOPIC_SIM_CONTACT: WrenchStamped}
-    pubs = {t: ros_node.create_publisher(m, t, publisher_qos(t)) for t, m in topics.items()}
-    sent = {t: [] for t in topics}
+    pubs = {t: ros_node.create_publisher(m, t, publisher_qos(t)) for t, m in types.items()}
+    sent = {t: [] for t in types}
     try:
         assert spin_until(ros_node, lambda: all(p.get_subscription_count() for p in
                                                  pubs.values()), 20.0), 'recorder never subscribed'
@@ -293,8 +294,8 @@ def test_closed_loop_streams_are_recorded_when_published(ros_node, tmp_path):
     (bag,) = tmp_path.iterdir()
     meta = bagio.read_session_metadata(bag)
     assert (meta['scene'], meta['seed'], meta['source']) == ('closed_loop_spherical', '7', 'sim')
-    got = {t: [] for t in topics}
-    for topic, _, msg in bagio.read_messages(bag, list(topics)):
+    got = {t: [] for t in types}
+    for topic, _, msg in bagio.read_messages(bag, list(types)):
         got[topic].append(msg)
     # Reliable topics arrive whole and in order; the best-effort truth may lose a few.
     desired_z = [m.vector.z for m in got[sync_recorder.TOPIC_DESIRED]]
@@ -373,9 +374,9 @@ def test_killed_recorder_leaves_a_bag_readable_up_to_the_last_split(ros_node, st
     assert proc.returncode == -signal.SIGKILL, output
     (bag,) = tmp_path.iterdir()
     assert bagio.read_session_metadata(bag)['plate'] == 'edge'
-    topics = [topic for topic, _, _ in bagio.read_messages(bag)]
+    recorded = [topic for topic, _, _ in bagio.read_messages(bag)]
     sent = len(streams.published[topics.TOPIC_TACTILE])
-    assert 0.8 * before <= topics.count(topics.TOPIC_TACTILE) <= sent
-    assert topics.count(topics.TOPIC_SAMPLE) > 0.5 * topics.count(topics.TOPIC_TACTILE)
+    assert 0.8 * before <= recorded.count(topics.TOPIC_TACTILE) <= sent
+    assert recorded.count(topics.TOPIC_SAMPLE) > 0.5 * recorded.count(topics.TOPIC_TACTILE)
     assert any(p.name.endswith('.partial') for p in bag.iterdir()), \
         'the split open at the kill should be left behind unlisted'

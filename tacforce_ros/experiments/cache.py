@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import ast
 import dataclasses
+import functools
 import hashlib
 import json
 import os
@@ -58,9 +59,11 @@ def _imported_modules(path: Path) -> set[str]:
     return found
 
 
-def source_files(*modules: str) -> list[Path]:
+@functools.lru_cache(maxsize=None)
+def source_files(*modules: str) -> tuple[Path, ...]:
     """The files of `modules` and of everything of this package they import, transitively, with
-    the packages on the way (their __init__ runs on import)."""
+    the packages on the way (their __init__ runs on import). Kept per process: the sources do
+    not change while a run computes its keys (the digest still reads their bytes each time)."""
     seen: dict[str, Path] = {}
     todo = list(modules)
     while todo:
@@ -76,7 +79,7 @@ def source_files(*modules: str) -> list[Path]:
                 continue
             seen[name] = path
             todo += sorted(_imported_modules(path))
-    return sorted(set(seen.values()))
+    return tuple(sorted(set(seen.values())))
 
 
 def source_digest(*targets: str | Callable | type) -> str:

@@ -57,9 +57,8 @@ class FingerSession:
         Returns the finger's 4 torques, the tick's state, and the transition this tick made
         (None when mode and cause are unchanged)."""
         if not self.engaged and f_d is not None:
-            fresh = (f_hat_age <= self.config.estimate_timeout
-                     and np.all(np.isfinite(np.asarray(f_hat, dtype=np.float64))))
-            self.engaged = bool(self.controller.open_loop or fresh)
+            self.engaged = (self.controller.open_loop
+                            or self.controller.estimate_fresh(f_hat, f_hat_age))
         if self.engaged:
             tau, state = self.controller.update(t, q, qdot, f_hat, f_hat_age, q_age, f_d)
         else:

@@ -223,6 +223,13 @@ class ForceController:
         """Forget time, integral and watchdog state (e.g. after the sim clock jumped back)."""
         self._mem = _Memory()
 
+    def estimate_fresh(self, f_hat: np.ndarray, f_hat_age: float) -> bool:
+        """A force estimate the law may act on: three finite numbers, at most estimate_timeout
+        old."""
+        f_hat = np.asarray(f_hat, dtype=np.float64)
+        return bool(f_hat.shape == (3,) and f_hat_age <= self.config.estimate_timeout
+                    and np.all(np.isfinite(f_hat)))
+
     def _reason(self, joints_fresh: bool, estimate_fresh: bool, q_age: float,
                 f_hat_age: float) -> str:
         cfg = self.config
@@ -261,8 +268,7 @@ class ForceController:
 
         joints_fresh = bool(q_age <= cfg.joints_timeout and np.all(np.isfinite(q))
                             and np.all(np.isfinite(qdot)))
-        estimate_fresh = bool(f_hat.shape == (3,) and f_hat_age <= cfg.estimate_timeout
-                              and np.all(np.isfinite(f_hat)))
+        estimate_fresh = self.estimate_fresh(f_hat, f_hat_age)
         reason = self._reason(joints_fresh, estimate_fresh, q_age, f_hat_age)
         step = elapsed / cfg.ramp_time
         # Open loop does not use the estimate, so only closed loop depends on its freshness.

@@ -95,7 +95,7 @@ def run_closed_loop(hand: HandDescription, kinematics: HandKinematics, scene: st
         if sample.delivered['joints']:
             q, qdot, q_time = sample.q, sample.qdot, t
         f_d = None      # no command during the settle: the session holds the start pose
-        if tick < 0 and tick >= -tare_frames:
+        if -tare_frames <= tick < 0:
             wrenches.append(sample.ft_wrench[:3])
             if models is not None and frame is not None:
                 tare.append(frame.astype(np.float64))

@@ -1,5 +1,6 @@
 """ros2 launch tacforce_ros closed_loop.launch.py [sim:=true|false] [hand_side:=right] [array:=index_tip]
 [plate:=spherical] [scene:=...] [model:=...] [out:=bags] [real_time_factor:=1.0]
+[lockstep:=true] [sim_duration:=0.0]
 
 The node graph is tacforce_ros.nodes.session_plan's, shared with `session closed_loop`."""
 import sys

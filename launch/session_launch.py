@@ -8,12 +8,14 @@ for RViz; our nodes compute frames from the URDF in-process and do not need /tf.
 from pathlib import Path
 
 from launch import LaunchDescription
-from launch.actions import DeclareLaunchArgument, OpaqueFunction, TimerAction
+from launch.actions import (DeclareLaunchArgument, OpaqueFunction, RegisterEventHandler,
+                            Shutdown, TimerAction)
+from launch.event_handlers import OnProcessIO
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
-from tacforce_ros.nodes.session_plan import (CAN_PORT, NETFT_PORT, XELA_PORT, SessionArgs,
-                                             hand_config, plan)
+from tacforce_ros.nodes.session_plan import (CAN_PORT, NETFT_PORT, SCENE_DONE_MARKER, XELA_PORT,
+                                             SessionArgs, hand_config, plan)
 from tacforce_ros.paths import config_dir
 
 READY_DELAY_S = 3.0
@@ -25,7 +27,12 @@ ARGUMENTS = {
     'scene': ('', 'sim scene; empty: derived from the mode, array and plate'),
     'model': ('', 'estimator models YAML; empty: config/models/default.yaml'),
     'out': ('bags', 'folder for the recorded bags'),
-    'real_time_factor': ('1.0', 'simulated seconds per wall second (sim only)'),
+    'real_time_factor': ('1.0', 'simulated seconds per wall second (sim only; with lockstep '
+                         'the most it runs at)'),
+    'lockstep': ('true', 'sim only: simulated time waits for the controller, estimator and '
+                 'recorder; false: free-running'),
+    'sim_duration': ('0.0', 'sim only: shut down after this many simulated seconds; 0: run '
+                     'until stopped'),
     'seed': ('-1', 'simulator seed (sim only); -1: the scene\'s own'),
 }
 
@@ -37,6 +44,8 @@ def _nodes(context, mode: str):
                        plate=value['plate'], scene=value['scene'],
                        model_config=value['model'], out=value['out'],
                        real_time_factor=float(value['real_time_factor']),
+                       lockstep=value['lockstep'].lower() == 'true',
+                       sim_duration=float(value['sim_duration']),
                        seed=int(value['seed']),
                        xela_port=XELA_PORT, netft_port=NETFT_PORT, can_port=CAN_PORT)
     actions, delay = [], 0.0
@@ -44,6 +53,11 @@ def _nodes(context, mode: str):
         action = Node(package='tacforce_ros', executable=node.executable, output='screen',
                       parameters=[str(p) for p in node.param_files] + [node.overrides])
         actions.append(TimerAction(period=delay, actions=[action]) if delay else action)
+        if node.executable == 'sim_world':
+            # The end of the scene (sim_duration): shut down, the drivers before the emulators.
+            actions.append(RegisterEventHandler(OnProcessIO(
+                target_action=action, on_stdout=_shutdown_when_done,
+                on_stderr=_shutdown_when_done)))
         if node.ready_port is not None:
             # launch cannot wait for a port like `session` does: give the emulators time.
             delay = READY_DELAY_S
@@ -53,6 +67,12 @@ def _nodes(context, mode: str):
                             parameters=[{'robot_description': urdf.read_text(),
                                          'use_sim_time': args.sim}]))
     return actions
+
+
+def _shutdown_when_done(event):
+    if SCENE_DONE_MARKER.encode() in event.text:
+        return [Shutdown(reason='the scene ended (sim_duration)')]
+    return None
 
 
 def session_launch_description(mode: str) -> LaunchDescription:

@@ -18,6 +18,7 @@ import numpy as np
 from tacforce_ros.control.force_controller import MODE_HOLD
 from tacforce_ros.estimation.metrics import error_stats
 from tacforce_ros.experiments.closed_loop import METRIC_WINDOW, ClosedLoopTrace, trace_metrics
+from tacforce_ros.nodes.session_plan import SESSION_SCENE_ENDED
 
 if TYPE_CHECKING:
     from tacforce_ros.hand.description import HandDescription
@@ -38,11 +39,14 @@ AGREEMENT_REASON = (
     '0.08 N on e~ keeps the wider bound. Both loops hold their own estimate to ~0.02 N: '
     '0.03 N on e_track.')
 SESSION_MODULE = 'tacforce_ros.tools.session'   # run as a command, as a user would
-CALIBRATION_SECONDS = 40.0     # wall seconds of the node-graph calibration session
+CALIBRATION_SECONDS = 40.0     # simulated seconds of the node-graph calibration session
+# Simulated seconds a closed-loop scene runs before the sequence can start: the command player
+# waits until the controller and the recorder listen (discovery), while the finger holds.
+SEQUENCE_START_MARGIN_S = 10.0
 START_MARGIN_S = 40.0          # wall seconds for the nodes to start and the recorder to open
-# Closed-loop runs go at half real time: the nine processes then keep their 100-333 Hz streams
-# on a small machine (a starved joint stream trips the controller's 20 ms watchdog).
-CLOSED_LOOP_REAL_TIME_FACTOR = 0.5
+# Sessions run in lockstep (simulated time waits for the controller, estimator and recorder) at
+# up to real time; a session slower than this is given up as unusable, not waited for forever.
+SLOWEST_REAL_TIME_FACTOR = 0.1
 TACTILE_PERIOD_S = 0.01        # the estimator's tare counts 100 Hz tactile frames
 MIN_ZERO_SAMPLES = 10          # F/T readings (1 kHz) averaged at least to zero the sensor
 
@@ -68,18 +72,18 @@ def _free_ports(count: int) -> list[int]:
     return ports
 
 
-def run_session(mode: str, scene: str, plate: str, out: Path, duration: float,
-                model_config: Path | None = None, seed: int | None = None,
-                real_time_factor: float = 1.0) -> Path:
-    """Run the `session` tool once for `duration` wall seconds (seed None: the scene's own);
-    return the bag folder it recorded."""
+def run_session(mode: str, scene: str, plate: str, out: Path, sim_duration: float,
+                model_config: Path | None = None, seed: int | None = None) -> Path:
+    """Run the `session` tool once, in lockstep, until its scene has run `sim_duration`
+    simulated seconds (seed None: the scene's own); return the bag folder it recorded."""
     session_exe = Path(sys.prefix) / 'lib' / 'tacforce_ros' / 'session'
     if not session_exe.is_file():
         raise NodePathUnavailable(f'{session_exe} is not installed (run ./run.sh setup)')
     out.mkdir(parents=True, exist_ok=True)
+    wall_limit = sim_duration / SLOWEST_REAL_TIME_FACTOR + START_MARGIN_S
     command = [sys.executable, '-m', SESSION_MODULE, mode, '--scene', scene,
                '--array', 'index_tip', '--plate', plate, '--out', str(out),
-               '--duration', f'{duration:g}', '--real-time-factor', f'{real_time_factor:g}',
+               '--sim-duration', f'{sim_duration:g}', '--duration', f'{wall_limit:g}',
                '--ports', *map(str, _free_ports(3))]
     if model_config is not None:
         command += ['--model', str(model_config)]
@@ -91,11 +95,16 @@ def run_session(mode: str, scene: str, plate: str, out: Path, duration: float,
     env['ROS_DOMAIN_ID'] = str(env.get('TACFORCE_REPRODUCE_DOMAIN', 40 + os.getpid() % 50))
     try:
         done = subprocess.run(command, env=env, capture_output=True, text=True,
-                              timeout=duration + 90.0)
+                              timeout=wall_limit + 90.0)
     except subprocess.TimeoutExpired as exc:
-        raise NodePathUnavailable(f'session {mode} did not stop within {duration + 90:g} s') \
+        raise NodePathUnavailable(f'session {mode} did not stop within {wall_limit + 90:g} s') \
             from exc
     (out / 'session.log').write_text(done.stdout + done.stderr)
+    if SESSION_SCENE_ENDED not in done.stdout:
+        raise NodePathUnavailable(
+            f'session {mode}: {sim_duration:g} s simulated did not run within {wall_limit:g} s '
+            f'(slower than {SLOWEST_REAL_TIME_FACTOR:g}x real time; exit code '
+            f'{done.returncode}, log: {out / "session.log"}): {done.stderr.strip()[-300:]}')
     bags = sorted(p for p in out.iterdir() if p.is_dir() and (p / 'metadata.yaml').is_file())
     if not bags:
         raise NodePathUnavailable(f'session {mode} exited {done.returncode} and recorded no bag '
@@ -104,8 +113,8 @@ def run_session(mode: str, scene: str, plate: str, out: Path, duration: float,
 
 
 def closed_loop_session_seconds(sequence_seconds: float) -> float:
-    """Wall seconds a closed-loop session needs to play a sequence of this length."""
-    return sequence_seconds / CLOSED_LOOP_REAL_TIME_FACTOR + START_MARGIN_S
+    """Simulated seconds a closed-loop session runs to play a sequence of this length."""
+    return sequence_seconds + SEQUENCE_START_MARGIN_S
 
 
 def _seconds(stamp) -> float:

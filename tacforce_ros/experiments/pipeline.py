@@ -597,7 +597,8 @@ def node_path_stage(ctx: Context, models: dict) -> dict:
     result: dict[str, Any] = {'ran': True, 'work_dir': str(work)}
     started = time.perf_counter()
     try:
-        ctx.log(f'stage node path: calibration session ({node_path.CALIBRATION_SECONDS:g} s wall)')
+        ctx.log(f'stage node path: calibration session ({node_path.CALIBRATION_SECONDS:g} s '
+                'simulated)')
         bag = node_path.run_session('calibration', calibration_scene, HELD_OUT_PLATE,
                                     work / 'calibration', node_path.CALIBRATION_SECONDS,
                                     seed=load_scene(calibration_scene).seed)
@@ -610,11 +611,11 @@ def node_path_stage(ctx: Context, models: dict) -> dict:
         direct = run_closed_loop(hand, kinematics, loop_scene, seed, controller_config('M3-lambda'),
                                  sequence, load_model_set(config, hand),
                                  control_rate=s.control_rate, tare_frames=tare_frames())
-        ctx.log(f'stage node path: closed-loop run ({sequence.duration:g} s + start-up, wall)')
+        ctx.log(f'stage node path: closed-loop run ({sequence.duration:g} s + start-up, '
+                'simulated)')
         bag = node_path.run_session(
             'closed_loop', loop_scene, HELD_OUT_PLATE, work / 'closed_loop',
-            node_path.closed_loop_session_seconds(sequence.duration), config, seed=seed,
-            real_time_factor=node_path.CLOSED_LOOP_REAL_TIME_FACTOR)
+            node_path.closed_loop_session_seconds(sequence.duration), config, seed=seed)
         trace, offset = node_path.node_trace(bag, sequence, tare_frames())
         result['closed_loop'] = node_path.compare_closed_loop(trace, direct, offset)
         np.savez(work / 'closed_loop_traces.npz',

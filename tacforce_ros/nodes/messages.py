@@ -292,3 +292,13 @@ class TactileHandDecoder:
         self._fixed_at = np.asarray(fixed, dtype=np.intp)
         self._fixed = np.frombuffer(raw, np.uint8)[self._fixed_at]
         self._counts_at = counts_at
+
+
+def header_stamp_ns(raw: bytes) -> int:
+    """The header stamp of a serialized message whose first field is a std_msgs/Header
+    (WrenchStamped, ControllerState, ...), read without deserializing the rest."""
+    if raw[:2] != _CDR_LE[:2] or len(raw) < _HEAD + _STAMP.size:
+        raise ValueError(f'not a little-endian CDR message with a header ({raw[:4].hex()}, '
+                         f'{len(raw)} bytes)')
+    sec, nanosec = _STAMP.unpack_from(raw, _HEAD)
+    return sec * 1_000_000_000 + nanosec

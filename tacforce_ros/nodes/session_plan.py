@@ -28,6 +28,12 @@ CAN_PORT = 29536        # socketcand's default TCP port
 # hand: simulated sessions make the hand safe only after a silence no stall reaches.
 SIM_SILENT_TIMEOUT_S = 10.0
 
+# sim_world's log line when its scene has run `stop_after` simulated seconds: time then stands
+# still with the devices still served, and whoever runs the session (the `session` tool, launch's
+# OnProcessIO handler) stops the nodes, the drivers before their devices go.
+SCENE_DONE_MARKER = 'scene done:'
+SESSION_SCENE_ENDED = 'session: the scene ended'     # the `session` tool's word for it
+
 
 class PlanError(ValueError):
     """Session arguments that cannot make a node graph; the message says which and why."""
@@ -64,7 +70,9 @@ class SessionArgs:
     scene: str = ''                    # empty: derived from mode, array and plate
     model_config: str = ''             # estimator models YAML; empty: the params file's
     out: str = 'bags'                  # bag folder of the recorder
-    real_time_factor: float = 1.0
+    real_time_factor: float = 1.0     # sim: an upper bound under lockstep
+    lockstep: bool = True              # sim: simulated time waits for the loop's consumers
+    sim_duration: float = 0.0          # sim: simulated seconds the scene runs; 0 = until stopped
     seed: int = -1                     # simulator seed; -1: the scene's own
     xela_port: int = XELA_PORT
     netft_port: int = NETFT_PORT
@@ -99,6 +107,8 @@ def plan(args: SessionArgs) -> list[NodeLaunch]:
     """The nodes of one session, in start order (the clock source first)."""
     if args.mode not in MODES:
         raise PlanError(f'mode: {args.mode!r} is not one of {list(MODES)}')
+    if args.sim_duration < 0:
+        raise PlanError(f'sim_duration: {args.sim_duration} must be >= 0 (0: until stopped)')
     if args.seed < -1:
         raise PlanError(f'seed: {args.seed} must be >= 0, or -1 for the scene\'s own')
     if args.hand_side not in HAND_SIDES:
@@ -112,7 +122,8 @@ def plan(args: SessionArgs) -> list[NodeLaunch]:
     if args.sim:
         nodes.append(NodeLaunch('sim_world', (params_file('sim_world'),), {
             'scene': args.scene_name(), 'seed': args.seed,
-            'real_time_factor': float(args.real_time_factor),
+            'real_time_factor': float(args.real_time_factor), 'lockstep': args.lockstep,
+            'stop_after': float(args.sim_duration),
             'xela_port': args.xela_port, 'netft_port': args.netft_port,
             'can_port': args.can_port, **hand_param},
             ready_port=args.can_port))    # the emulators bind before the CAN one

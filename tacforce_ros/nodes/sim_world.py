@@ -4,9 +4,27 @@ the hardware and nothing else.
 The drivers reach the emulators on 127.0.0.1 exactly as they reach the hardware: xela_server
 (WebSocket, `xela_port`), Net F/T (RDT over UDP, `netft_port`) and the Allegro hand behind
 socketcand (`can_port`). A stepping thread advances the simulator by one `dt` per period of
-dt / `real_time_factor` wall seconds; torques the hand emulator receives drive closed-loop
-scenes (calibration scenes follow their operator model and ignore torques). The emulators send
-at their device rates times `real_time_factor`, so every rate holds in simulated time.
+dt / `real_time_factor` wall seconds at most;
+torques the hand emulator receives drive closed-loop scenes (calibration scenes follow their
+operator model and ignore torques). The emulators send at their device rates times
+`real_time_factor` in wall time, as devices that never stop talking (the drivers' silence
+watchdogs run on wall time): when lockstep holds simulated time they repeat the held state.
+
+Lockstep (`lockstep`, default on): simulated time does not outrun the nodes that consume it. The
+stepping thread advances only while every gated stream of the scene's kind has published a
+message stamped within one of its own periods (plus `lockstep_slack`) of the step's end
+(sim/lockstep.py): in closed-loop scenes the controller's ticks (/force_controller/state), the
+estimate of the scene's array (/tactile/<array>/wrench) and the joint states (/joint_states),
+in calibration scenes the recorder's samples (/calibration/sample). On a slow machine the run is then slower than `real_time_factor` (an upper
+bound), never different. A stream joins with its first messages and is released after
+`lockstep_silence` wall seconds of silence (a stopped node does not freeze the world), rejoining
+when it speaks again; both are logged. lockstep false: free-running at `real_time_factor`
+(latency work). The achieved factor is published on ~/real_time_factor (std_msgs/Float64) and
+logged every `report_period` wall seconds, as a warning when below 0.9 of what was asked, with
+how long each gated stream held time. `stop_after` > 0 ends the scene once that many simulated
+seconds have run: time stands still, the devices are still served, and the log line
+"scene done: ..." (session_plan.SCENE_DONE_MARKER) tells whoever runs the session to stop the
+nodes, drivers first, so a session ends when its scene does.
 
 In closed-loop scenes simulated time starts when the hand's servos are first switched on (the
 allegro_driver's start-up ends with SYSTEM_ON), with `start_with_servos`: the scene's t = 0 is
@@ -28,24 +46,47 @@ import threading
 
 import numpy as np
 from geometry_msgs.msg import WrenchStamped
+from rclpy.clock import Clock as RclpyClock
+from rclpy.clock import ClockType
 from rosgraph_msgs.msg import Clock
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from std_msgs.msg import Float64
 from std_srvs.srv import SetBool
+from sensor_msgs.msg import JointState
+from tacforce_msgs.msg import CalibrationSample, ControllerState
 
 from tacforce_ros.hand.description import HandConfigError, load_hand
-from tacforce_ros.nodes.common import (ParameterError, ParamSpec, TacforceNode, publisher_qos,
-                                       run_node)
-from tacforce_ros.nodes.messages import stamp, wrench_stamped
+from tacforce_ros.nodes.common import (RELIABLE_QOS, ParameterError, ParamSpec, TacforceNode,
+                                       publisher_qos, run_node, subscriber_qos)
+from tacforce_ros.nodes.messages import header_stamp_ns, stamp, wrench_stamped
+from tacforce_ros.nodes.session_plan import SCENE_DONE_MARKER
 from tacforce_ros.sim import SceneError, make_simulator
 from tacforce_ros.sim.emulators.allegro import AllegroEmulator
 from tacforce_ros.sim.emulators.base import Pacer
 from tacforce_ros.sim.emulators.netft import NetFtEmulator
 from tacforce_ros.sim.emulators.xela_server import XelaServerEmulator
-from tacforce_ros.topics import TOPIC_SIM_CONTACT
+from tacforce_ros.sim.lockstep import RealTimeMeter, TimeGate
+from tacforce_ros.topics import (TOPIC_CONTROLLER_STATE, TOPIC_JOINTS, TOPIC_SAMPLE,
+                                 TOPIC_SIM_CONTACT, array_wrench_topic)
 
 # /clock as rosgraph's own publishers offer it: best effort, keep-last 1 (only the newest matters).
 CLOCK_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT,
                        durability=DurabilityPolicy.VOLATILE)
+# While held, /clock repeats the current time this often (wall s): /clock is best effort, and a
+# node whose copy was lost would otherwise never see the time its next tick is due.
+HELD_CLOCK_REPEAT_S = 0.02
+SLOW_FRACTION = 0.9     # an achieved factor below this fraction of the asked one is warned about
+
+
+def lockstep_streams(scene) -> dict[str, type]:
+    """The streams (topic: type) whose consumers close a scene's loop: lockstep waits for them.
+    Closed loop: the controller's ticks, the estimate of the scene's array (its wrench topic,
+    published for valid estimates only: the estimator's tare and a stopped tactile stream do
+    not hold time) and the driver's joint intake; calibration: the recorder's samples."""
+    if scene.kind == 'closed_loop':
+        return {TOPIC_CONTROLLER_STATE: ControllerState,
+                array_wrench_topic(scene.array): WrenchStamped, TOPIC_JOINTS: JointState}
+    return {TOPIC_SAMPLE: CalibrationSample}
 
 
 class SimWorld(TacforceNode):
@@ -72,6 +113,17 @@ class SimWorld(TacforceNode):
         ParamSpec('hand_config', '', 'hand description YAML; empty = the default hand'),
         ParamSpec('start_with_servos', True, 'closed-loop scenes: simulated time starts when '
                   'the hand\'s servos are first switched on (false: at start-up)'),
+        ParamSpec('lockstep', True, 'simulated time waits for the nodes closing the loop '
+                  '(false: free-running at real_time_factor)'),
+        ParamSpec('lockstep_slack', 0.002, 'simulated time may run this far (plus two steps) '
+                  'beyond one period of a gated stream\'s newest stamp (s)', range=(0.0, 1.0)),
+        ParamSpec('lockstep_silence', 1.0, 'a gated stream silent this long no longer holds '
+                  'simulated time until it speaks again (s, wall)', range=(0.1, 600.0)),
+        ParamSpec('stop_after', 0.0, 'end the scene (time stands still, "scene done" logged) '
+                  'after this many simulated seconds from the start of simulated time; '
+                  '0 = run until stopped', range=(0.0, 1e6)),
+        ParamSpec('report_period', 10.0, 'achieved real-time factor to the log and '
+                  '~/real_time_factor every this many wall seconds', range=(0.5, 3600.0)),
     )
 
     def __init__(self) -> None:
@@ -107,12 +159,21 @@ class SimWorld(TacforceNode):
         self.allegro = AllegroEmulator(lambda: self._latest.q, self._take_torques,
                                        port=p['can_port'])
         self.create_service(SetBool, '~/pause_tactile', self._on_pause_tactile)
+        self.gate = self._lockstep_gate() if p['lockstep'] else None
+        self._scene_done = False
+        self.meter = RealTimeMeter()
+        self.factor_publisher = self.create_publisher(Float64, '~/real_time_factor',
+                                                      RELIABLE_QOS)
+        self.create_timer(p['report_period'], self._report,
+                          clock=RclpyClock(clock_type=ClockType.STEADY_TIME))
         self._clock_every = max(1, int(round(1.0 / (p['clock_rate_hz'] * self.sim.dt))))
         self._thread = threading.Thread(target=self._run, name='sim_world_step', daemon=True)
         self._thread.start()
         self.get_logger().info(
             f'scene {scene.name} ({scene.kind}, array {scene.array}, plate {scene.plate.name}) '
-            f'at {rtf:g}x real time; xela {self.xela.url}, Net F/T udp 127.0.0.1:'
+            f'at up to {rtf:g}x real time, '
+            + (f'lockstep with {", ".join(self.gate.streams)}' if self.gate else 'free-running')
+            + f'; xela {self.xela.url}, Net F/T udp 127.0.0.1:'
             f'{self.netft.address[1]}, socketcand tcp 127.0.0.1:{self.allegro.address[1]}')
 
     # --- emulator sources and sinks (called from the emulators' threads) ---------------------
@@ -141,20 +202,52 @@ class SimWorld(TacforceNode):
     def _step(self):
         return self.sim.step(self._torques if self.takes_torques else None)
 
+    def _lockstep_gate(self) -> TimeGate:
+        streams = lockstep_streams(self.sim.scene)
+        # A consumer stamps with its clock, which may still read the step before the data's
+        # (that step's /clock can reach it after the data): a stamp, and the period learnt from
+        # the stamps, can each be one step short, and two steps of slack keep the gate open.
+        gate = TimeGate(list(streams), self.params['lockstep_slack'] + 2.0 * self.sim.dt,
+                        self.params['lockstep_silence'], on_event=self._gate_event)
+        for topic, message_type in streams.items():
+            self.create_subscription(message_type, topic,
+                                     lambda raw, topic=topic: gate.heard(topic,
+                                                                         header_stamp_ns(raw)),
+                                     subscriber_qos(topic), raw=True)
+        return gate
+
+    def _gate_event(self, message: str) -> None:
+        self.get_logger().warning(f'lockstep: {message}')
+
+    def _publish_clock(self, t_ns: int) -> None:
+        if self.clock_publisher is not None:
+            self.clock_publisher.publish(Clock(clock=stamp(t_ns)))
+
     def _run(self) -> None:
         if self.takes_torques and self.params['start_with_servos']:
-            frozen = Clock(clock=stamp(int(round(self._latest.t * 1e9))))
+            frozen = int(round(self._latest.t * 1e9))
             waited = 0
             while not self.allegro.servo_on:
-                if self.clock_publisher is not None and waited % 10 == 0:
-                    self.clock_publisher.publish(frozen)
+                if waited % 10 == 0:
+                    self._publish_clock(frozen)
                 waited += 1
                 if self._stop.wait(0.005):
                     return
             self.get_logger().info('servos on: simulated time starts')
-        pacer = Pacer(self.params['real_time_factor'] / self.sim.dt)
+        dt = self.sim.dt
+        self.meter.start(self._latest.t)
+        stop_at = (self._latest.t + self.params['stop_after'] if self.params['stop_after'] > 0
+                   else float('inf'))
+        pacer = Pacer(self.params['real_time_factor'] / dt)
         steps = 0
         while pacer.wait(self._stop):
+            # The clock reads the end of the latest step; the next step ends one dt later.
+            now_ns = int(round((self._latest.t + dt) * 1e9))
+            if self.gate is not None:
+                while not self.gate.wait(now_ns + int(round(dt * 1e9)), HELD_CLOCK_REPEAT_S):
+                    if self._stop.is_set():
+                        return
+                    self._publish_clock(now_ns)
             try:
                 sample = self._step()
             except Exception as exc:   # noqa: BLE001 - a dead simulator must be said, not hidden
@@ -167,13 +260,41 @@ class SimWorld(TacforceNode):
                     self._tactile.notify_all()
             steps += 1
             # Time at the end of the step: the first /clock is dt, never the "unset" zero.
-            now_ns = int(round((sample.t + self.sim.dt) * 1e9))
-            if self.clock_publisher is not None and steps % self._clock_every == 0:
-                self.clock_publisher.publish(Clock(clock=stamp(now_ns)))
+            now_ns = int(round((sample.t + dt) * 1e9))
+            if steps % self._clock_every == 0:
+                self._publish_clock(now_ns)
             if sample.tactile_fresh:
                 self.truth_publisher.publish(wrench_stamped(
                     now_ns if self.clock_publisher is not None else self.now_ns(),
                     self.array.frame_id, sample.true_force))
+            if sample.t + dt >= stop_at - 0.5 * dt:
+                self._scene_done = True
+                self.get_logger().info(f'{SCENE_DONE_MARKER} {self._summary()}')
+                return
+
+    # --- achieved real-time factor ------------------------------------------------------------
+
+    def _summary(self) -> str:
+        factor, simulated, wall = self.meter.overall(self._latest.t)
+        text = (f'{simulated:.1f} s simulated in {wall:.1f} s wall, {factor:.2f}x real time '
+                f'(asked {self.params["real_time_factor"]:g}x)')
+        if self.gate is not None:
+            text += '; held by ' + ', '.join(
+                f'{s.name} {s.held_s:.1f} s' + (f' (released {s.releases}x)' if s.releases else '')
+                for s in self.gate.streams.values())
+        return text
+
+    def _report(self) -> None:
+        if self.meter.started is None or self._scene_done:
+            return          # simulated time has not started (servos off), or has ended
+        factor, wall = self.meter.window(self._latest.t)
+        self.factor_publisher.publish(Float64(data=factor))
+        text = (f'{factor:.2f}x real time over the last {wall:.1f} s; since the start '
+                + self._summary())
+        if factor < SLOW_FRACTION * self.params['real_time_factor']:
+            self.get_logger().warning(f'simulation slower than asked: {text}')
+        else:
+            self.get_logger().info(text)
 
     def _on_pause_tactile(self, request: SetBool.Request, response: SetBool.Response
                           ) -> SetBool.Response:
@@ -188,6 +309,8 @@ class SimWorld(TacforceNode):
         return response
 
     def on_shutdown(self) -> None:
+        if self.meter.started is not None and not self._scene_done:
+            self.get_logger().info(f'stopped: {self._summary()}')
         self._stop.set()
         with self._tactile:
             self._tactile.notify_all()

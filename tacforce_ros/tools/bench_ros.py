@@ -118,8 +118,8 @@ def run_controller(probe: Probe, args: argparse.Namespace, env: dict, tmp: Path)
     for rate in (100.0, 1000.0 / 3.0):
         procs = start_nodes([
             NodeLaunch('sim_world', (params_file('sim_world'),), {
-                'publish_clock': False, 'xela_port': xela, 'netft_port': netft,
-                'can_port': can}, ready_port=can),
+                'publish_clock': False, 'lockstep': False, 'xela_port': xela,
+                'netft_port': netft, 'can_port': can}, ready_port=can),
             NodeLaunch('allegro_driver', (params_file('allegro_driver'),
                                           params_file('force_controller')), {
                 'interface': 'socketcand', 'channel': 'can0', 'host': '127.0.0.1',

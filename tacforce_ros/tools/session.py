@@ -1,10 +1,14 @@
 """session: run a calibration or closed-loop session without `ros2 launch`.
 
 Starts the same executables with the same parameter files and argument-derived overrides as
-launch/<mode>.launch.py (both read tacforce_ros.nodes.session_plan), waits for Ctrl-C or
-`--duration` seconds (wall time) or for a node to exit, then stops every node cleanly: SIGINT,
+launch/<mode>.launch.py (both read tacforce_ros.nodes.session_plan), waits for Ctrl-C,
+`--duration` seconds (wall time), the end of the scene (`--sim-duration` simulated seconds:
+sim_world then logs session_plan.SCENE_DONE_MARKER) or for a node to exit, then stops every node cleanly: SIGINT,
 wait `--grace` s, then kill. Prints where the bag is. Exit code 0 when every node stopped
 cleanly, 1 otherwise (the log of each node is under <out>/logs/).
+
+In simulation, simulated time waits for the controller, the estimator and the recorder
+(sim_world's lockstep; `--no-lockstep` runs it free at `--real-time-factor`).
 
     session calibration --scene calibration_index_tip_flat --array index_tip --plate flat \\
         --out bags --duration 120
@@ -21,7 +25,8 @@ import sys
 import time
 from pathlib import Path
 
-from tacforce_ros.nodes.session_plan import (CAN_PORT, MODES, NETFT_PORT, XELA_PORT, NodeLaunch,
+from tacforce_ros.nodes.session_plan import (CAN_PORT, MODES, NETFT_PORT, SCENE_DONE_MARKER,
+                                             SESSION_SCENE_ENDED, XELA_PORT, NodeLaunch,
                                              PlanError, SessionArgs, plan)
 from tacforce_ros.paths import output_folder
 
@@ -88,6 +93,27 @@ def stop_nodes(procs: list[tuple[str, subprocess.Popen]], grace: float) -> dict[
     return {name: proc.returncode for name, proc in procs}
 
 
+class SceneLog:
+    """Watches sim_world's log for the end of its scene, as launch's OnProcessIO would."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        self._read = 0
+        self._tail = b''
+
+    def done(self) -> bool:
+        try:
+            with open(self.path, 'rb') as log:
+                log.seek(self._read)
+                text = log.read()
+        except FileNotFoundError:
+            return False
+        self._read += len(text)
+        # The marker may straddle two reads: keep the end of the previous one.
+        self._tail = (self._tail + text)[-4096:]
+        return SCENE_DONE_MARKER.encode() in self._tail
+
+
 def run(args: SessionArgs, duration: float | None, grace: float) -> int:
     try:
         nodes = plan(args)
@@ -104,9 +130,15 @@ def run(args: SessionArgs, duration: float | None, grace: float) -> int:
           f'(logs in {log_dir})', flush=True)
     started = time.monotonic()
     exited_early = None if len(procs) == len(nodes) else 'start-up'
+    scene_log = (SceneLog(log_dir / 'sim_world.log') if args.sim and args.sim_duration > 0
+                 else None)
     try:
         while not stop['requested'] and exited_early is None:
             if duration is not None and time.monotonic() - started >= duration:
+                break
+            if scene_log is not None and scene_log.done():
+                print(f'{SESSION_SCENE_ENDED} after {args.sim_duration:g} s simulated',
+                      flush=True)
                 break
             exited_early = next((name for name, proc in procs if proc.poll() is not None), None)
             if exited_early:
@@ -140,7 +172,14 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument('--out', type=output_folder, default='bags',
                         help='folder for bags and node logs')
     parser.add_argument('--real-time-factor', type=float, default=1.0,
-                        help='simulated seconds per wall second (sim only)')
+                        help='simulated seconds per wall second (sim only; with lockstep the '
+                        'most it runs at)')
+    parser.add_argument('--lockstep', action=argparse.BooleanOptionalAction, default=True,
+                        help='sim only: simulated time waits for the controller, estimator and '
+                        'recorder (default); --no-lockstep: free-running')
+    parser.add_argument('--sim-duration', type=float, default=0.0,
+                        help='sim only: end the session after this many simulated seconds '
+                        '(default 0: until Ctrl-C or --duration)')
     parser.add_argument('--seed', type=int, default=-1,
                         help='simulator seed (sim only; default -1: the scene\'s own)')
     parser.add_argument('--duration', type=float, default=None,
@@ -157,7 +196,8 @@ def main(argv: list[str] | None = None) -> None:
     sys.exit(run(SessionArgs(mode=a.mode, sim=not a.hardware, hand_side=a.hand_side,
                              array=a.array, plate=a.plate, scene=a.scene,
                              model_config=a.model, out=str(a.out),
-                             real_time_factor=a.real_time_factor, seed=a.seed,
+                             real_time_factor=a.real_time_factor, lockstep=a.lockstep,
+                             sim_duration=a.sim_duration, seed=a.seed,
                              xela_port=a.ports[0],
                              netft_port=a.ports[1], can_port=a.ports[2]),
                  a.duration, a.grace))

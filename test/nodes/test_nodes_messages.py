@@ -8,7 +8,8 @@ from hypothesis.extra.numpy import arrays
 
 from tacforce_ros.hand.description import load_hand
 from tacforce_ros.nodes.allegro_driver import JointVelocity
-from tacforce_ros.nodes.messages import flat_counts, stamp, stamp_ns, tactile_hand
+from tacforce_ros.nodes.messages import (flat_counts, header_stamp_ns, stamp, stamp_ns,
+                                         tactile_hand, wrench_stamped)
 
 HAND = load_hand()
 
@@ -46,3 +47,22 @@ def test_joint_velocity_follows_a_ramp_and_skips_repeated_stamps():
         velocity.update(rate * t_ns * 1e-9 + 0.5, t_ns)    # same stamp: ignored
         np.testing.assert_array_equal(velocity.qdot, before)
     np.testing.assert_allclose(velocity.qdot, rate, atol=1e-6)
+
+
+@given(ns=st.integers(min_value=0, max_value=2**31 * 10**9 - 1), frame=st.text(max_size=20))
+def test_header_stamp_read_from_serialized_messages(ns, frame):
+    """sim_world's lockstep reads only the stamp of the messages it waits for."""
+    from rclpy.serialization import serialize_message
+    from sensor_msgs.msg import JointState
+    from tacforce_msgs.msg import CalibrationSample, ControllerState
+    for message in (wrench_stamped(ns, frame, [1.0, 2.0, 3.0]), ControllerState(finger=frame),
+                    CalibrationSample(), JointState(name=[frame])):
+        message.header.stamp = stamp(ns)
+        assert header_stamp_ns(serialize_message(message)) == ns
+
+
+def test_header_stamp_of_something_else_is_refused():
+    with pytest.raises(ValueError, match='CDR'):
+        header_stamp_ns(b'\x00\x00\x00\x00' + bytes(8))      # big-endian encapsulation
+    with pytest.raises(ValueError, match='CDR'):
+        header_stamp_ns(b'\x00\x01\x00\x00\x01')             # too short for a stamp

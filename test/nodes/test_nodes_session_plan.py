@@ -75,3 +75,30 @@ def test_seed_reaches_the_simulator_and_the_session_metadata():
 def test_negative_seed_other_than_the_scene_default_is_refused():
     with pytest.raises(PlanError, match='seed'):
         plan(SessionArgs(mode='closed_loop', seed=-2))
+
+
+def test_lockstep_and_scene_length_reach_the_simulator():
+    nodes = {n.executable: n for n in plan(SessionArgs(mode='closed_loop'))}
+    assert nodes['sim_world'].overrides['lockstep'] is True        # the default
+    assert nodes['sim_world'].overrides['stop_after'] == 0.0
+    nodes = {n.executable: n for n in plan(SessionArgs(mode='calibration', lockstep=False,
+                                                       sim_duration=40.0))}
+    assert nodes['sim_world'].overrides['lockstep'] is False
+    assert nodes['sim_world'].overrides['stop_after'] == 40.0
+    with pytest.raises(PlanError, match='sim_duration'):
+        plan(SessionArgs(mode='closed_loop', sim_duration=-1.0))
+
+
+def test_session_sees_the_end_of_the_scene_in_the_log_of_sim_world(tmp_path):
+    from tacforce_ros.nodes.session_plan import SCENE_DONE_MARKER
+    from tacforce_ros.tools.session import SceneLog
+    log = SceneLog(tmp_path / 'sim_world.log')
+    assert not log.done()                                  # no log yet
+    head, tail = SCENE_DONE_MARKER[:4], SCENE_DONE_MARKER[4:]
+    with open(tmp_path / 'sim_world.log', 'w') as out:
+        out.write('[INFO] [sim_world]: servos on\n[INFO] [sim_world]: ' + head)
+        out.flush()
+        assert not log.done()
+        out.write(tail + ' 80.0 s simulated\n')             # the marker across two reads
+        out.flush()
+        assert log.done()

@@ -1,0 +1,145 @@
+"""Simulated time that waits for the node graph: a gate on the stamps its consumers publish.
+
+A free-running simulator outruns the nodes that close its loop on a slow machine: the
+controller then acts on old joints and estimates, its watchdog trips, and a slower machine gives
+a different result. With a TimeGate the stepping loop asks, before each step, whether simulated
+time may reach the step's end: only if every gated stream (e.g. the controller's ticks, the
+estimates, the recorder's samples) has published a message stamped no more than one of its own
+periods (plus `slack`) before it. A consumer that falls behind therefore holds simulated time;
+the run gets slower, not different.
+
+Each stream's period is learnt from its stamps: the upper median of its last PERIOD_WINDOW
+intervals. A stream's stamps are its data's simulated time (a frame's arrival, a timer's tick),
+off by up to a step (the step's /clock can reach the consumer after its data) plus the slack
+(a tick's callback may run once simulated time has moved on); the median is off by less, which
+the slack covers, so the gate does not hold time before the stream's next message can exist.
+A gap the stream left while starved does not loosen the gate (the largest interval would: in
+a closed-loop session that let simulated time run past the estimator's stale timeout). A
+controller at 50 Hz or a recorder at 100 Hz therefore needs no setting. A stream holds time
+once it has shown JOIN_INTERVALS intervals (start-up order does not matter), and a stream that
+stays silent for `silence` wall seconds while holding time is released (a node that died or
+stopped on purpose must not freeze the world, and a gate that waited for a message that cannot
+come would be freed); it rejoins, learning its period again, when it speaks again. No ROS here: sim_world feeds the stamps from its
+subscriptions.
+"""
+from __future__ import annotations
+
+import threading
+import time
+from collections import deque
+from dataclasses import dataclass, field
+from typing import Callable, Sequence
+
+PERIOD_WINDOW = 16      # stamp intervals a stream's period is taken over
+JOIN_INTERVALS = 8      # intervals a stream must have shown before it holds time
+
+
+@dataclass
+class GatedStream:
+    """What the gate knows about one consumer stream."""
+
+    name: str
+    newest_ns: int | None = None      # newest stamp seen; None until the stream's first message
+    intervals_ns: deque = field(default_factory=lambda: deque(maxlen=PERIOD_WINDOW))
+    heard_wall: float = 0.0           # monotonic time of its last message
+    released: bool = False            # silent too long: not holding time until it speaks again
+    held_s: float = 0.0               # wall seconds simulated time waited for this stream
+    releases: int = 0
+
+    def period_ns(self) -> int | None:
+        """The upper median of its recent intervals between stamps; None until it has joined."""
+        if len(self.intervals_ns) < JOIN_INTERVALS:
+            return None
+        return sorted(self.intervals_ns)[len(self.intervals_ns) // 2]
+
+
+class TimeGate:
+    """May simulated time reach t? Only up to each active stream's newest stamp plus one of its
+    periods and the slack."""
+
+    def __init__(self, streams: Sequence[str], slack_s: float, silence_s: float,
+                 on_event: Callable[[str], None] = lambda message: None,
+                 clock: Callable[[], float] = time.monotonic) -> None:
+        if slack_s < 0.0 or silence_s <= 0.0:
+            raise ValueError(f'slack ({slack_s} s) must be >= 0 and silence ({silence_s} s) > 0')
+        if len(set(streams)) != len(streams):
+            raise ValueError(f'streams named twice: {list(streams)}')
+        self.slack_ns = int(round(slack_s * 1e9))
+        self.silence_s = silence_s
+        self.streams = {name: GatedStream(name) for name in streams}
+        self._on_event = on_event
+        self._clock = clock
+        self._changed = threading.Condition()
+
+    def heard(self, stream: str, stamp_ns: int) -> None:
+        """A message of `stream` stamped `stamp_ns` arrived (any thread)."""
+        with self._changed:
+            s = self.streams[stream]
+            if s.released:
+                s.released = False
+                s.intervals_ns.clear()      # the gap it left is not its period
+                self._on_event(f'{stream} speaks again: simulated time waits for it again')
+            elif s.newest_ns is not None and stamp_ns > s.newest_ns:
+                s.intervals_ns.append(stamp_ns - s.newest_ns)
+            s.newest_ns = stamp_ns if s.newest_ns is None else max(s.newest_ns, stamp_ns)
+            s.heard_wall = self._clock()
+            self._changed.notify_all()
+
+    def holding(self, t_ns: int) -> GatedStream | None:
+        """The active stream furthest behind, if it keeps simulated time from reaching t_ns."""
+        limits = [(s.newest_ns + s.period_ns() + self.slack_ns, s) for s in self.streams.values()
+                  if s.period_ns() is not None and not s.released]
+        if not limits:
+            return None
+        limit, slowest = min(limits, key=lambda item: item[0])
+        return slowest if limit < t_ns else None
+
+    def wait(self, t_ns: int, timeout_s: float) -> bool:
+        """Block until simulated time may reach t_ns (True) or `timeout_s` passed (False).
+
+        A stream that holds time and has been silent for `silence_s` is released here."""
+        deadline = self._clock() + timeout_s
+        with self._changed:
+            while True:
+                stream = self.holding(t_ns)
+                if stream is None:
+                    return True
+                now = self._clock()
+                if now - stream.heard_wall >= self.silence_s:
+                    stream.released = True
+                    stream.releases += 1
+                    self._on_event(
+                        f'{stream.name} silent for {now - stream.heard_wall:.1f} s (wall) at '
+                        f'{stream.newest_ns * 1e-9:.3f} s simulated: simulated time no longer '
+                        'waits for it')
+                    continue
+                if now >= deadline:
+                    return False
+                self._changed.wait(min(deadline, stream.heard_wall + self.silence_s) - now)
+                stream.held_s += self._clock() - now
+
+
+class RealTimeMeter:
+    """Achieved real-time factor (simulated seconds per wall second) over the last window."""
+
+    def __init__(self, clock: Callable[[], float] = time.monotonic) -> None:
+        self._clock = clock
+        self.started: tuple[float, float] | None = None     # (wall, simulated) at the start
+        self._mark: tuple[float, float] | None = None
+
+    def start(self, t_sim: float) -> None:
+        self.started = self._mark = (self._clock(), t_sim)
+
+    def window(self, t_sim: float) -> tuple[float, float]:
+        """(factor, wall seconds) since the previous call (or the start); starts a new window."""
+        now = self._clock()
+        wall, sim = self._mark
+        self._mark = (now, t_sim)
+        return ((t_sim - sim) / (now - wall) if now > wall else 0.0), now - wall
+
+    def overall(self, t_sim: float) -> tuple[float, float, float]:
+        """(factor, simulated seconds, wall seconds) since the start."""
+        wall, sim = self.started
+        elapsed = self._clock() - wall
+        return ((t_sim - sim) / elapsed if elapsed > 0 else 0.0), t_sim - sim, elapsed
+

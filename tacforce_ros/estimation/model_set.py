@@ -52,7 +52,8 @@ class ModelSet:
         self.estimator.set_tare(frames if self._whole_hand else frames[:, self.taxels])
 
 
-def load_model_set(path: str | Path, hand: HandDescription) -> ModelSet:
+def model_files(path: str | Path) -> dict[str, Path]:
+    """The model file of each array a models YAML lists, relative paths resolved."""
     path = Path(path)
     try:
         doc = yaml.safe_load(path.read_text())
@@ -61,6 +62,14 @@ def load_model_set(path: str | Path, hand: HandDescription) -> ModelSet:
     models = (doc or {}).get('models') if isinstance(doc, dict) else None
     if not isinstance(models, dict) or not models:
         raise ModelConfigError(f'{path}: needs a non-empty "models" mapping array -> file')
+    files = {str(name): Path(str(file)) for name, file in models.items()}
+    return {name: file if file.is_absolute() else path.parent / file
+            for name, file in files.items()}
+
+
+def load_model_set(path: str | Path, hand: HandDescription) -> ModelSet:
+    path = Path(path)
+    models = model_files(path)
     names = {a.name for a in hand.arrays}
     unknown = sorted(set(models) - names)
     if unknown:
@@ -68,10 +77,8 @@ def load_model_set(path: str | Path, hand: HandDescription) -> ModelSet:
     modelled = tuple(a for a in hand.arrays if a.name in models)
     bundles = []
     for array in modelled:
-        file = Path(str(models[array.name]))
-        file = file if file.is_absolute() else path.parent / file
         try:
-            bundles.append(load_model(file, array))
+            bundles.append(load_model(models[array.name], array))
         except (ModelFileError, OSError) as exc:
             raise ModelConfigError(f'{path}: models.{array.name}: {exc}') from None
     taxels = np.sort(np.concatenate([a.flat_indices for a in modelled]))

@@ -73,9 +73,11 @@ def _free_ports(count: int) -> list[int]:
 
 
 def run_session(mode: str, scene: str, plate: str, out: Path, sim_duration: float,
-                model_config: Path | None = None, seed: int | None = None) -> Path:
-    """Run the `session` tool once, in lockstep, until its scene has run `sim_duration`
-    simulated seconds (seed None: the scene's own); return the bag folder it recorded."""
+                model_config: Path | None = None, seed: int | None = None,
+                lockstep: bool = True) -> Path:
+    """Run the `session` tool once until its scene has run `sim_duration` simulated seconds
+    (seed None: the scene's own; lockstep False: free-running at real time); return the bag
+    folder it recorded."""
     session_exe = Path(sys.prefix) / 'lib' / 'tacforce_ros' / 'session'
     if not session_exe.is_file():
         raise NodePathUnavailable(f'{session_exe} is not installed (run ./run.sh setup)')
@@ -84,7 +86,7 @@ def run_session(mode: str, scene: str, plate: str, out: Path, sim_duration: floa
     command = [sys.executable, '-m', SESSION_MODULE, mode, '--scene', scene,
                '--array', 'index_tip', '--plate', plate, '--out', str(out),
                '--sim-duration', f'{sim_duration:g}', '--duration', f'{wall_limit:g}',
-               '--ports', *map(str, _free_ports(3))]
+               '--lockstep' if lockstep else '--no-lockstep', '--ports', *map(str, _free_ports(3))]
     if model_config is not None:
         command += ['--model', str(model_config)]
     if seed is not None:

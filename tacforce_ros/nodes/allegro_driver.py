@@ -2,7 +2,9 @@
 
 Joint states (sensor_msgs/JointState, 16 joints in Allegro order, position rad, velocity rad/s by
 finite differences on the node clock, effort = last commanded torque N m) are published for
-every complete FINGER_POSE cycle (333 Hz at `position_period_ms` = 3).
+every complete FINGER_POSE cycle (333 Hz at `position_period_ms` = 3); under sim time a cycle
+arriving before the node clock has moved since the previous one is the same instant and is not
+published (counted as same_stamp in the link report).
 
 `control` = force runs one finger's closed loop (tacforce_ros/control/finger_session.py: the same
 object the in-process experiments run) with the paper's law (control/force_controller.py,
@@ -232,9 +234,9 @@ class AllegroDriver(TacforceNode):
     # --- inputs (joint callback runs in the driver's thread) --------------------------------
 
     def _on_joints(self, sample: JointSample) -> None:
-        now = self.stamp_ns()
+        now = self.new_stamp_ns(TOPIC_JOINTS)
         if now is None:
-            return      # before the first /clock under use_sim_time: no valid stamp yet
+            return      # no valid stamp yet, or the same instant as the previous cycle
         q = sample.positions
         qdot = self.velocity.update(q, now).copy()
         if self._q_hold is None:

@@ -194,6 +194,8 @@ class TacforceNode(Node):
         super().__init__(self.NODE_NAME, **kwargs)
         self.samples_before_clock = 0
         self._clock_seen = False
+        self.same_stamp: dict[str, int] = {}
+        self._last_stamp: dict[str, int] = {}
         self._specs = {spec.name: spec for spec in self.PARAMETERS}
         self.params = self._declare_checked()
         self.add_on_set_parameters_callback(self._check_change)
@@ -258,6 +260,21 @@ class TacforceNode(Node):
             if self.samples_before_clock:
                 self.get_logger().info(f'clock valid at {now * 1e-9:.3f} s; dropped '
                                        f'{self.samples_before_clock} samples that came before it')
+        return now
+
+    def new_stamp_ns(self, stream: str) -> int | None:
+        """stamp_ns() for a sample of `stream`, or None (counted in `same_stamp[stream]`) when
+        the clock has not moved since that stream's previous sample: under sim time a device
+        that samples faster than the simulator steps, or while simulated time is held, repeats
+        one instant's state, and a second message with that stamp would say two instants where
+        there was one. With a hardware clock time always moves and nothing is dropped."""
+        now = self.stamp_ns()
+        if now is None:
+            return None
+        if now <= self._last_stamp.get(stream, 0):
+            self.same_stamp[stream] = self.same_stamp.get(stream, 0) + 1
+            return None
+        self._last_stamp[stream] = now
         return now
 
     def wait_for_clock(self, timeout: float) -> None:

@@ -1,7 +1,9 @@
 """ft_bridge: ATI Net F/T (RDT over UDP) -> /ft_sensor/wrench (geometry_msgs/WrenchStamped).
 
 Each RDT record becomes one message in the sensor frame {F} (`frame_id`), N and N m, stamped on
-arrival with the node clock (sim time under use_sim_time). Out-of-order and malformed records are
+arrival with the node clock (sim time under use_sim_time); a record arriving while that clock
+has not moved since the previous one (sim time only) is the same instant and is not published
+(counted, logged at shutdown). Out-of-order and malformed records are
 counted and dropped by the client; so are records whose status word reports a fault (anything
 but 0 or the monitor warning 0x80010000): they are withheld from the topic, and so never
 recorded or paired, with an ERROR line when they start and an INFO line when the status clears.
@@ -85,9 +87,9 @@ class FtBridge(TacforceNode):
         self.client.start()
 
     def _publish(self, sample: WrenchSample) -> None:
-        now = self.stamp_ns()
+        now = self.new_stamp_ns(TOPIC_WRENCH)
         if now is None:
-            return      # before the first /clock under use_sim_time: no valid stamp yet
+            return      # no valid stamp yet, or the same instant as the previous record
         w = sample.wrench
         self.publisher.publish(wrench_stamped(now, self.params['frame_id'], w[:3], w[3:]))
 

@@ -52,6 +52,8 @@ class LinkStatusReporter:
 
     def report(self) -> None:
         counters = self.driver.diagnostics.as_dict()
+        # samples not published: the node clock had not moved since the previous one (sim time)
+        counters['same_stamp'] = sum(self.node.same_stamp.values())
         self.node.get_logger().info(
             ' '.join(f'{k}={v:.3f}' if isinstance(v, float) else f'{k}={v}'
                      for k, v in counters.items() if v not in ('', 0)))

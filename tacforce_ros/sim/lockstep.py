@@ -10,17 +10,17 @@ the run gets slower, not different.
 
 Each stream's period is learnt from its stamps: the upper median of its last PERIOD_WINDOW
 intervals. A stream's stamps are its data's simulated time (a frame's arrival, a timer's tick),
-off by up to a step (the step's /clock can reach the consumer after its data) plus the slack
-(a tick's callback may run once simulated time has moved on); the median is off by less, which
-the slack covers, so the gate does not hold time before the stream's next message can exist.
-A gap the stream left while starved does not loosen the gate (the largest interval would: in
-a closed-loop session that let simulated time run past the estimator's stale timeout). A
-controller at 50 Hz or a recorder at 100 Hz therefore needs no setting. A stream holds time
-once it has shown JOIN_INTERVALS intervals (start-up order does not matter), and a stream that
-stays silent for `silence` wall seconds while holding time is released (a node that died or
-stopped on purpose must not freeze the world, and a gate that waited for a message that cannot
-come would be freed); it rejoins, learning its period again, when it speaks again. No ROS here: sim_world feeds the stamps from its
-subscriptions.
+off by up to a step (the step's /clock can reach the consumer after its data) plus the slack (a
+tick's callback may run once simulated time has moved on); the median is off by less, which the
+slack covers, so the gate does not hold time before the stream's next message can exist. A gap
+the stream left while starved does not loosen the gate (the largest interval would: in a closed-
+loop session that let simulated time run past the estimator's stale timeout). A controller at 50
+Hz or a recorder at 100 Hz therefore needs no setting. A stream holds time once it has shown
+JOIN_INTERVALS intervals (start-up order does not matter), and a stream that stays silent for
+`silence` wall seconds while holding time is released (a node that died or stopped on purpose
+must not freeze the world, and a gate that waited for a message that cannot come would be
+freed); it rejoins, learning its period again, when it speaks again. No ROS here: sim_world
+feeds the stamps from its subscriptions.
 """
 from __future__ import annotations
 

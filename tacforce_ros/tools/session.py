@@ -3,9 +3,9 @@
 Starts the same executables with the same parameter files and argument-derived overrides as
 launch/<mode>.launch.py (both read tacforce_ros.nodes.session_plan), waits for Ctrl-C,
 `--duration` seconds (wall time), the end of the scene (`--sim-duration` simulated seconds:
-sim_world then logs session_plan.SCENE_DONE_MARKER) or for a node to exit, then stops every node cleanly: SIGINT,
-wait `--grace` s, then kill. Prints where the bag is. Exit code 0 when every node stopped
-cleanly, 1 otherwise (the log of each node is under <out>/logs/).
+sim_world then logs session_plan.SCENE_DONE_MARKER) or for a node to exit, then stops every node
+cleanly: SIGINT, wait `--grace` s, then kill. Prints where the bag is. Exit code 0 when every
+node stopped cleanly, 1 otherwise (the log of each node is under <out>/logs/).
 
 In simulation, simulated time waits for the controller, the estimator and the recorder
 (sim_world's lockstep; `--no-lockstep` runs it free at `--real-time-factor`).

@@ -1,0 +1,234 @@
+"""bench_graph: how reliably the node graph reproduces the direct (in-process) path.
+
+Runs the closed loop of a force sequence (default the paper's 70 s) on the spherical plate
+through the node graph (`session closed_loop`, as a user would) --runs times, each against the
+direct path on the same scene and seed (seeds scene seed + k), and one calibration session
+(--calibration-seconds of simulated time, 0 = none) against its direct simulation. Per run:
+e~ and e_track of both paths and their differences, the controller's `safe` and `hold` ticks
+after it engaged (watchdog trips), the achieved real-time factor (sim_world's "scene done:"
+line), and per recorded stream the messages sharing their stamp with the previous one and, for
+the tactile stream, the server frames missing from the bag (xela_server sequence gaps). The
+calibration session adds samples per simulated second and the fraction of tactile frames paired
+into /calibration/sample. Writes JSON and a readable table to --out.
+
+    bench_graph --runs 10 --out out/bench_graph
+    bench_graph --runs 3 --no-lockstep --out out/bench_graph_free   # free-running, to compare
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import re
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from tacforce_ros import bagio, topics
+from tacforce_ros.control.command_sequence import ForceSequence
+from tacforce_ros.control.force_controller import MODE_HOLD, MODE_SAFE
+from tacforce_ros.estimation.model_set import ModelConfigError, load_model_set, model_files
+from tacforce_ros.experiments import node_path
+from tacforce_ros.experiments.closed_loop import run_closed_loop
+from tacforce_ros.experiments.pipeline import Settings, controller_config, tare_frames
+from tacforce_ros.hand.description import load_hand
+from tacforce_ros.hand.kinematics import HandKinematics
+from tacforce_ros.nodes.session_plan import SCENE_DONE_MARKER
+from tacforce_ros.paths import config_dir, output_folder
+from tacforce_ros.sim.scene import load_scene
+
+LOOP_SCENE = 'closed_loop_spherical'
+CALIBRATION_SCENE = 'calibration_index_tip_spherical'
+STREAMS = (topics.TOPIC_TACTILE, topics.TOPIC_WRENCH, topics.TOPIC_JOINTS, topics.TOPIC_SAMPLE,
+           topics.TOPIC_CONTROLLER_STATE)
+_ACHIEVED = re.compile(r'([0-9.]+)x real time')
+
+
+def achieved_factor(session_dir: Path) -> float | None:
+    """The real-time factor sim_world reports when its scene is done."""
+    log = session_dir / 'logs' / 'sim_world.log'
+    for line in log.read_text(errors='replace').splitlines() if log.is_file() else ():
+        if SCENE_DONE_MARKER in line:
+            found = _ACHIEVED.search(line)
+            return float(found.group(1)) if found else None
+    return None
+
+
+def stream_counts(bag: Path) -> dict:
+    """Per recorded stream: messages, messages sharing their stamp with the previous one; for the
+    tactile stream also the server frames missing (sequence gaps)."""
+    stamps: dict[str, list[int]] = {topic: [] for topic in STREAMS}
+    sequences: list[int] = []
+    for topic, _, msg in bagio.read_messages(bag, list(STREAMS)):
+        stamps[topic].append(msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec)
+        if topic == topics.TOPIC_TACTILE:
+            sequences.append(msg.server_sequence)
+    counts = {}
+    for topic, values in stamps.items():
+        if values:
+            counts[topic] = {'messages': len(values),
+                             'duplicate_stamps': int(np.sum(np.diff(values) == 0))}
+    if len(sequences) > 1:
+        gaps = np.diff(np.asarray(sequences, np.int64)) - 1
+        counts[topics.TOPIC_TACTILE]['missing_frames'] = int(gaps[gaps > 0].sum())
+    return counts
+
+
+def watchdog_ticks(bag: Path) -> dict:
+    """Controller ticks in `safe`, and in `hold` after it first engaged (a stale estimate ramps
+    to the hold), from the recorded /force_controller/state."""
+    modes = [msg.mode for _, _, msg in bagio.read_messages(bag, [topics.TOPIC_CONTROLLER_STATE])]
+    engaged = next((k for k, mode in enumerate(modes) if mode not in (MODE_HOLD, MODE_SAFE)),
+                   len(modes))
+    return {'ticks': len(modes), 'safe': sum(mode == MODE_SAFE for mode in modes),
+            'hold_after_engaging': sum(mode == MODE_HOLD for mode in modes[engaged:])}
+
+
+def closed_loop_run(k: int, args, hand, kinematics, sequence, out: Path) -> dict:
+    seed = load_scene(LOOP_SCENE).seed + k
+    direct = run_closed_loop(hand, kinematics, LOOP_SCENE, seed, controller_config('M3-lambda'),
+                             sequence, load_model_set(args.model, hand),
+                             control_rate=100.0, tare_frames=tare_frames())
+    started = time.monotonic()
+    session_dir = out / f'closed_loop_{k}'
+    bag = node_path.run_session('closed_loop', LOOP_SCENE, 'spherical', session_dir,
+                                node_path.closed_loop_session_seconds(sequence.duration),
+                                args.model, seed=seed, lockstep=args.lockstep)
+    wall = time.monotonic() - started
+    trace, offset = node_path.node_trace(bag, sequence, tare_frames())
+    compared = node_path.compare_closed_loop(trace, direct, offset)
+    node, direct_m = compared['node'], compared['direct']
+    return {'run': k, 'seed': seed, 'session_wall_s': wall,
+            'achieved_real_time_factor': achieved_factor(session_dir),
+            'e_tilde': {'node': node['e_tilde_mean'], 'direct': direct_m['e_tilde_mean']},
+            'e_track': {'node': node['e_track_mean'], 'direct': direct_m['e_track_mean']},
+            'e_tilde_difference': compared['difference_n'],
+            'e_track_difference': compared.get('e_track_difference_n'),
+            'watchdog': watchdog_ticks(bag), 'streams': stream_counts(bag), 'bag': str(bag)}
+
+
+def calibration_run(args, hand, kinematics, out: Path) -> dict:
+    seed = load_scene(CALIBRATION_SCENE).seed
+    session_dir = out / 'calibration'
+    bag = node_path.run_session('calibration', CALIBRATION_SCENE, 'spherical', session_dir,
+                                args.calibration_seconds, seed=seed, lockstep=args.lockstep)
+    compared = node_path.compare_calibration(bag, hand, kinematics, CALIBRATION_SCENE, seed,
+                                             str(model_files(args.model)['index_tip']),
+                                             Settings().static_force)
+    streams = stream_counts(bag)
+    start, stop = compared['window_s']
+    samples = streams.get(topics.TOPIC_SAMPLE, {}).get('messages', 0)
+    frames = streams.get(topics.TOPIC_TACTILE, {}).get('messages', 0)
+    return {'seed': seed, 'achieved_real_time_factor': achieved_factor(session_dir),
+            'samples_per_simulated_s': samples / (stop - start) if stop > start else 0.0,
+            'tactile_frames_paired': samples / frames if frames else 0.0,
+            'e_hat': {'node': compared['node']['e_hat_mean'],
+                      'direct': compared['direct']['e_hat_mean']},
+            'e_hat_difference': compared['difference_n'], 'streams': streams, 'bag': str(bag)}
+
+
+def _n(value, digits: int = 3) -> str:
+    return '-' if value is None else f'{value:.{digits}f}'
+
+
+def table(result: dict) -> str:
+    lines = [f'bench_graph ({"lockstep" if result["lockstep"] else "free-running"}, '
+             f'{result["sequence"]}, model {result["model"]})', '',
+             '| run | seed | e~ node | e~ direct | diff | e_track node | e_track direct | diff '
+             '| safe ticks | hold after engaging | real-time factor | duplicate stamps '
+             '(tactile/wrench/joints/state) | tactile frames missing |',
+             '|' + '---|' * 13]
+    for r in result['closed_loop']:
+        if 'failed' in r:
+            lines.append(f'| {r["run"]} | {r["seed"]} | FAILED: {r["failed"]} |')
+            continue
+        s = r['streams']
+        duplicates = '/'.join(str(s.get(t, {}).get('duplicate_stamps', '-')) for t in (
+            topics.TOPIC_TACTILE, topics.TOPIC_WRENCH, topics.TOPIC_JOINTS,
+            topics.TOPIC_CONTROLLER_STATE))
+        lines.append(
+            f'| {r["run"]} | {r["seed"]} | {_n(r["e_tilde"]["node"])} | '
+            f'{_n(r["e_tilde"]["direct"])} | {_n(r["e_tilde_difference"])} | '
+            f'{_n(r["e_track"]["node"])} | {_n(r["e_track"]["direct"])} | '
+            f'{_n(r["e_track_difference"])} | {r["watchdog"]["safe"]} | '
+            f'{r["watchdog"]["hold_after_engaging"]} | '
+            f'{_n(r["achieved_real_time_factor"], 2)} | {duplicates} | '
+            f'{s.get(topics.TOPIC_TACTILE, {}).get("missing_frames", "-")} |')
+    summary = result['summary']
+    lines += ['', f'agree (|e~ diff| <= {summary["e_tilde_tolerance"]} N and |e_track diff| <= '
+              f'{summary["e_track_tolerance"]} N): {summary["agree"]} of {summary["runs"]}; '
+              f'with zero safe ticks: {summary["no_safe_ticks"]} of {summary["runs"]}']
+    c = result.get('calibration')
+    if c and 'failed' not in c:
+        lines += ['', f'calibration session: {_n(c["samples_per_simulated_s"], 1)} samples per '
+                  f'simulated s, {c["tactile_frames_paired"]:.1%} of tactile frames paired, '
+                  f'e_hat node {_n(c["e_hat"]["node"])} vs direct {_n(c["e_hat"]["direct"])} N, '
+                  f'real-time factor {_n(c["achieved_real_time_factor"], 2)}, duplicate stamps '
+                  + ', '.join(f'{t} {v["duplicate_stamps"]}' for t, v in c['streams'].items())]
+    elif c:
+        lines += ['', f'calibration session: FAILED: {c["failed"]}']
+    return '\n'.join(lines)
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(prog='bench_graph', description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument('--runs', type=int, default=3, help='closed-loop runs (default 3)')
+    parser.add_argument('--sequence', default='paper_70s', help='force command sequence')
+    parser.add_argument('--model', type=Path, default=config_dir() / 'models' / 'default.yaml',
+                        help='estimator models YAML (index_tip closes the loop)')
+    parser.add_argument('--calibration-seconds', type=float, default=40.0,
+                        help='simulated seconds of the calibration session; 0: none')
+    parser.add_argument('--lockstep', action=argparse.BooleanOptionalAction, default=True,
+                        help='sessions in lockstep (default) or free-running at real time')
+    parser.add_argument('--out', type=output_folder, default='out/bench_graph',
+                        help='folder for bench_graph.json, bench_graph.md and the sessions')
+    args = parser.parse_args(argv)
+    if args.runs < 0 or args.calibration_seconds < 0:
+        parser.error('--runs and --calibration-seconds must be >= 0')
+    hand = load_hand()
+    kinematics = HandKinematics.for_hand(hand)
+    try:
+        load_model_set(args.model, hand)        # a bad model list fails before any session
+        if 'index_tip' not in model_files(args.model):
+            raise ModelConfigError(f'{args.model}: no model for index_tip, which closes the loop')
+    except ModelConfigError as exc:
+        parser.error(str(exc))
+    sequence = ForceSequence.load(args.sequence)
+    result: dict = {'lockstep': args.lockstep, 'sequence': args.sequence,
+                    'model': str(args.model), 'closed_loop': []}
+    for k in range(args.runs):
+        try:
+            run = closed_loop_run(k, args, hand, kinematics, sequence, args.out)
+        except (node_path.NodePathUnavailable, OSError, ValueError) as exc:
+            run = {'run': k, 'seed': load_scene(LOOP_SCENE).seed + k, 'failed': str(exc)}
+        result['closed_loop'].append(run)
+        print(f'run {k}: ' + (run.get('failed') or
+                              f'e~ diff {run["e_tilde_difference"]:.3f} N, e_track diff '
+                              f'{_n(run["e_track_difference"])} N, safe ticks '
+                              f'{run["watchdog"]["safe"]}'), flush=True)
+    if args.calibration_seconds > 0:
+        try:
+            result['calibration'] = calibration_run(args, hand, kinematics, args.out)
+        except (node_path.NodePathUnavailable, OSError, ValueError) as exc:
+            result['calibration'] = {'failed': str(exc)}
+    done = [r for r in result['closed_loop'] if 'failed' not in r]
+    tolerance = {'e_tilde': 0.03, 'e_track': 0.02}     # issue 13's must-show
+    result['summary'] = {
+        'runs': len(result['closed_loop']), 'e_tilde_tolerance': tolerance['e_tilde'],
+        'e_track_tolerance': tolerance['e_track'],
+        'agree': sum(r['e_tilde_difference'] <= tolerance['e_tilde']
+                     and r['e_track_difference'] is not None
+                     and r['e_track_difference'] <= tolerance['e_track'] for r in done),
+        'no_safe_ticks': sum(r['watchdog']['safe'] == 0 for r in done)}
+    (args.out / 'bench_graph.json').write_text(json.dumps(result, indent=2))
+    text = table(result)
+    (args.out / 'bench_graph.md').write_text(text + '\n')
+    print(text)
+    failed = len(done) < len(result['closed_loop']) or 'failed' in result.get('calibration', {})
+    sys.exit(1 if failed else 0)
+
+
+if __name__ == '__main__':
+    main()

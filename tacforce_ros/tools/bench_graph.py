@@ -56,19 +56,23 @@ def achieved_factor(session_dir: Path) -> float | None:
 
 
 def stream_counts(bag: Path) -> dict:
-    """Per recorded stream: messages, messages sharing their stamp with the previous one; for the
-    tactile stream also the server frames missing (sequence gaps)."""
+    """Per recorded stream: messages, messages sharing their stamp with the previous one, messages
+    with bag log time 0; for the tactile stream also the server frames missing (sequence
+    gaps)."""
     stamps: dict[str, list[int]] = {topic: [] for topic in STREAMS}
+    log_time_zero = dict.fromkeys(STREAMS, 0)
     sequences: list[int] = []
-    for topic, _, msg in bagio.read_messages(bag, list(STREAMS)):
+    for topic, log_time, msg in bagio.read_messages(bag, list(STREAMS)):
         stamps[topic].append(msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec)
+        log_time_zero[topic] += log_time == 0
         if topic == topics.TOPIC_TACTILE:
             sequences.append(msg.server_sequence)
     counts = {}
     for topic, values in stamps.items():
         if values:
             counts[topic] = {'messages': len(values),
-                             'duplicate_stamps': int(np.sum(np.diff(values) == 0))}
+                             'duplicate_stamps': int(np.sum(np.diff(values) == 0)),
+                             'log_time_zero': log_time_zero[topic]}
     if len(sequences) > 1:
         gaps = np.diff(np.asarray(sequences, np.int64)) - 1
         counts[topics.TOPIC_TACTILE]['missing_frames'] = int(gaps[gaps > 0].sum())
@@ -164,8 +168,9 @@ def table(result: dict) -> str:
         lines += ['', f'calibration session: {_n(c["samples_per_simulated_s"], 1)} samples per '
                   f'simulated s, {c["tactile_frames_paired"]:.1%} of tactile frames paired, '
                   f'e_hat node {_n(c["e_hat"]["node"])} vs direct {_n(c["e_hat"]["direct"])} N, '
-                  f'real-time factor {_n(c["achieved_real_time_factor"], 2)}, duplicate stamps '
-                  + ', '.join(f'{t} {v["duplicate_stamps"]}' for t, v in c['streams'].items())]
+                  f'real-time factor {_n(c["achieved_real_time_factor"], 2)}; duplicate stamps / '
+                  'log time 0: ' + ', '.join(f'{t} {v["duplicate_stamps"]}/{v["log_time_zero"]}'
+                                             for t, v in c['streams'].items())]
     elif c:
         lines += ['', f'calibration session: FAILED: {c["failed"]}']
     return '\n'.join(lines)

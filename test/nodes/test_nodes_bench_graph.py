@@ -54,11 +54,13 @@ def test_watchdog_ticks_and_stream_counts_read_from_a_bag(tmp_path):
             bag.write(topics.TOPIC_TACTILE, 100 + k,
                       bagio.tactile_hand(stamp * 1_000_000, hand, counts, None, 0.0, sequence))
         for k, stamp in enumerate([1, 2, 2, 2, 3]):
-            bag.write(topics.TOPIC_WRENCH, 200 + k,
+            bag.write(topics.TOPIC_WRENCH, 200 * (k > 0) + k,
                       bagio.wrench_stamped(stamp * 1_000_000, 'ft_sensor', [0.0] * 6))
     assert watchdog_ticks(tmp_path / 'bag') == {'ticks': 8, 'safe': 2, 'hold_after_engaging': 1}
     streams = stream_counts(tmp_path / 'bag')
     assert streams[topics.TOPIC_TACTILE] == {'messages': 4, 'duplicate_stamps': 1,
-                                             'missing_frames': 2}
-    assert streams[topics.TOPIC_WRENCH] == {'messages': 5, 'duplicate_stamps': 2}
-    assert streams[topics.TOPIC_CONTROLLER_STATE] == {'messages': 8, 'duplicate_stamps': 0}
+                                             'log_time_zero': 0, 'missing_frames': 2}
+    assert streams[topics.TOPIC_WRENCH] == {'messages': 5, 'duplicate_stamps': 2,
+                                            'log_time_zero': 1}
+    assert streams[topics.TOPIC_CONTROLLER_STATE] == {'messages': 8, 'duplicate_stamps': 0,
+                                                      'log_time_zero': 1}

@@ -254,18 +254,16 @@ class SimWorld(TacforceNode):
             except Exception as exc:   # noqa: BLE001 - a dead simulator must be said, not hidden
                 self.get_logger().fatal(f'simulator stopped: {type(exc).__name__}: {exc}')
                 return
-            steps += 1
-            # Time at the end of the step: the first /clock is dt, never the "unset" zero. The
-            # clock goes out before the step's data, so a driver stamping on arrival reads the
-            # new time, not the previous step's (which the previous frame may carry already).
-            now_ns = int(round((sample.t + dt) * 1e9))
-            if steps % self._clock_every == 0:
-                self._publish_clock(now_ns)
             with self._tactile:
                 self._latest = sample
                 if sample.tactile_fresh:
                     self._tactile_count += 1
                     self._tactile.notify_all()
+            steps += 1
+            # Time at the end of the step: the first /clock is dt, never the "unset" zero.
+            now_ns = int(round((sample.t + dt) * 1e9))
+            if steps % self._clock_every == 0:
+                self._publish_clock(now_ns)
             if sample.tactile_fresh:
                 self.truth_publisher.publish(wrench_stamped(
                     now_ns if self.clock_publisher is not None else self.now_ns(),

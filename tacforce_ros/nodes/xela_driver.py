@@ -2,8 +2,7 @@
 
 Every server frame (100 Hz) becomes one whole-hand message stamped on arrival with the node
 clock (sim time under use_sim_time: frames that arrive before the first /clock are dropped and
-counted, never stamped 0, and so is a frame arriving before the clock has moved since the
-previous one: the same instant, e.g. repeated while simulated time stands); each TactileArray carries its array frame {S0} as frame_id.
+counted, never stamped 0); each TactileArray carries its array frame {S0} as frame_id.
 The client reconnects on its own; malformed frames are counted and dropped. Every
 `diagnostics_period` s (wall time) the link counters go to the log and, if `publish_status`,
 as JSON on ~/status (std_msgs/String: diagnostic_msgs is not available everywhere).
@@ -59,9 +58,9 @@ class XelaDriver(TacforceNode):
 
     def _publish(self, frame: XelaFrame) -> None:
         # Called from the client's thread; rclpy publishers are thread-safe.
-        now = self.new_stamp_ns(TOPIC_TACTILE)
+        now = self.stamp_ns()
         if now is None:
-            return      # no valid stamp yet, or the same instant as the previous frame
+            return      # before the first /clock under use_sim_time: no valid stamp yet
         self.publisher.publish(tactile_hand(now, self.hand, frame.counts, frame.temperatures,
                                             frame.server_time, frame.sequence))
 

@@ -7,7 +7,8 @@ direct path on the same scene and seed (seeds scene seed + k), and one calibrati
 e~ and e_track of both paths and their differences, the controller's `safe` and `hold` ticks
 after it engaged (watchdog trips), the achieved real-time factor (sim_world's "scene done:"
 line), and per recorded stream the messages sharing their stamp with the previous one and, for
-the tactile stream, the server frames missing from the bag (xela_server sequence gaps). The
+the tactile stream, the frames missing from the bag in simulated time (stamp intervals above
+1.5 tactile periods; the driver's drops of a repeated instant are not missing). The
 calibration session adds samples per simulated second and the fraction of tactile frames paired
 into /calibration/sample. Writes JSON and a readable table to --out.
 
@@ -43,6 +44,7 @@ CALIBRATION_SCENE = 'calibration_index_tip_spherical'
 STREAMS = (topics.TOPIC_TACTILE, topics.TOPIC_WRENCH, topics.TOPIC_JOINTS, topics.TOPIC_SAMPLE,
            topics.TOPIC_CONTROLLER_STATE)
 _ACHIEVED = re.compile(r'([0-9.]+)x real time')
+TACTILE_PERIOD_NS = 10_000_000      # uSkin frames at 100 Hz (the scenes' tactile_rate)
 
 
 def achieved_factor(session_dir: Path) -> float | None:
@@ -57,25 +59,24 @@ def achieved_factor(session_dir: Path) -> float | None:
 
 def stream_counts(bag: Path) -> dict:
     """Per recorded stream: messages, messages sharing their stamp with the previous one, messages
-    with bag log time 0; for the tactile stream also the server frames missing (sequence
-    gaps)."""
+    with bag log time 0; for the tactile stream also the frames missing in simulated time (an
+    interval of n periods, n > 1.5, misses round(n) - 1 frames)."""
     stamps: dict[str, list[int]] = {topic: [] for topic in STREAMS}
     log_time_zero = dict.fromkeys(STREAMS, 0)
-    sequences: list[int] = []
     for topic, log_time, msg in bagio.read_messages(bag, list(STREAMS)):
         stamps[topic].append(msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec)
         log_time_zero[topic] += log_time == 0
-        if topic == topics.TOPIC_TACTILE:
-            sequences.append(msg.server_sequence)
     counts = {}
     for topic, values in stamps.items():
         if values:
             counts[topic] = {'messages': len(values),
                              'duplicate_stamps': int(np.sum(np.diff(values) == 0)),
                              'log_time_zero': log_time_zero[topic]}
-    if len(sequences) > 1:
-        gaps = np.diff(np.asarray(sequences, np.int64)) - 1
-        counts[topics.TOPIC_TACTILE]['missing_frames'] = int(gaps[gaps > 0].sum())
+    tactile = np.diff(np.asarray(stamps[topics.TOPIC_TACTILE], np.int64))
+    if tactile.size:
+        periods = tactile / TACTILE_PERIOD_NS
+        counts[topics.TOPIC_TACTILE]['missing_frames'] = int(
+            np.sum(np.round(periods[periods > 1.5]) - 1))
     return counts
 
 

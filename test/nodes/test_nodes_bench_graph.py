@@ -49,8 +49,8 @@ def test_watchdog_ticks_and_stream_counts_read_from_a_bag(tmp_path):
                                     topics=types) as bag:
         for k, mode in enumerate(modes):
             bag.write(topics.TOPIC_CONTROLLER_STATE, k, state(k * 10_000_000, mode))
-        # tactile: server frames 1, 2, 5, 6 (two missing), one stamp repeated
-        for k, (sequence, stamp) in enumerate([(1, 10), (2, 20), (5, 20), (6, 30)]):
+        # tactile frames 10 ms apart: one stamp repeated, two frames missing before 60 ms
+        for k, (sequence, stamp) in enumerate([(1, 10), (2, 20), (5, 20), (6, 30), (9, 60)]):
             bag.write(topics.TOPIC_TACTILE, 100 + k,
                       bagio.tactile_hand(stamp * 1_000_000, hand, counts, None, 0.0, sequence))
         for k, stamp in enumerate([1, 2, 2, 2, 3]):
@@ -58,7 +58,7 @@ def test_watchdog_ticks_and_stream_counts_read_from_a_bag(tmp_path):
                       bagio.wrench_stamped(stamp * 1_000_000, 'ft_sensor', [0.0] * 6))
     assert watchdog_ticks(tmp_path / 'bag') == {'ticks': 8, 'safe': 2, 'hold_after_engaging': 1}
     streams = stream_counts(tmp_path / 'bag')
-    assert streams[topics.TOPIC_TACTILE] == {'messages': 4, 'duplicate_stamps': 1,
+    assert streams[topics.TOPIC_TACTILE] == {'messages': 5, 'duplicate_stamps': 1,
                                              'log_time_zero': 0, 'missing_frames': 2}
     assert streams[topics.TOPIC_WRENCH] == {'messages': 5, 'duplicate_stamps': 2,
                                             'log_time_zero': 1}

@@ -17,8 +17,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tacforce_ros.control.force_controller import (MODE_HOLD, ControllerState, ForceController,
-                                                   ForceControllerConfig, Kinematics)
+from tacforce_ros.control.force_controller import (MODE_HOLD, MODE_OPEN_LOOP, ControllerState,
+                                                   ForceController, ForceControllerConfig,
+                                                   Kinematics)
 
 
 @dataclass(frozen=True)
@@ -68,7 +69,9 @@ class FingerSession:
                     q_d=tuple(np.asarray(q, dtype=np.float64)[self.joints])), self.kinematics)
             tau, state = self._start_hold.update(t, q, qdot, f_hat, f_hat_age, q_age,
                                                  np.zeros(3))
-            if state.force_gain == 1.0:      # joints fresh: the start pose is being held
+            # The start hold is a K_i = 0 law, which names itself open loop (also while it
+            # ramps back in after stale joints); only its watchdog's `safe` is said as is.
+            if state.mode == MODE_OPEN_LOOP:
                 state.mode = MODE_HOLD
                 state.reason = ('start pose hold, no desired force yet' if f_d is None else
                                 'start pose hold, waiting for a valid estimate')

@@ -30,14 +30,13 @@ AGREEMENT_REASON = (
     'Calibration e_hat: the node graph moves the streams through sockets and DDS, whose '
     'delivery jitter of a few ms shifts tactile, F/T and joint streams against each other; at '
     'the sessions\' force slopes of a few N/s that is a few hundredths of a newton. Closed '
-    'loop: same scene, seed, model, gains and sequence, but the graph\'s loop acts on samples '
-    '2-10 ms older than the direct path\'s (joint stream, TCP, DDS), tares on its first frames '
-    'rather than the last of a 2 s hold, and starts when the command player does; the tip then '
-    'meets the plate a little differently. Measured on the same seed: node runs came within '
-    '0.02-0.09 N of the direct run while the in-loop estimate still missed shear (code '
-    '97c6695), 0.015 N once the tactile chain saw the contact on the skin (code 3f59c9e): '
-    '0.08 N on e~ keeps the wider bound. Both loops hold their own estimate to ~0.02 N: '
-    '0.03 N on e_track.')
+    'loop: same scene, seed, model, gains and sequence; in lockstep (sim_world waits for the '
+    'controller, the estimate and the joint stream) the graph\'s controller acts on joints and '
+    'estimates up to one of their periods plus a few ms older than the direct path\'s, tares on '
+    'its first frames rather than the last of a 2 s hold, and starts when the command player '
+    'does; the tip then meets the plate a little differently. Measured with bench_graph (3 '
+    'runs, seeds 0-2): e~ within 0.010 N and e_track within 0.001 N of the direct run, so '
+    '0.08 N on e~ and 0.03 N on e_track leave room for a loaded machine.')
 SESSION_MODULE = 'tacforce_ros.tools.session'   # run as a command, as a user would
 CALIBRATION_SECONDS = 40.0     # simulated seconds of the node-graph calibration session
 # Simulated seconds a closed-loop scene runs before the sequence can start: the command player

@@ -61,3 +61,16 @@ def test_each_change_of_mode_or_cause_is_one_transition_with_its_reason():
         'controller safe -> hold: estimate stale: age 0.080 s > 0.05 s',
         'controller hold -> closed_loop: streams fresh',
         'controller closed_loop -> safe: joints stale: age 0.500 s > 0.02 s']
+
+
+def test_the_start_hold_is_never_reported_engaged_while_it_recovers_from_stale_joints():
+    """Stale joints during the start hold ramp it out (`safe`); when they return it ramps back in
+    and is still the hold, not the law: a reader takes the first tick in neither mode as the
+    moment the controller engaged (node_path.node_trace, bench_graph)."""
+    session = FingerSession(config(), KIN)
+    modes = []
+    for k, q_age in enumerate([0.0] * 3 + [0.5] * 3 + [0.0] * 10):
+        _, state, _ = session.update(k * DT, Q16, ZERO16, NONE, np.inf, q_age, F_D)
+        modes.append(state.mode)
+    assert not session.engaged
+    assert set(modes) == {MODE_HOLD, 'safe'} and modes[-1] == MODE_HOLD, modes

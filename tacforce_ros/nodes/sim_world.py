@@ -12,10 +12,11 @@ watchdogs run on wall time): when lockstep holds simulated time they repeat the 
 
 Lockstep (`lockstep`, default on): simulated time does not outrun the nodes that consume it. The
 stepping thread advances only while every gated stream of the scene's kind has published a
-message stamped within one of its own periods (plus `lockstep_slack`) of the step's end
-(sim/lockstep.py): in closed-loop scenes the controller's ticks (/force_controller/state), the
-estimate of the scene's array (/tactile/<array>/wrench) and the joint states (/joint_states), in
-calibration scenes the recorder's samples (/calibration/sample). On a slow machine the run is
+message stamped within one of its own periods (an ongoing device stream: within nothing), plus
+`lockstep_slack` and two steps, of the step's end (sim/lockstep.py): in closed-loop scenes the
+controller's ticks (/force_controller/state), the estimate of the scene's array
+(/tactile/<array>/wrench) and the joint states (/joint_states, ongoing), in calibration scenes
+the recorder's samples (/calibration/sample). On a slow machine the run is
 then slower than `real_time_factor` (an upper bound), never different. A stream joins with its
 first messages and is released after `lockstep_silence` wall seconds of silence (a stopped node
 does not freeze the world), rejoining when it speaks again; both are logged. lockstep false:
@@ -79,15 +80,17 @@ HELD_CLOCK_REPEAT_S = 0.02
 SLOW_FRACTION = 0.9     # an achieved factor below this fraction of the asked one is warned about
 
 
-def lockstep_streams(scene) -> dict[str, type]:
-    """The streams (topic: type) whose consumers close a scene's loop: lockstep waits for them.
-    Closed loop: the controller's ticks, the estimate of the scene's array (its wrench topic,
-    published for valid estimates only: the estimator's tare and a stopped tactile stream do
-    not hold time) and the driver's joint intake; calibration: the recorder's samples."""
+def lockstep_streams(scene) -> tuple[dict[str, type], dict[str, type]]:
+    """The streams (topic: type) whose consumers close a scene's loop, periodic and ongoing
+    (sim/lockstep.py): lockstep waits for them. Closed loop: the controller's ticks and the
+    estimate of the scene's array (its wrench topic, published for valid estimates only: the
+    estimator's tare and a stopped tactile stream do not hold time), and the driver's joint
+    intake (the hand streams whatever simulated time does); calibration: the recorder's
+    samples."""
     if scene.kind == 'closed_loop':
-        return {TOPIC_CONTROLLER_STATE: ControllerState,
-                array_wrench_topic(scene.array): WrenchStamped, TOPIC_JOINTS: JointState}
-    return {TOPIC_SAMPLE: CalibrationSample}
+        return ({TOPIC_CONTROLLER_STATE: ControllerState,
+                 array_wrench_topic(scene.array): WrenchStamped}, {TOPIC_JOINTS: JointState})
+    return {TOPIC_SAMPLE: CalibrationSample}, {}
 
 
 class SimWorld(TacforceNode):
@@ -204,13 +207,14 @@ class SimWorld(TacforceNode):
         return self.sim.step(self._torques if self.takes_torques else None)
 
     def _lockstep_gate(self) -> TimeGate:
-        streams = lockstep_streams(self.sim.scene)
+        periodic, ongoing = lockstep_streams(self.sim.scene)
         # A consumer stamps with its clock, which may still read the step before the data's
         # (that step's /clock can reach it after the data): a stamp, and the period learnt from
         # the stamps, can each be one step short, and two steps of slack keep the gate open.
-        gate = TimeGate(list(streams), self.params['lockstep_slack'] + 2.0 * self.sim.dt,
-                        self.params['lockstep_silence'], on_event=self._gate_event)
-        for topic, message_type in streams.items():
+        gate = TimeGate(list(periodic), self.params['lockstep_slack'] + 2.0 * self.sim.dt,
+                        self.params['lockstep_silence'], ongoing=list(ongoing),
+                        on_event=self._gate_event)
+        for topic, message_type in {**periodic, **ongoing}.items():
             self.create_subscription(message_type, topic,
                                      lambda raw, topic=topic: gate.heard(topic,
                                                                          header_stamp_ns(raw)),

@@ -3,9 +3,13 @@
 A free-running simulator outruns the nodes that close its loop on a slow machine: the
 controller then acts on old joints and estimates, its watchdog trips, and a slower machine gives
 a different result. With a TimeGate the stepping loop asks, before each step, whether simulated
-time may reach the step's end: only if every gated stream (e.g. the controller's ticks, the
-estimates, the recorder's samples) has published a message stamped no more than one of its own
-periods (plus `slack`) before it. A consumer that falls behind therefore holds simulated time;
+time may reach the step's end: only if every gated stream has published a message stamped
+recently enough. A periodic stream (one message per period of simulated time: the controller's
+ticks, the estimates of a tactile frame, the recorder's samples) may be one of its periods plus
+`slack` behind; an ongoing stream (a device stream that keeps coming whatever simulated time
+does, stamped on arrival with the current clock: the joint states) only `slack`, so the
+consumer's intake of it is never further behind than that, and as it keeps coming at the held
+time it cannot hold time for ever. A consumer that falls behind therefore holds simulated time;
 the run gets slower, not different.
 
 Each stream's period is learnt from its stamps: the upper median of its last PERIOD_WINDOW
@@ -39,6 +43,7 @@ class GatedStream:
     """What the gate knows about one consumer stream."""
 
     name: str
+    periodic: bool                    # one message per period of simulated time (else: ongoing)
     newest_ns: int | None = None      # newest stamp seen; None until the stream's first message
     intervals_ns: deque = field(default_factory=lambda: deque(maxlen=PERIOD_WINDOW))
     heard_wall: float = 0.0           # monotonic time of its last message
@@ -47,7 +52,11 @@ class GatedStream:
     releases: int = 0
 
     def period_ns(self) -> int | None:
-        """The upper median of its recent intervals between stamps; None until it has joined."""
+        """How far beyond its newest stamp its next message may be due: for a periodic stream
+        the upper median of its recent intervals (None until it has joined), for an ongoing one
+        nothing (0 from its first message)."""
+        if not self.periodic:
+            return None if self.newest_ns is None else 0
         if len(self.intervals_ns) < JOIN_INTERVALS:
             return None
         return sorted(self.intervals_ns)[len(self.intervals_ns) // 2]
@@ -57,16 +66,18 @@ class TimeGate:
     """May simulated time reach t? Only up to each active stream's newest stamp plus one of its
     periods and the slack."""
 
-    def __init__(self, streams: Sequence[str], slack_s: float, silence_s: float,
+    def __init__(self, periodic: Sequence[str], slack_s: float, silence_s: float,
+                 ongoing: Sequence[str] = (),
                  on_event: Callable[[str], None] = lambda message: None,
                  clock: Callable[[], float] = time.monotonic) -> None:
         if slack_s < 0.0 or silence_s <= 0.0:
             raise ValueError(f'slack ({slack_s} s) must be >= 0 and silence ({silence_s} s) > 0')
-        if len(set(streams)) != len(streams):
-            raise ValueError(f'streams named twice: {list(streams)}')
+        names = [*periodic, *ongoing]
+        if len(set(names)) != len(names):
+            raise ValueError(f'streams named twice: {names}')
         self.slack_ns = int(round(slack_s * 1e9))
         self.silence_s = silence_s
-        self.streams = {name: GatedStream(name) for name in streams}
+        self.streams = {name: GatedStream(name, name in periodic) for name in names}
         self._on_event = on_event
         self._clock = clock
         self._changed = threading.Condition()

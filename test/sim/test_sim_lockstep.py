@@ -64,11 +64,27 @@ def test_a_silent_stream_is_released_and_rejoins_when_it_speaks():
     assert gate.holding(10**12) is None
 
 
+def test_an_ongoing_stream_holds_time_at_its_newest_stamp_plus_the_slack():
+    """A device stream that keeps coming (the joint states): its rate in simulated time follows
+    how fast the simulation runs, so no period is learnt; simulated time stays within the slack
+    of its newest stamp, which keeps coming at the held time."""
+    gate = TimeGate([], slack_s=0.006, silence_s=5.0, ongoing=['/joints'])
+    assert gate.holding(10**12) is None
+    gate.heard('/joints', 100 * MS)
+    assert gate.holding(106 * MS) is None and gate.holding(107 * MS).name == '/joints'
+    for _ in range(20):                          # a starved intake: bursts, then a long gap
+        gate.heard('/joints', 100 * MS)
+    gate.heard('/joints', 150 * MS)
+    assert gate.holding(157 * MS).name == '/joints'      # the gap did not loosen it
+
+
 def test_bad_settings_are_refused():
     with pytest.raises(ValueError, match='silence'):
         TimeGate(['/a'], slack_s=0.0, silence_s=0.0)
     with pytest.raises(ValueError, match='twice'):
         TimeGate(['/a', '/a'], slack_s=0.0, silence_s=1.0)
+    with pytest.raises(ValueError, match='twice'):
+        TimeGate(['/a'], slack_s=0.0, silence_s=1.0, ongoing=['/a'])
 
 
 @settings(max_examples=100, deadline=None)

@@ -3,12 +3,12 @@ the hardware and nothing else.
 
 The drivers reach the emulators on 127.0.0.1 exactly as they reach the hardware: xela_server
 (WebSocket, `xela_port`), Net F/T (RDT over UDP, `netft_port`) and the Allegro hand behind
-socketcand (`can_port`). A stepping thread advances the simulator by one `dt` per period of
-dt / `real_time_factor` wall seconds at most;
-torques the hand emulator receives drive closed-loop scenes (calibration scenes follow their
-operator model and ignore torques). The emulators send at their device rates times
-`real_time_factor` in wall time, as devices that never stop talking (the drivers' silence
-watchdogs run on wall time): when lockstep holds simulated time they repeat the held state.
+socketcand (`can_port`). A stepping thread advances the simulator by one `dt` per period of dt /
+`real_time_factor` wall seconds at most; torques the hand emulator receives drive closed-loop
+scenes (calibration scenes follow their operator model and ignore torques). The emulators send
+at their device rates times `real_time_factor` in wall time, as devices that never stop talking
+(the drivers' silence watchdogs run on wall time): when lockstep holds simulated time they
+repeat the held state.
 
 Lockstep (`lockstep`, default on): simulated time does not outrun the nodes that consume it. The
 stepping thread advances only while every gated stream of the scene's kind has published a
@@ -16,17 +16,16 @@ message stamped within one of its own periods (an ongoing device stream: within 
 `lockstep_slack` and two steps, of the step's end (sim/lockstep.py): in closed-loop scenes the
 controller's ticks (/force_controller/state), the estimate of the scene's array
 (/tactile/<array>/wrench) and the joint states (/joint_states, ongoing), in calibration scenes
-the recorder's samples (/calibration/sample). On a slow machine the run is
-then slower than `real_time_factor` (an upper bound), never different. A stream joins with its
-first messages and is released after `lockstep_silence` wall seconds of silence (a stopped node
-does not freeze the world), rejoining when it speaks again; both are logged. lockstep false:
-free-running at `real_time_factor` (latency work). The achieved factor is published on
-~/real_time_factor (std_msgs/Float64) and logged every `report_period` wall seconds, as a
-warning when below 0.9 of what was asked, with how long each gated stream held time.
-`stop_after` > 0 ends the scene once that many simulated seconds have run: time stands still,
-the devices are still served, and the log line "scene done: ..."
-(session_plan.SCENE_DONE_MARKER) tells whoever runs the session to stop the nodes, drivers
-first, so a session ends when its scene does.
+the recorder's samples (/calibration/sample). On a slow machine the run is then slower than
+`real_time_factor` (an upper bound), never different. A stream joins with its first messages and
+is released after `lockstep_silence` wall seconds of silence (a stopped node does not freeze the
+world), rejoining when it speaks again; both are logged. lockstep false: free-running at
+`real_time_factor` (latency work). The achieved factor is published on ~/real_time_factor
+(std_msgs/Float64) and logged every `report_period` wall seconds, as a warning when below 0.9 of
+what was asked, with how long each gated stream held time. `stop_after` > 0 ends the scene once
+that many simulated seconds have run: time stands still, the devices are still served, and the
+log line "scene done: ..." (session_plan.SCENE_DONE_MARKER) tells whoever runs the session to
+stop the nodes, drivers first, so a session ends when its scene does.
 
 In closed-loop scenes simulated time starts when the hand's servos are first switched on (the
 allegro_driver's start-up ends with SYSTEM_ON), with `start_with_servos`: the scene's t = 0 is

@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from tacforce_ros.control.force_controller import MODE_HOLD
+from tacforce_ros.control.force_controller import MODE_HOLD, MODE_SAFE
 from tacforce_ros.estimation.metrics import error_stats
 from tacforce_ros.experiments.closed_loop import METRIC_WINDOW, ClosedLoopTrace, trace_metrics
 from tacforce_ros.nodes.session_plan import SESSION_SCENE_ENDED
@@ -158,7 +158,8 @@ def node_trace(bag: Path, sequence, tare_frames: int) -> tuple[ClosedLoopTrace, 
     Everything comes from the bag as the graph saw it: the controller's ticks
     (/force_controller/state: f_d, and f_hat where the estimate was fresh, both in {F}) and the
     F/T reading, zeroed on its `tare_frames` tactile periods before the controller engaged
-    (its first tick not in mode "hold"), while the finger still held its start pose clear of the
+    (its first tick in open or closed loop: a `safe` tick before it is the start hold's
+    watchdog), while the finger still held its start pose clear of the
     plate: the direct path zeroes it the same way at the end of its hold. (Not before the first
     command: the player may start before the recorder has its first F/T reading.)
     """
@@ -174,7 +175,7 @@ def node_trace(bag: Path, sequence, tare_frames: int) -> tuple[ClosedLoopTrace, 
             wrench.append((t, f.x, f.y, f.z))
         else:
             fresh = msg.estimate_fresh
-            states.append((t, msg.mode != MODE_HOLD, *_xyz(msg.desired_force),
+            states.append((t, msg.mode not in (MODE_HOLD, MODE_SAFE), *_xyz(msg.desired_force),
                            *(_xyz(msg.estimated_force) if fresh else (np.nan,) * 3)))
     if not desired or len(states) < 2 or len(wrench) < 2:
         raise NodePathUnavailable(f'{bag}: {len(desired)} commands, {len(states)} controller '

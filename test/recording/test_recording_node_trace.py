@@ -23,20 +23,23 @@ def vector(types, xyz):
     return types['geometry_msgs/msg/Vector3'](x=float(xyz[0]), y=float(xyz[1]), z=float(xyz[2]))
 
 
-def controller_state(types, stamp_ns, f_d, f_hat, fresh):
+def controller_state(types, stamp_ns, f_d, f_hat, fresh, mode=None):
     empty = np.zeros(0, np.float64)
     return types['tacforce_msgs/msg/ControllerState'](
         header=bagio.header(stamp_ns, 'ft_sensor'), finger='index',
-        mode='closed_loop' if fresh else 'hold', desired_force=vector(types, f_d),
+        mode=mode or ('closed_loop' if fresh else 'hold'), desired_force=vector(types, f_d),
         estimated_force=vector(types, f_hat), integral_error=vector(types, (0, 0, 0)),
         q=empty, qdot=empty, tau_cmd=empty, saturation_scale=1.0, estimate_fresh=fresh,
         joints_fresh=True)
 
 
-def write_bag(path, ft_from_ns, commands=True):
+def write_bag(path, ft_from_ns, commands=True, safe_at_ns=None):
     types = bagio.typestore().types
     meta = bagio.session_metadata(array='index_tip', plate='spherical', source='sim')
     with bagio.CalibrationBagWriter(path, meta, topics=BAG_TOPICS) as writer:
+        if safe_at_ns is not None:      # a watchdog tick of the start hold, before engaging
+            writer.write(TOPIC_CONTROLLER_STATE, safe_at_ns, controller_state(
+                types, safe_at_ns, (0, 0, 0), (0, 0, 0), False, mode='safe'))
         # F/T at 1 kHz: its bias, plus the press once the sequence's 1 s of zero is over.
         for t_ns in range(ft_from_ns, START_NS + 3_000 * MS, MS):
             force = BIAS + (SEQUENCE.force_at((t_ns - START_NS) * 1e-9) if t_ns >= START_NS
@@ -66,6 +69,14 @@ def test_trace_starts_at_the_first_command_with_the_ft_zeroed_before_it(tmp_path
     stale = np.arange(300) % 10 == 0
     assert np.isnan(trace.f_hat[stale]).all()
     np.testing.assert_allclose(trace.f_hat[~stale], trace.f_d[~stale] + [0.0, 0.0, 0.05])
+
+
+def test_a_watchdog_tick_of_the_start_hold_is_not_the_engagement(tmp_path):
+    """The F/T is zeroed before the first tick in open or closed loop; a `safe` tick while the
+    start pose is held (stale joints at start-up) comes before that, and before the F/T."""
+    write_bag(tmp_path / 'bag', ft_from_ns=START_NS - 700 * MS, safe_at_ns=START_NS - 800 * MS)
+    trace, _ = node_trace(tmp_path / 'bag', SEQUENCE, tare_frames=50)
+    np.testing.assert_allclose(trace.f_tilde, trace.f_d, atol=1e-9)
 
 
 @pytest.mark.parametrize('ft_from_ns, commands, words', [

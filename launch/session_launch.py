@@ -29,8 +29,8 @@ ARGUMENTS = {
     'out': ('bags', 'folder for the recorded bags'),
     'real_time_factor': ('1.0', 'simulated seconds per wall second (sim only; with lockstep '
                          'the most it runs at)'),
-    'lockstep': ('true', 'sim only: simulated time waits for the controller, estimator and '
-                 'recorder; false: free-running'),
+    'lockstep': ('true', 'sim only: simulated time waits for the nodes closing the loop; '
+                 'false: free-running'),
     'sim_duration': ('0.0', 'sim only: shut down after this many simulated seconds; 0: run '
                      'until stopped'),
     'seed': ('-1', 'simulator seed (sim only); -1: the scene\'s own'),

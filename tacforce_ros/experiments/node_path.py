@@ -43,8 +43,9 @@ CALIBRATION_SECONDS = 40.0     # simulated seconds of the node-graph calibration
 # waits until the controller and the recorder listen (discovery), while the finger holds.
 SEQUENCE_START_MARGIN_S = 10.0
 START_MARGIN_S = 40.0          # wall seconds for the nodes to start and the recorder to open
-# Sessions run in lockstep (simulated time waits for the controller, estimator and recorder) at
-# up to real time; a session slower than this is given up as unusable, not waited for forever.
+# Sessions run in lockstep (simulated time waits for the controller, the estimate and the joint
+# stream in closed loop, for the recorder in calibration) at up to real time; a session slower
+# than this is given up as unusable, not waited for forever.
 SLOWEST_REAL_TIME_FACTOR = 0.1
 TACTILE_PERIOD_S = 0.01        # the estimator's tare counts 100 Hz tactile frames
 MIN_ZERO_SAMPLES = 10          # F/T readings (1 kHz) averaged at least to zero the sensor

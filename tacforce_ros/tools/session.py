@@ -7,8 +7,9 @@ sim_world then logs session_plan.SCENE_DONE_MARKER) or for a node to exit, then 
 cleanly: SIGINT, wait `--grace` s, then kill. Prints where the bag is. Exit code 0 when every
 node stopped cleanly, 1 otherwise (the log of each node is under <out>/logs/).
 
-In simulation, simulated time waits for the controller, the estimator and the recorder
-(sim_world's lockstep; `--no-lockstep` runs it free at `--real-time-factor`).
+In simulation, simulated time waits for the nodes that close the loop (closed loop: the
+controller, the estimate and the joint stream; calibration: the recorder; sim_world's
+lockstep); `--no-lockstep` runs it free at `--real-time-factor`.
 
     session calibration --scene calibration_index_tip_flat --array index_tip --plate flat \\
         --out bags --duration 120
@@ -175,8 +176,8 @@ def main(argv: list[str] | None = None) -> None:
                         help='simulated seconds per wall second (sim only; with lockstep the '
                         'most it runs at)')
     parser.add_argument('--lockstep', action=argparse.BooleanOptionalAction, default=True,
-                        help='sim only: simulated time waits for the controller, estimator and '
-                        'recorder (default); --no-lockstep: free-running')
+                        help='sim only: simulated time waits for the nodes closing the loop '
+                        '(default); --no-lockstep: free-running')
     parser.add_argument('--sim-duration', type=float, default=0.0,
                         help='sim only: end the session after this many simulated seconds '
                         '(default 0: until Ctrl-C or --duration)')

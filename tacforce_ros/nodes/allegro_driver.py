@@ -158,8 +158,17 @@ class AllegroDriver(TacforceNode):
         if not p['silent_warn_after'] < p['silent_timeout']:
             raise ParameterError(f'silent_timeout: {p["silent_timeout"]} must be above '
                                  f'silent_warn_after ({p["silent_warn_after"]})')
-        # Servos on (the end of the hand's start-up) only once this node can stamp and time:
-        # in simulation that is when simulated time starts, so control acts from its first step.
+        if self.session is not None:
+            self.create_subscription(Vector3Stamped, TOPIC_DESIRED, self._on_desired,
+                                     subscriber_qos(TOPIC_DESIRED))
+            self.create_subscription(ForceEstimateArray, TOPIC_ESTIMATES, self._on_estimates,
+                                     subscriber_qos(TOPIC_ESTIMATES))
+            self.state_publisher = self.create_publisher(ControllerState, TOPIC_CONTROLLER_STATE,
+                                                         publisher_qos(TOPIC_CONTROLLER_STATE))
+        # Servos on (the end of the hand's start-up) only once this node can stamp and time, and
+        # as its last step, with every topic in place: in simulation that is when simulated time
+        # starts, so control acts from its first step (on a loaded 2-core host the ROS entities
+        # above took up to a second, which simulated time ran through without joint states).
         self.wait_for_clock(p['clock_timeout'])
         try:
             self.driver = AllegroV4Driver(self._driver_config())
@@ -168,17 +177,11 @@ class AllegroDriver(TacforceNode):
                                  ) from None
         self.driver.add_callback(self._on_joints)
         self.status = LinkStatusReporter(self, self.driver)
+        self.driver.start()
         self.create_timer(LINK_CHECK_PERIOD_S, self._check_hand,
                           clock=Clock(clock_type=ClockType.STEADY_TIME))
         if self.session is not None:
-            self.create_subscription(Vector3Stamped, TOPIC_DESIRED, self._on_desired,
-                                     subscriber_qos(TOPIC_DESIRED))
-            self.create_subscription(ForceEstimateArray, TOPIC_ESTIMATES, self._on_estimates,
-                                     subscriber_qos(TOPIC_ESTIMATES))
-            self.state_publisher = self.create_publisher(ControllerState, TOPIC_CONTROLLER_STATE,
-                                                         publisher_qos(TOPIC_CONTROLLER_STATE))
             self.create_timer(1.0 / p['control_rate_hz'], self._control)
-        self.driver.start()
         info = self.driver.hand_info
         self.get_logger().info(
             f'Allegro {self.driver.serial} ({info.side}, fw 0x{info.firmware_version:04x}) on '

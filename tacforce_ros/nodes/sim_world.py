@@ -240,6 +240,8 @@ class SimWorld(TacforceNode):
             self.get_logger().info('servos on: simulated time starts')
         dt = self.sim.dt
         self.meter.start(self._latest.t)
+        if self.gate is not None:
+            self.gate.start(int(round(self._latest.t * 1e9)))
         stop_at = (self._latest.t + self.params['stop_after'] if self.params['stop_after'] > 0
                    else float('inf'))
         pacer = Pacer(self.params['real_time_factor'] / dt)

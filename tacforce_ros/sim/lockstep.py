@@ -82,6 +82,17 @@ class TimeGate:
         self._clock = clock
         self._changed = threading.Condition()
 
+    def start(self, t_ns: int) -> None:
+        """Simulated time starts at t_ns: every ongoing stream holds it from now on, as if it had
+        just spoken at t_ns. A device stream is due from the first step, and a consumer still
+        starting up when time starts (the hand's driver switches the servos on before its
+        first joint state) would otherwise let time run free until its first message."""
+        with self._changed:
+            for s in self.streams.values():
+                if not s.periodic and (s.newest_ns is None or s.newest_ns < t_ns):
+                    s.newest_ns, s.heard_wall, s.released = t_ns, self._clock(), False
+            self._changed.notify_all()
+
     def heard(self, stream: str, stamp_ns: int) -> None:
         """A message of `stream` stamped `stamp_ns` arrived (any thread)."""
         with self._changed:

@@ -78,6 +78,23 @@ def test_an_ongoing_stream_holds_time_at_its_newest_stamp_plus_the_slack():
     assert gate.holding(157 * MS).name == '/joints'      # the gap did not loosen it
 
 
+def test_an_ongoing_stream_holds_time_from_its_start_before_it_speaks():
+    """When simulated time starts, a device stream is due: a consumer still starting up holds
+    time at the start plus the slack, and is released if it stays silent."""
+    clock, events = FakeClock(), []
+    gate = TimeGate(['/state'], slack_s=0.004, silence_s=1.0, ongoing=['/joints'],
+                    on_event=events.append, clock=clock)
+    assert gate.holding(10**12) is None              # before the start: nothing holds
+    gate.start(500 * MS)
+    assert gate.holding(504 * MS) is None and gate.holding(505 * MS).name == '/joints'
+    gate.heard('/joints', 520 * MS)
+    assert gate.holding(524 * MS) is None
+    gate.start(510 * MS)                             # a stream that spoke since keeps its stamp
+    assert gate.streams['/joints'].newest_ns == 520 * MS
+    clock.now += 1.5
+    assert gate.wait(10**12, timeout_s=0.0) and 'no longer waits' in events[-1]
+
+
 def test_bad_settings_are_refused():
     with pytest.raises(ValueError, match='silence'):
         TimeGate(['/a'], slack_s=0.0, silence_s=0.0)

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import logging
+from collections.abc import Callable
 
 from rclpy.clock import Clock, ClockType
 from std_msgs.msg import String
@@ -26,8 +27,10 @@ class LinkStatusReporter:
     Wall time on purpose: link health is about the device, not about simulated time.
     """
 
-    def __init__(self, node: TacforceNode, driver: PollingDriver) -> None:
+    def __init__(self, node: TacforceNode, driver: PollingDriver,
+                 node_counters: Callable[[], dict[str, int]] = dict) -> None:
         self.node = node
+        self.node_counters = node_counters      # the node's own counters, reported alongside
         self.watch(driver)
         self.publisher = (node.create_publisher(String, '~/status', RELIABLE_QOS)
                           if node.params['publish_status'] else None)
@@ -54,6 +57,7 @@ class LinkStatusReporter:
         counters = self.driver.diagnostics.as_dict()
         # samples not published: the node clock had not moved since the previous one (sim time)
         counters['same_stamp'] = sum(self.node.same_stamp.values())
+        counters.update(self.node_counters())
         self.node.get_logger().info(
             ' '.join(f'{k}={v:.3f}' if isinstance(v, float) else f'{k}={v}'
                      for k, v in counters.items() if v not in ('', 0)))

@@ -181,9 +181,11 @@ class SimWorld(TacforceNode):
 
     # --- emulator sources and sinks (called from the emulators' threads) ---------------------
 
-    def _tactile_frame(self) -> tuple[np.ndarray, np.ndarray]:
+    def _tactile_frame(self) -> tuple[np.ndarray, np.ndarray, float]:
         # Each client (one emulator thread per connection) gets every fresh frame exactly once;
-        # a stalled simulator yields a repeat after 0.5 s rather than blocking shutdown.
+        # a stalled simulator yields a repeat after 0.5 s rather than blocking shutdown. The
+        # server's clock is simulated time: a frame carries the time the clock reads for it
+        # (the end of its step), which the driver maps onto its node clock.
         client = threading.get_ident()
         with self._tactile:
             seen = self._tactile_seen.get(client, self._tactile_count - 1)
@@ -191,7 +193,7 @@ class SimWorld(TacforceNode):
                                    timeout=0.5)
             self._tactile_seen[client] = self._tactile_count
             sample = self._latest
-        return sample.taxel_counts, sample.temperatures
+        return sample.taxel_counts, sample.temperatures, sample.t + self.sim.dt
 
     def _wrench_record(self) -> tuple[np.ndarray, int]:
         sample = self._latest

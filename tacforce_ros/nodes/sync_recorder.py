@@ -61,7 +61,7 @@ class SyncRecorder(TacforceNode):
         ParamSpec('output_dir', 'bags', 'folder that receives one bag folder per session'),
         ParamSpec('split_seconds', 2.0, 'close a bag split this often (s, wall time): the most '
                   'a killed recorder can lose', range=(0.1, 3600.0)),
-        ParamSpec('queue_size', 20, 'approximate-time queue per input (messages)',
+        ParamSpec('queue_size', 100, 'approximate-time queue per input (messages)',
                   range=(1, 10000)),
         ParamSpec('slop', 0.005, 'largest stamp spread inside one sample (s)',
                   range=(0.0, 1.0)),

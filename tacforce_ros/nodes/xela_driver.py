@@ -1,8 +1,14 @@
 """xela_driver: xela_server (XELA uSkin) -> /tactile/raw (tacforce_msgs/TactileHand).
 
-Every server frame (100 Hz) becomes one whole-hand message stamped on arrival with the node
-clock (sim time under use_sim_time: frames that arrive before the first /clock are dropped and
-counted, never stamped 0); each TactileArray carries its array frame {S0} as frame_id.
+Every server frame (100 Hz) becomes one whole-hand message stamped with the server's time of
+the frame (devices/device_clock.py), so stamps keep the frames' spacing whatever the WebSocket
+and the host's scheduling add: as it is with `server_clock` = node (xela_server on this host, on
+its system time, which is ROS time; or the simulator's xela_server emulator, on simulated time),
+mapped onto the node clock by the minimum-delay offset with `server_clock` = own (a server on
+another computer, its clock within `max_clock_skew` of this one's rate). A frame whose server
+time repeats the previous one's is the same reading and is not published (counted as same_stamp
+in the link report); under use_sim_time, frames that arrive before the first /clock are dropped
+and counted. Each TactileArray carries its array frame {S0} as frame_id.
 The client reconnects on its own; malformed frames are counted and dropped. Every
 `diagnostics_period` s (wall time) the link counters go to the log and, if `publish_status`,
 as JSON on ~/status (std_msgs/String: diagnostic_msgs is not available everywhere).
@@ -13,6 +19,7 @@ import sys
 
 from tacforce_msgs.msg import TactileHand
 
+from tacforce_ros.devices.device_clock import DEFAULT_MAX_SKEW, DeviceClock
 from tacforce_ros.devices.xela import XelaClient, XelaConfig, XelaFrame
 from tacforce_ros.hand.description import HandConfigError, load_hand
 from tacforce_ros.nodes.common import (ParameterError, ParamSpec, TacforceNode, publisher_qos,
@@ -20,6 +27,10 @@ from tacforce_ros.nodes.common import (ParameterError, ParamSpec, TacforceNode, 
 from tacforce_ros.nodes.link_status import STATUS_PARAMETERS, LinkStatusReporter
 from tacforce_ros.nodes.messages import tactile_hand
 from tacforce_ros.topics import TOPIC_TACTILE
+
+# Frames are stamped within milliseconds of their arrival; a second apart means two clocks.
+CLOCK_MISMATCH_NS = 1_000_000_000
+
 
 class XelaDriver(TacforceNode):
     """Publishes XELA uSkin whole-hand frames from xela_server on /tactile/raw."""
@@ -33,6 +44,12 @@ class XelaDriver(TacforceNode):
         ParamSpec('reconnect_max', 2.0, 'longest wait between reconnect attempts (s)',
                   range=(0.01, 60.0)),
         ParamSpec('hand_config', '', 'hand description YAML; empty = the default hand'),
+        ParamSpec('server_clock', 'node', 'node: the server\'s frame times are on the node '
+                  'clock (server on this host, or the simulator\'s); own: a clock of its own, '
+                  'mapped', choices=('node', 'own')),
+        ParamSpec('max_clock_skew', DEFAULT_MAX_SKEW, 'server_clock own: largest rate '
+                  'difference between the server\'s clock and the node clock (s/s)',
+                  range=(0.0, 0.009)),
     ) + STATUS_PARAMETERS
 
     def __init__(self) -> None:
@@ -50,8 +67,11 @@ class XelaDriver(TacforceNode):
                                             n_taxels=self.hand.n_taxels,
                                             stale_after=p['stale_after'],
                                             reconnect_max=p['reconnect_max']))
+        self.device_clock = DeviceClock(p['server_clock'] == 'node', p['max_clock_skew'])
         self.client.add_callback(self._publish)
-        self.status = LinkStatusReporter(self, self.client)
+        self.status = LinkStatusReporter(
+            self, self.client, lambda: {'clock_resets': self.device_clock.counts.resets,
+                                        'stamps_moved': self.device_clock.counts.moved})
         self.client.start()
         self.get_logger().info(f'reading {p["url"]} ({self.hand.n_taxels} taxels, '
                                f'{len(self.hand.arrays)} arrays) -> {TOPIC_TACTILE}')
@@ -61,7 +81,21 @@ class XelaDriver(TacforceNode):
         now = self.stamp_ns()
         if now is None:
             return      # before the first /clock under use_sim_time: no valid stamp yet
-        self.publisher.publish(tactile_hand(now, self.hand, frame.counts, frame.temperatures,
+        counts = self.device_clock.counts
+        resets = counts.resets
+        stamp = self.device_clock.stamp(round(frame.server_time * 1e9), now)
+        if counts.resets > resets:
+            self.get_logger().warning(f'xela_server time went back to {frame.server_time:.3f} s:'
+                                      ' mapping frame times onto the clock again')
+        if stamp is None:
+            self.same_stamp[TOPIC_TACTILE] = counts.repeated
+            return
+        if abs(stamp - now) > CLOCK_MISMATCH_NS:
+            self.get_logger().warning(
+                f'xela_server frame time {frame.server_time:.3f} s is {(stamp - now) * 1e-9:+.1f}'
+                ' s off the node clock: a server with a clock of its own needs server_clock:=own',
+                throttle_duration_sec=10.0)
+        self.publisher.publish(tactile_hand(stamp, self.hand, frame.counts, frame.temperatures,
                                             frame.server_time, frame.sequence))
 
     def on_shutdown(self) -> None:

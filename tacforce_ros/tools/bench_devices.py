@@ -77,7 +77,7 @@ def bench_xela(duration: float, rate_hz: float) -> dict:
     rng = np.random.default_rng(0)
     counts = rng.integers(30000, 40000, size=(368, 3)).astype(np.uint16)
     temps = np.full(368, 300.0)
-    with XelaServerEmulator(lambda: (counts, temps), rate_hz=rate_hz) as server:
+    with XelaServerEmulator(lambda: (counts, temps, time.time()), rate_hz=rate_hz) as server:
         client = XelaClient(XelaConfig(url=server.url), load_hand())
         result = _measure(client, server.sent_log, lambda f: f.sequence, duration, rate_hz, 1)
     return {'device': 'xela', 'transport': 'WebSocket JSON, 368 taxels', **result}

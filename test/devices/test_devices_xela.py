@@ -1,5 +1,6 @@
 """XELA: message codec and the client against the xela_server emulator over real WebSockets."""
 import json
+import time
 
 import numpy as np
 import pytest
@@ -25,7 +26,8 @@ class RampSource:
     def __call__(self):
         self.calls += 1
         base = np.arange(368, dtype=np.int64)[:, None] * np.array([1, 2, 3])
-        return ((base + self.calls) % 65536).astype(np.uint16), np.full(368, 300.0)
+        counts = ((base + self.calls) % 65536).astype(np.uint16)
+        return counts, np.full(368, 300.0), time.time()
 
 
 def test_welcome_is_skipped_and_hand_built_frames_decode():

@@ -30,7 +30,8 @@ CLOCK_START_NS = 5_000_000_000
 def test_xela_driver_waits_for_the_first_clock(tmp_path):
     counts = np.full((HAND.n_taxels, 3), 32000, np.uint16)
     temperatures = np.full(HAND.n_taxels, 300.0)
-    with XelaServerEmulator(lambda: (counts, temperatures), rate_hz=100.0) as server, \
+    source = lambda: (counts, temperatures, time.time())    # noqa: E731 - own clock: Unix
+    with XelaServerEmulator(source, rate_hz=100.0) as server, \
             rclpy_node('clock_wait_test', DOMAIN) as node:
         frames = []
         node.create_subscription(TactileHand, TOPIC_TACTILE, frames.append,
@@ -38,7 +39,8 @@ def test_xela_driver_waits_for_the_first_clock(tmp_path):
         clock = node.create_publisher(Clock, '/clock', CLOCK_QOS)
         proc = start([executable('xela_driver'), '--ros-args', '--params-file',
                       config_dir() / 'params' / 'xela_driver.yaml', '-p', 'use_sim_time:=true',
-                      '-p', f'url:=ws://127.0.0.1:{server.address[1]}'], DOMAIN)
+                      '-p', f'url:=ws://127.0.0.1:{server.address[1]}',
+                      '-p', 'server_clock:=own'], DOMAIN)
         try:
             # Connected and receiving (the server logs what it sent), yet nothing published.
             assert spin_until(node, lambda: len(server.sent_log) > 50, 60.0), 'never connected'

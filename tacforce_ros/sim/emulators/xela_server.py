@@ -1,5 +1,7 @@
 """xela_server on 127.0.0.1: a WebSocket server sending a welcome frame, then v1.8 routine
-frames at a fixed rate from ``frame_source() -> (counts (368, 3) uint16, temps (368,) K)``."""
+frames at a fixed rate from ``frame_source() -> (counts (368, 3) uint16, temps (368,) K,
+server time s)``: the server's clock is whatever the source says (the host's Unix time for a
+stand-alone server, simulated time behind a simulator, whose world the server lives in)."""
 from __future__ import annotations
 
 import queue
@@ -15,7 +17,7 @@ from websockets.sync.server import Server, ServerConnection, serve
 from tacforce_ros.devices.xela import routine_message, welcome_message
 from tacforce_ros.sim.emulators.base import LOOPBACK, Pacer, require_loopback
 
-FrameSource = Callable[[], tuple[np.ndarray, np.ndarray]]
+FrameSource = Callable[[], tuple[np.ndarray, np.ndarray, float]]
 
 
 class XelaServerEmulator:
@@ -77,11 +79,11 @@ class XelaServerEmulator:
                 pending.put(text)
 
     def _next_message(self) -> str:
-        counts, temperatures = self.frame_source()
+        counts, temperatures, server_time = self.frame_source()
         with self._lock:
             self._sequence += 1
             sequence = self._sequence
-        text = routine_message(sequence, counts, temperatures, time.time(), self.model)
+        text = routine_message(sequence, counts, temperatures, server_time, self.model)
         self.sent_log.append((sequence, time.monotonic()))
         return text
 

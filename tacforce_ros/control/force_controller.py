@@ -11,16 +11,21 @@ test/control/ checks the sign used here removes a constant plant error.
 
 Around the law, in this order per tick:
 1. Watchdog. `f_hat_age` and `q_age` come from the caller. A stale or non-finite estimate ramps
-   from the law's torque to a position hold at the joint angles latched at the moment it went
-   stale (gravity + PD on where the finger is), a linear blend of the two saturated torques over
-   `ramp_time`: the finger neither keeps pushing an unmonitored force nor falls, and no joint's
-   |torque| leaves the range between the two. Stale joints make every feedback term meaningless
-   (the law would be evaluated at an old q), so then the command of the last tick with fresh
-   joints fades linearly to zero: no joint's |torque| ever rises above its value at that moment.
-   The integral is frozen while ramping and reset once the force terms reach zero; when the
-   streams come back, the gains ramp in again at the same rate (no torque step). Worst case
-   from the last good message to safe: timeout + ramp_time + one tick (defaults: 50 + 50 ms).
-   Each state says why the controller is in its mode (`reason`), for the log of its transitions.
+   from the law's torque to a contact hold latched at the moment it went stale: gravity + PD on
+   the joint angles of that moment plus J^T R of the law's force command of the last tick before
+   it (f_d + K_i * integral), open loop. The fingertip keeps the contact it had, pressing as it
+   was told to (an estimator that stops for a moment must not drop what the finger holds), and
+   cannot run off: any motion away from the latched angles meets the PD. A linear blend of the
+   two saturated torques over `ramp_time` keeps every joint's |torque| within the range
+   between the two. Stale joints make every feedback term meaningless (the law would be
+   evaluated at an old q), so then the command of the last tick with fresh joints fades linearly
+   to zero: no joint's |torque| ever rises above its value at that moment. The integral is
+   frozen while the estimate is stale, so that the law resumes where it left off when the
+   estimate returns, and reset once stale joints have faded the torque out. When the streams
+   come back, the gains ramp in again at the same rate (no torque step). Worst case from the
+   last good message to the hold (or to zero torque): timeout + ramp_time + one tick
+   (defaults: 50 + 50 ms). Each state says why the controller is in its mode (`reason`), for the
+   log of its transitions.
 2. Integral with a rate limiter (each axis of e_f clipped to `integral_rate_limit` N before
    integrating, so one bad estimate moves the integral by at most that many N s per second),
    clamped to +/- `integral_limit`, and conditional integration: while saturated, a step that
@@ -56,7 +61,7 @@ FIRMWARE_TORQUE_LIMITS = {
 MODE_OPEN_LOOP = 'open_loop'
 MODE_CLOSED_LOOP = 'closed_loop'
 MODE_SAFE = 'safe'      # watchdog ramp-down in progress (or whole torque off: joints stale)
-MODE_HOLD = 'hold'      # force terms off, position hold at the latched joint angles
+MODE_HOLD = 'hold'      # contact hold: latched joint angles and force command, open loop
 
 
 class Kinematics(Protocol):
@@ -178,6 +183,8 @@ class _Memory:
     force_gain: float = 1.0
     hold_gain: float = 1.0
     q_hold: np.ndarray | None = None
+    f_hold: np.ndarray | None = None    # force command latched with q_hold (force_frame)
+    f_cmd: np.ndarray = field(default_factory=lambda: np.zeros(3))  # the law's, last fresh tick
     tau: np.ndarray = field(default_factory=lambda: np.zeros(4))   # last command sent
     faded: np.ndarray | None = None     # command latched when the joints went stale
     faded_gain: float = 1.0             # hold_gain at that moment
@@ -280,11 +287,11 @@ class ForceController:
 
         qf, qdf = q[self.joints], qdot[self.joints]
         if force_target == 0.0 and mem.q_hold is None:
-            mem.q_hold = qf.copy()
-        if mem.force_gain == 0.0:
-            mem.integral = np.zeros(3)          # fully safe: forget the old correction
+            mem.q_hold, mem.f_hold = qf.copy(), mem.f_cmd
+        if mem.hold_gain == 0.0:
+            mem.integral = np.zeros(3)          # torque faded out: forget the old correction
         if mem.force_gain == 1.0:
-            mem.q_hold = None
+            mem.q_hold = mem.f_hold = None
 
         jacobian = np.asarray(self.kinematics.fingertip_jacobian(q, cfg.finger), np.float64)
         rotation = np.asarray(
@@ -315,11 +322,14 @@ class ForceController:
                        and ratio_after[binding] > ratio_before[binding])
             if not deepens:
                 mem.integral, tau_raw = candidate, tau_candidate
+        if force_target == 1.0:
+            mem.f_cmd = f_d + self._k_i * mem.integral
 
         scale = saturation_scale(tau_raw, self._limits)
         tau = scale * tau_raw
-        if mem.q_hold is not None:      # blend the law into the position hold (or back)
-            hold_raw = gravity_damping - self._k_p * (qf - mem.q_hold)
+        if mem.q_hold is not None:      # blend the law into the contact hold (or back)
+            hold_raw = (jacobian.T @ (rotation @ mem.f_hold) + gravity_damping
+                        - self._k_p * (qf - mem.q_hold))
             hold_scale = saturation_scale(hold_raw, self._limits)
             tau = mem.force_gain * tau + (1.0 - mem.force_gain) * hold_scale * hold_raw
             tau_raw = mem.force_gain * tau_raw + (1.0 - mem.force_gain) * hold_raw

@@ -197,8 +197,12 @@ def test_stale_stream_ramps_to_safe_within_ramp_time(stale):
     for k in range(50):
         tau, state = ctrl.update(k * DT, Q16, ZERO16, f_d * 0.9, 0.0, 0.0, f_d)
     assert state.mode == MODE_CLOSED_LOOP and np.any(state.integral_error != 0)
+    integral = state.integral_error
     t_stale = 50 * DT
-    hold = KIN.gravity_torques(Q16)[:4]   # position hold where the finger is, at rest
+    # The contact hold where the finger is, at rest: gravity + J^T R of the latched command.
+    hold = (KIN.gravity_torques(Q16)[:4] + KIN.fingertip_jacobian(Q16, 'index').T
+            @ (KIN.rotation_between(Q16, cfg.force_frame, cfg.base_frame)
+               @ (f_d + np.asarray(cfg.k_i) * integral)))
     distances, t = [], t_stale
     while t <= t_stale + 0.1 + 1e-9:
         age = t - t_stale + 0.06     # the last message is already past its timeout
@@ -212,7 +216,9 @@ def test_stale_stream_ramps_to_safe_within_ramp_time(stale):
     assert all(a[1] >= b[1] - 1e-12 for a, b in zip(distances, distances[1:])), 'not monotone'
     final_mode = distances[-1][2]
     assert final_mode == (MODE_HOLD if stale == 'estimate' else MODE_SAFE)
-    np.testing.assert_array_equal(state.integral_error, 0.0)   # reset once fully safe
+    # Frozen in the hold (the law resumes with it), forgotten once the torque faded out.
+    np.testing.assert_array_equal(state.integral_error,
+                                  integral if stale == 'estimate' else 0.0)
     assert not (state.estimate_fresh if stale == 'estimate' else state.joints_fresh)
 
 
@@ -257,7 +263,7 @@ def test_stale_joints_never_raise_any_joints_torque(q, qdot, f_d, f_hats, k_p, k
        k_i=st.floats(0.1, 5.0))
 def test_stale_estimate_moves_each_torque_only_between_the_law_and_the_hold(
         q, qdot, f_d, f_hats, k_i):
-    """Estimate stale, joints fresh: the command blends from the law's torque to the position
+    """Estimate stale, joints fresh: the command blends from the law's torque to the contact
     hold's, so no joint's |torque| leaves the range between the two (q as it was)."""
     ctrl = ForceController(config(k_i=(k_i,) * 3), KIN)
     q16 = np.r_[q, np.zeros(12)]
@@ -270,6 +276,30 @@ def test_stale_estimate_moves_each_torque_only_between_the_law_and_the_hold(
     bound = np.maximum(np.abs(tau0), np.abs(hold)) + 1e-12
     for tau, _ in taus:
         assert np.all(np.abs(tau) <= bound), (tau, tau0, hold)
+
+
+def test_the_hold_keeps_pressing_and_the_law_resumes_without_a_step():
+    """A stale estimate: the hold keeps the latched command's force whatever f_d does meanwhile,
+    and the integral it froze is the law's again when the estimate returns."""
+    cfg = config(k_i=(2.0, 2.0, 2.0))
+    ctrl = ForceController(cfg, KIN)
+    f_d = np.array([0.0, 0.0, 1.5])
+    for k in range(30):
+        law, state = ctrl.update(k * DT, Q16, ZERO16, f_d * 0.8, 0.0, 0.0, f_d)
+    integral = state.integral_error
+    for k in range(30, 50):       # stale; f_d changes meanwhile
+        hold, state = ctrl.update(k * DT, Q16, ZERO16, f_d, 0.2, 0.0, 2 * f_d)
+    assert state.mode == MODE_HOLD
+    np.testing.assert_array_equal(state.integral_error, integral)
+    latched = (KIN.gravity_torques(Q16)[:4] + KIN.fingertip_jacobian(Q16, 'index').T
+               @ (KIN.rotation_between(Q16, cfg.force_frame, cfg.base_frame)
+                  @ (f_d + 2.0 * integral)))
+    np.testing.assert_allclose(hold, latched, atol=1e-12)
+    for k in range(50, 56):       # back, no error: after the ramp in, the law as it was
+        back, state = ctrl.update(k * DT, Q16, ZERO16, f_d, 0.0, 0.0, f_d)
+    assert state.mode == MODE_CLOSED_LOOP and state.force_gain == 1.0
+    np.testing.assert_array_equal(state.integral_error, integral)
+    np.testing.assert_allclose(back, law, atol=1e-12)
 
 
 def test_reason_names_the_stale_stream_and_its_age():

@@ -12,6 +12,7 @@ taxels from the full frame first. Pure numpy (no rclpy): the node only wires it.
 from __future__ import annotations
 
 import dataclasses
+import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -19,6 +20,7 @@ import numpy as np
 import yaml
 
 from tacforce_ros.estimation.model_io import ModelFileError, load_model, save_model
+from tacforce_ros.estimation.npz import read_npz
 from tacforce_ros.estimation.runtime import HandEstimate, RuntimeEstimator
 from tacforce_ros.hand.description import HandDescription
 
@@ -50,6 +52,31 @@ class ModelSet:
         """Tare every modelled array from full-hand no-contact frames (T, n_taxels, 3)."""
         frames = np.asarray(frames)
         self.estimator.set_tare(frames if self._whole_hand else frames[:, self.taxels])
+
+    def save_tare(self, path: str | Path) -> None:
+        """The current tare of every modelled array to a .npz (one (n, 3) counts entry per
+        array), replaced whole: a process killed while writing leaves the previous file."""
+        path = Path(path)
+        partial = path.with_name(path.name + '.partial')
+        with open(partial, 'wb') as file:
+            np.savez(file, **{a.name: self.estimator.tare(a.name) for a in self.arrays})
+        os.replace(partial, path)
+
+    def load_tare(self, path: str | Path) -> None:
+        """The tare of every modelled array from a file of save_tare(); ValueError saying why
+        when it does not fit these arrays (FileNotFoundError when it is absent)."""
+        entries = read_npz(path)
+        sub_hand = self.estimator.hand
+        frame = np.zeros((sub_hand.n_taxels, 3))
+        for array in sub_hand.arrays:
+            tare = entries.get(array.name)
+            if tare is None:
+                raise ValueError(f'{path}: no tare for {array.name}')
+            if tare.shape != (array.n_taxels, 3) or not np.all(np.isfinite(tare)):
+                raise ValueError(f'{path}: the tare of {array.name} is not {array.n_taxels} x 3 '
+                                 f'finite counts (shape {tare.shape})')
+            frame[array.flat_indices] = tare
+        self.estimator.set_tare(frame[None])
 
 
 def model_files(path: str | Path) -> dict[str, Path]:

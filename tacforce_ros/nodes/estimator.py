@@ -14,7 +14,9 @@ only when no frame came for `stale_timeout`: it then publishes estimates flagged
 safe; the per-array wrench topics stay silent meanwhile (a WrenchStamped cannot say "invalid").
 While frames flow it never wakes the executor.
 ~/tare (std_srvs/Trigger) re-estimates the taxel offsets from the next `tare_frames` frames
-(nothing may touch the arrays meanwhile).
+(nothing may touch the arrays meanwhile). With `tare_file`, every tare is saved there, and an
+estimator that starts while the file exists loads it instead of taring at start: one that
+restarts mid-session (a crash, a respawn) must not tare on arrays that are touching something.
 `lowpass_hz` > 0 low-passes every input channel causally (Butterworth of `lowpass_order`, designed
 for frames at `frame_rate_hz`; estimation/causal_filter.py): less noise on the estimate, at the
 price of the filter's group delay, logged at start-up, which the controller sees. Off by default.
@@ -34,6 +36,7 @@ from __future__ import annotations
 
 import gc
 import sys
+from pathlib import Path
 
 import numpy as np
 from geometry_msgs.msg import Point, WrenchStamped
@@ -87,6 +90,8 @@ class Estimator(TacforceNode):
         ParamSpec('tare_frames', 50, 'frames averaged by ~/tare', range=(1, 10000)),
         ParamSpec('tare_at_start', True, 'tare on the first tare_frames frames (the arrays '
                   'must be untouched at start-up); false keeps the model files\' offsets'),
+        ParamSpec('tare_file', '', 'every tare is saved to this .npz, and loaded at start-up '
+                  'when it exists instead of taring at start; empty = none'),
         ParamSpec('lowpass_hz', 0.0, 'causal low-pass cut-off of the input channels (Hz); '
                   '0 = off', range=(0.0, 1000.0)),
         ParamSpec('lowpass_order', 2, 'Butterworth order of that low-pass', range=(1, 8)),
@@ -145,8 +150,10 @@ class Estimator(TacforceNode):
         self._stale_status = (STATUS_STALE,) * len(self.names)
         # Offsets drift with temperature and differ from the calibration day's (paper IV-A):
         # estimates are published only once the start-up tare is done.
-        self._tare_buffer: list[np.ndarray] | None = [] if p['tare_at_start'] else None
-        self._tared = not p['tare_at_start']
+        tare_loaded = self._load_tare_file()
+        tare_at_start = p['tare_at_start'] and not tare_loaded
+        self._tare_buffer: list[np.ndarray] | None = [] if tare_at_start else None
+        self._tared = not tare_at_start
         self.rejected = 0
         self.get_logger().info(
             f'{len(self.names)} arrays with models ('
@@ -236,7 +243,31 @@ class Estimator(TacforceNode):
             self.get_logger().error(f'tare refused, offsets unchanged: {exc}')
         else:
             self.get_logger().info(f'tare done from {len(frames)} frames')
+            if self.params['tare_file']:
+                try:
+                    self.models.save_tare(self.params['tare_file'])
+                except OSError as exc:
+                    self.get_logger().error(f'tare not saved to {self.params["tare_file"]}: {exc}')
         self._tared = True
+
+    def _load_tare_file(self) -> bool:
+        """The session's saved tare, if there is one (True); refuses a file that does not fit.
+        A tare_file that could not be written is refused before any frame is read."""
+        path = Path(self.params['tare_file']) if self.params['tare_file'] else None
+        if path is None:
+            return False
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise ParameterError(f'tare_file: cannot make its folder: {exc}') from None
+        try:
+            self.models.load_tare(path)
+        except FileNotFoundError:
+            return False
+        except ValueError as exc:
+            raise ParameterError(f'tare_file: {exc}') from None
+        self.get_logger().info(f'tare loaded from {path} (no tare at start)')
+        return True
 
     # --- markers ---------------------------------------------------------------------------
 

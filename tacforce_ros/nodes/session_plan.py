@@ -6,6 +6,7 @@ No rclpy here: the plan is data (executable, parameter files under config/params
 """
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -77,6 +78,9 @@ class SessionArgs:
     xela_port: int = XELA_PORT
     netft_port: int = NETFT_PORT
     can_port: int = CAN_PORT
+    # Names what belongs to this session alone (the estimator's saved tare, which a restarted
+    # estimator loads): the start time, as the recorder names its bags.
+    session_id: str = field(default_factory=lambda: time.strftime('%Y%m%d_%H%M%S'))
 
     def scene_name(self) -> str:
         if self.scene:
@@ -146,6 +150,7 @@ def plan(args: SessionArgs) -> list[NodeLaunch]:
     else:
         nodes.append(NodeLaunch('estimator', (params_file('estimator'),), {
             **common, **hand_param,
+            'tare_file': str(Path(args.out) / f'estimator_tare_{args.session_id}.npz'),
             **({'model_config': args.model_config} if args.model_config else {})}))
         nodes.append(NodeLaunch('allegro_driver',
                                 (params_file('allegro_driver'), params_file('force_controller')),

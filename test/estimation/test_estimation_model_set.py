@@ -54,6 +54,30 @@ def test_tare_takes_full_hand_frames(full_set, hand, tmp_path):
                                rest[hand.array('index_tip').flat_indices])
 
 
+def test_a_saved_tare_is_loaded_as_it_was_and_a_wrong_one_is_refused(full_set, hand, tmp_path):
+    """A restarted estimator takes the tare of its session instead of taring on a loaded array:
+    the saved offsets come back exactly; a file for other arrays or with NaN is refused."""
+    names = ['index_tip', 'ring_middle']
+    models = load_model_set(subset(full_set, names, tmp_path), hand)
+    rest = np.random.default_rng(3).uniform(15000, 30000, (hand.n_taxels, 3))
+    models.set_tare(rest[None] + np.random.default_rng(4).normal(0, 20, (7, hand.n_taxels, 3)))
+    models.save_tare(tmp_path / 'tare.npz')
+    restarted = load_model_set(subset(full_set, names, tmp_path), hand)
+    restarted.load_tare(tmp_path / 'tare.npz')
+    for name in names:
+        np.testing.assert_array_equal(restarted.estimator.tare(name), models.estimator.tare(name))
+    np.testing.assert_array_equal(restarted.estimate(rest).force, models.estimate(rest).force)
+    other = load_model_set(subset(full_set, ['index_tip', 'thumb_tip'], tmp_path), hand)
+    with pytest.raises(ValueError, match='no tare for thumb_tip'):
+        other.load_tare(tmp_path / 'tare.npz')
+    np.savez(tmp_path / 'nan.npz', index_tip=np.full((hand.array('index_tip').n_taxels, 3),
+                                                     np.nan), ring_middle=np.zeros((1, 3)))
+    with pytest.raises(ValueError, match='not .* finite counts'):
+        models.load_tare(tmp_path / 'nan.npz')
+    with pytest.raises(FileNotFoundError):
+        models.load_tare(tmp_path / 'absent.npz')
+
+
 def test_whole_hand_set_reads_the_frame_as_is(full_set, hand):
     """Every array modelled: each estimate equals its model file, before and after a tare."""
     models = load_model_set(full_set, hand)

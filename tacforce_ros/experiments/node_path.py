@@ -74,10 +74,11 @@ def _free_ports(count: int) -> list[int]:
 
 def run_session(mode: str, scene: str, plate: str, out: Path, sim_duration: float,
                 model_config: Path | None = None, seed: int | None = None,
-                lockstep: bool = True) -> Path:
+                lockstep: bool = True, crash: tuple[str, float, float] | None = None) -> Path:
     """Run the `session` tool once until its scene has run `sim_duration` simulated seconds
-    (seed None: the scene's own; lockstep False: free-running at real time); return the bag
-    folder it recorded."""
+    (seed None: the scene's own; lockstep False: free-running at real time; crash: the
+    session's fault drill, node, at and down wall seconds); return the bag folder it
+    recorded."""
     session_exe = Path(sys.prefix) / 'lib' / 'tacforce_ros' / 'session'
     if not session_exe.is_file():
         raise NodePathUnavailable(f'{session_exe} is not installed (run ./run.sh setup)')
@@ -91,6 +92,8 @@ def run_session(mode: str, scene: str, plate: str, out: Path, sim_duration: floa
         command += ['--model', str(model_config)]
     if seed is not None:
         command += ['--seed', str(seed)]
+    if crash is not None:
+        command += ['--crash', crash[0], f'{crash[1]:g}', f'{crash[2]:g}']
     env = dict(os.environ)
     env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
     # A domain of our own, so DDS traffic of other processes on this host stays out.

@@ -11,6 +11,11 @@ In simulation, simulated time waits for the nodes that close the loop (closed lo
 controller, the estimate and the joint stream; calibration: the recorder; sim_world's
 lockstep); `--no-lockstep` runs it free at `--real-time-factor`.
 
+`--crash NODE AT DOWN` is a fault drill: NODE is killed (SIGKILL, as a crash) AT wall seconds
+after the session started and started again, with the same arguments, DOWN seconds later (as
+launch's respawn would); its log goes on in the same file. The session's exit code then ignores
+the killed process.
+
     session calibration --scene calibration_index_tip_flat --array index_tip --plate flat \\
         --out bags --duration 120
     session closed_loop --scene closed_loop_spherical --model config/models/default.yaml
@@ -24,6 +29,7 @@ import socket
 import subprocess
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 from tacforce_ros.nodes.session_plan import (CAN_PORT, MODES, NETFT_PORT, SCENE_DONE_MARKER,
@@ -56,13 +62,15 @@ def wait_for_port(port: int, proc: subprocess.Popen, timeout: float) -> bool:
 
 
 def start_nodes(nodes: list[NodeLaunch], log_dir: Path, ready_timeout: float,
-                env: dict[str, str] | None = None) -> list[tuple[str, subprocess.Popen]]:
+                env: dict[str, str] | None = None, log_mode: str = 'w'
+                ) -> list[tuple[str, subprocess.Popen]]:
     """Start the nodes in plan order; a node with a ready_port is waited for before the next
-    (the drivers expect their devices to answer at start-up)."""
+    (the drivers expect their devices to answer at start-up). `log_mode` 'a': a restarted node
+    goes on in its log."""
     log_dir.mkdir(parents=True, exist_ok=True)
     procs = []
     for node in nodes:
-        with open(log_dir / f'{node.executable}.log', 'w') as log:   # the child keeps its copy
+        with open(log_dir / f'{node.executable}.log', log_mode) as log:   # the child keeps one
             proc = subprocess.Popen([str(executable(node.executable)), *node.ros_args()],
                                     stdout=log, stderr=subprocess.STDOUT, start_new_session=True,
                                     env=env)
@@ -115,14 +123,60 @@ class SceneLog:
         return SCENE_DONE_MARKER.encode() in self._tail
 
 
-def run(args: SessionArgs, duration: float | None, grace: float) -> int:
+@dataclass(frozen=True)
+class Crash:
+    """A fault drill: `node` is killed `at_s` wall seconds into the session and restarted
+    `down_s` seconds later."""
+
+    node: str
+    at_s: float
+    down_s: float
+
+
+class CrashDrill:
+    """Carries out a Crash on the running session's processes."""
+
+    def __init__(self, crash: Crash, nodes: list[NodeLaunch], log_dir: Path) -> None:
+        launch = next((n for n in nodes if n.executable == crash.node), None)
+        if launch is None:
+            raise PlanError(f'--crash: {crash.node!r} is not a node of this session '
+                            f'({", ".join(n.executable for n in nodes)})')
+        self.crash, self.launch, self.log_dir = crash, launch, log_dir
+        self.down = False
+        self.done = False
+
+    def step(self, elapsed: float, procs: list[tuple[str, subprocess.Popen]]) -> None:
+        """Kill or restart when due (procs is updated in place)."""
+        if self.done:
+            return
+        index = next(k for k, (name, _) in enumerate(procs) if name == self.crash.node)
+        if not self.down and elapsed >= self.crash.at_s:
+            procs[index][1].kill()
+            procs[index][1].wait(timeout=5.0)
+            self.down = True
+            print(f'session: {self.crash.node} killed at {elapsed:.1f} s (fault drill)',
+                  flush=True)
+        elif self.down and elapsed >= self.crash.at_s + self.crash.down_s:
+            procs[index] = start_nodes([self.launch], self.log_dir, ready_timeout=30.0,
+                                       log_mode='a')[0]
+            self.done = True
+            print(f'session: {self.crash.node} restarted at {elapsed:.1f} s (fault drill)',
+                  flush=True)
+
+    def is_down(self, name: str) -> bool:
+        return self.down and not self.done and name == self.crash.node
+
+
+def run(args: SessionArgs, duration: float | None, grace: float,
+        crash: Crash | None = None) -> int:
+    out = Path(args.out)
+    log_dir = out / 'logs'
     try:
         nodes = plan(args)
+        drill = CrashDrill(crash, nodes, log_dir) if crash is not None else None
     except PlanError as exc:
         print(f'session: {exc}', file=sys.stderr)
         return 2
-    out = Path(args.out)
-    log_dir = out / 'logs'
     stop = {'requested': False}
     previous = {sig: signal.signal(sig, lambda *_: stop.update(requested=True))
                 for sig in (signal.SIGINT, signal.SIGTERM)}
@@ -141,7 +195,10 @@ def run(args: SessionArgs, duration: float | None, grace: float) -> int:
                 print(f'{SESSION_SCENE_ENDED} after {args.sim_duration:g} s simulated',
                       flush=True)
                 break
-            exited_early = next((name for name, proc in procs if proc.poll() is not None), None)
+            if drill is not None:
+                drill.step(time.monotonic() - started, procs)
+            exited_early = next((name for name, proc in procs if proc.poll() is not None
+                                 and not (drill is not None and drill.is_down(name))), None)
             if exited_early:
                 print(f'session: {exited_early} exited early; see {log_dir}/'
                       f'{exited_early}.log', file=sys.stderr)
@@ -187,12 +244,23 @@ def main(argv: list[str] | None = None) -> None:
                         help='stop after this many wall seconds (default: until Ctrl-C)')
     parser.add_argument('--grace', type=float, default=10.0,
                         help='seconds the nodes get to stop after SIGINT before being killed')
+    parser.add_argument('--crash', nargs=3, metavar=('NODE', 'AT', 'DOWN'),
+                        help='fault drill: kill NODE AT wall seconds into the session, start it '
+                        'again DOWN seconds later')
     parser.add_argument('--ports', type=int, nargs=3, default=[XELA_PORT, NETFT_PORT, CAN_PORT],
                         metavar=('XELA', 'NETFT', 'CAN'),
                         help='emulator ports on 127.0.0.1 (sim only)')
     a = parser.parse_args(argv)
     if a.duration is not None and a.duration <= 0:
         parser.error('--duration must be positive')
+    crash = None
+    if a.crash:
+        try:
+            crash = Crash(a.crash[0], float(a.crash[1]), float(a.crash[2]))
+        except ValueError:
+            parser.error(f'--crash: AT and DOWN must be seconds, got {a.crash[1:]}')
+        if crash.at_s < 0 or crash.down_s < 0:
+            parser.error('--crash: AT and DOWN must be >= 0')
     os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     sys.exit(run(SessionArgs(mode=a.mode, sim=not a.hardware, hand_side=a.hand_side,
                              array=a.array, plate=a.plate, scene=a.scene,
@@ -201,7 +269,7 @@ def main(argv: list[str] | None = None) -> None:
                              sim_duration=a.sim_duration, seed=a.seed,
                              xela_port=a.ports[0],
                              netft_port=a.ports[1], can_port=a.ports[2]),
-                 a.duration, a.grace))
+                 a.duration, a.grace, crash))
 
 
 if __name__ == '__main__':

@@ -1,6 +1,7 @@
 """bench_graph, run as a user runs it: a model list that cannot close the loop is refused before
 any session starts; what it reads from a recorded closed-loop bag (watchdog ticks, duplicate
-stamps, missing tactile frames) is checked on a bag of known content."""
+stamps, missing tactile frames) is checked on a bag of known content, and what it reads from a
+fault run on ticks of known content."""
 import subprocess
 import sys
 
@@ -8,7 +9,7 @@ import numpy as np
 import pytest
 
 from tacforce_ros import bagio, topics
-from tacforce_ros.tools.bench_graph import stream_counts, watchdog_ticks
+from tacforce_ros.tools.bench_graph import crash_metrics, stream_counts, watchdog_ticks
 
 
 @pytest.mark.parametrize('models, message', [
@@ -64,3 +65,46 @@ def test_watchdog_ticks_and_stream_counts_read_from_a_bag(tmp_path):
                                             'log_time_zero': 1}
     assert streams[topics.TOPIC_CONTROLLER_STATE] == {'messages': 8, 'duplicate_stamps': 0,
                                                       'log_time_zero': 1}
+
+
+def outage_ticks():
+    """10 s at 100 Hz: the last estimate is stamped 3.00 s (fresh until 3.04 with a 0.05 s
+    timeout), stale from 3.05 (safe ramp, hold from 3.10) until it returns at 5.00 s, tracking
+    0.03 N off from 5.30 s."""
+    t = np.round(np.arange(1000) * 0.01, 2)
+    modes = ['closed_loop'] * 1000
+    modes[305:310] = ['safe'] * 5
+    modes[310:500] = ['hold'] * 190
+    fresh = (t < 3.05) | (t >= 5.0)
+    f_d = np.tile([0.0, 0.0, -1.5], (1000, 1))
+    f_hat = f_d + 0.02 * np.sin(t)[:, None]
+    f_hat[~fresh] = np.nan
+    f_hat[500:530] += 0.3                            # off by 0.3 N for 0.3 s after the return
+    f_tilde = np.tile([0.1, 0.0, -1.2], (1000, 1))
+    tip = np.zeros((1000, 3))
+    return t, modes, fresh, f_d, f_hat, f_tilde, tip
+
+
+def test_crash_metrics_read_the_hold_the_contact_and_the_recovery():
+    t, modes, fresh, f_d, f_hat, f_tilde, tip = outage_ticks()
+    result = crash_metrics(t, modes, fresh, f_d, f_hat, f_tilde, tip, 0.05)
+    assert result['last_estimate_s'] == 3.0 and result['estimate_back_s'] == 5.0
+    assert result['hold_after_s'] == pytest.approx(0.10)
+    assert result['least_normal_force_n'] == pytest.approx(1.2)
+    assert result['most_shear_per_normal'] == pytest.approx(0.1 / 1.2)
+    # Under 0.05 N on average over 0.5 s only once the 0.3 s off spell has (nearly) left it.
+    assert 0.5 < result['tracking_back_after_s'] <= 0.8
+    assert result['passed']
+
+
+def test_crash_metrics_fail_a_lost_contact_a_late_hold_and_a_missing_outage():
+    t, modes, fresh, f_d, f_hat, f_tilde, tip = outage_ticks()
+    f_tilde[350:360, 2] = 0.0                        # off the plate for 0.1 s
+    assert not crash_metrics(t, modes, fresh, f_d, f_hat, f_tilde, tip, 0.05)['passed']
+    t, modes, fresh, f_d, f_hat, f_tilde, tip = outage_ticks()
+    modes[310:312] = ['safe'] * 2                    # hold 20 ms late
+    late = crash_metrics(t, modes, fresh, f_d, f_hat, f_tilde, tip, 0.05)
+    assert late['hold_after_s'] == pytest.approx(0.12) and not late['passed']
+    always_fresh = np.ones(1000, bool)
+    assert 'never went stale' in crash_metrics(t, ['closed_loop'] * 1000, always_fresh, f_d,
+                                               f_d, f_tilde, tip, 0.05)['failed']

@@ -102,3 +102,23 @@ def test_session_sees_the_end_of_the_scene_in_the_log_of_sim_world(tmp_path):
         out.write(tail + ' 80.0 s simulated\n')             # the marker across two reads
         out.flush()
         assert log.done()
+
+
+def test_each_session_tares_into_a_file_of_its_own(tmp_path):
+    """A restarted estimator loads its session's tare; another session never does."""
+    first = {n.executable: n for n in plan(SessionArgs(mode='closed_loop', out=str(tmp_path),
+                                                       session_id='a'))}
+    second = {n.executable: n for n in plan(SessionArgs(mode='closed_loop', out=str(tmp_path),
+                                                        session_id='b'))}
+    tare = first['estimator'].overrides['tare_file']
+    assert tare == str(tmp_path / 'estimator_tare_a.npz')
+    assert second['estimator'].overrides['tare_file'] != tare
+
+
+def test_a_crash_drill_of_a_node_the_session_lacks_is_refused_before_any_start(tmp_path):
+    import subprocess
+    done = subprocess.run([sys.executable, '-m', 'tacforce_ros.tools.session', 'calibration',
+                           '--out', str(tmp_path), '--crash', 'estimator', '10', '2'],
+                          capture_output=True, text=True, timeout=60)
+    assert done.returncode == 2 and "'estimator' is not a node of this session" in done.stderr
+    assert not (tmp_path / 'logs').exists()

@@ -32,6 +32,11 @@ def config_dir() -> Path:
     return share_dir() / 'config'
 
 
+def ros_home() -> Path:
+    """ROS's per-user folder: ROS_HOME, else ~/.ros (as rcl_logging and ros2 cli use)."""
+    return Path(os.environ.get('ROS_HOME') or Path.home() / '.ros')
+
+
 class OutputError(OSError):
     """An output folder that cannot be created or written."""
 

@@ -6,12 +6,13 @@ No rclpy here: the plan is data (executable, parameter files under config/params
 """
 from __future__ import annotations
 
+import os
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from tacforce_ros.paths import config_dir
+from tacforce_ros.paths import config_dir, ros_home
 
 MODES = ('calibration', 'closed_loop')
 HAND_SIDES = ('right', 'left')
@@ -42,12 +43,14 @@ class PlanError(ValueError):
 
 @dataclass(frozen=True)
 class NodeLaunch:
-    """One node: its installed executable, parameter files (in order) and overrides."""
+    """One node: its installed executable, parameter files (in order) and overrides; or, with
+    `parts`, a tacforce_container process hosting those nodes."""
 
     executable: str
-    param_files: tuple[Path, ...]
+    param_files: tuple[Path, ...] = ()
     overrides: dict[str, Any] = field(default_factory=dict)
     ready_port: int | None = None     # a TCP port on 127.0.0.1 that accepts once it is ready
+    parts: tuple[NodeLaunch, ...] = ()
 
     def ros_args(self) -> list[str]:
         """Command-line arguments giving the node exactly these parameters."""
@@ -57,6 +60,23 @@ class NodeLaunch:
         for name, value in self.overrides.items():
             args += ['-p', f'{name}:={_ros_literal(value)}']
         return args
+
+    def command_args(self) -> list[str]:
+        """The process's arguments: the node's ROS arguments, or the container's node groups."""
+        if not self.parts:
+            return self.ros_args()
+        return [arg for part in self.parts for arg in ('--node', part.executable,
+                                                       *part.ros_args())]
+
+
+CONTAINER = 'tacforce_container'
+
+
+def composed(nodes: list[NodeLaunch]) -> list[NodeLaunch]:
+    """The same nodes with every one but the simulator in one tacforce_container process (the
+    simulator stands for the hardware, which is not composed with its drivers)."""
+    devices = [n for n in nodes if n.executable == 'sim_world']
+    return devices + [NodeLaunch(CONTAINER, parts=tuple(n for n in nodes if n not in devices))]
 
 
 @dataclass(frozen=True)
@@ -74,13 +94,15 @@ class SessionArgs:
     real_time_factor: float = 1.0     # sim: an upper bound under lockstep
     lockstep: bool = True              # sim: simulated time waits for the loop's consumers
     sim_duration: float = 0.0          # sim: simulated seconds the scene runs; 0 = until stopped
+    compose: bool = False              # the nodes (not the simulator) in one process
     seed: int = -1                     # simulator seed; -1: the scene's own
     xela_port: int = XELA_PORT
     netft_port: int = NETFT_PORT
     can_port: int = CAN_PORT
     # Names what belongs to this session alone (the estimator's saved tare, which a restarted
-    # estimator loads): the start time, as the recorder names its bags.
-    session_id: str = field(default_factory=lambda: time.strftime('%Y%m%d_%H%M%S'))
+    # estimator loads): the start time and the process that planned it.
+    session_id: str = field(
+        default_factory=lambda: f'{time.strftime("%Y%m%d_%H%M%S")}_{os.getpid()}')
 
     def scene_name(self) -> str:
         if self.scene:
@@ -88,6 +110,11 @@ class SessionArgs:
         if self.mode == 'calibration':
             return f'calibration_{self.array}_{self.plate}'
         return f'closed_loop_{self.plate}'
+
+
+def tare_file(session_id: str) -> Path:
+    """Where a session's estimator keeps its tare: under ROS_HOME (~/.ros), not among the bags."""
+    return ros_home() / 'tacforce_ros' / f'estimator_tare_{session_id}.npz'
 
 
 def params_file(name: str) -> Path:
@@ -150,7 +177,7 @@ def plan(args: SessionArgs) -> list[NodeLaunch]:
     else:
         nodes.append(NodeLaunch('estimator', (params_file('estimator'),), {
             **common, **hand_param,
-            'tare_file': str(Path(args.out) / f'estimator_tare_{args.session_id}.npz'),
+            'tare_file': str(tare_file(args.session_id)),
             **({'model_config': args.model_config} if args.model_config else {})}))
         nodes.append(NodeLaunch('allegro_driver',
                                 (params_file('allegro_driver'), params_file('force_controller')),
@@ -164,4 +191,4 @@ def plan(args: SessionArgs) -> list[NodeLaunch]:
         **common, **hand_param, 'output_dir': args.out, 'array': args.array,
         'plate': args.plate, 'source': 'sim' if args.sim else 'lab', 'autostart': True,
         **({'scene': args.scene_name(), 'seed': args.seed} if args.sim else {})}))
-    return nodes
+    return composed(nodes) if args.compose else nodes

@@ -104,15 +104,15 @@ def test_session_sees_the_end_of_the_scene_in_the_log_of_sim_world(tmp_path):
         assert log.done()
 
 
-def test_each_session_tares_into_a_file_of_its_own(tmp_path):
+def test_each_session_tares_into_a_file_of_its_own_outside_the_bags(tmp_path, monkeypatch):
     """A restarted estimator loads its session's tare; another session never does."""
-    first = {n.executable: n for n in plan(SessionArgs(mode='closed_loop', out=str(tmp_path),
-                                                       session_id='a'))}
+    monkeypatch.setenv('ROS_HOME', str(tmp_path / 'ros'))
+    first = {n.executable: n for n in plan(SessionArgs(mode='closed_loop', out=str(tmp_path)))}
     second = {n.executable: n for n in plan(SessionArgs(mode='closed_loop', out=str(tmp_path),
                                                         session_id='b'))}
-    tare = first['estimator'].overrides['tare_file']
-    assert tare == str(tmp_path / 'estimator_tare_a.npz')
-    assert second['estimator'].overrides['tare_file'] != tare
+    tare = Path(first['estimator'].overrides['tare_file'])
+    assert tare.parent == tmp_path / 'ros' / 'tacforce_ros'
+    assert second['estimator'].overrides['tare_file'] != str(tare)
 
 
 def test_a_crash_drill_of_a_node_the_session_lacks_is_refused_before_any_start(tmp_path):

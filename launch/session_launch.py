@@ -34,6 +34,7 @@ ARGUMENTS = {
     'sim_duration': ('0.0', 'sim only: shut down after this many simulated seconds; 0: run '
                      'until stopped'),
     'seed': ('-1', 'simulator seed (sim only); -1: the scene\'s own'),
+    'compose': ('false', 'true: every node but the simulator in one tacforce_container process'),
 }
 
 
@@ -46,12 +47,14 @@ def _nodes(context, mode: str):
                        real_time_factor=float(value['real_time_factor']),
                        lockstep=value['lockstep'].lower() == 'true',
                        sim_duration=float(value['sim_duration']),
-                       seed=int(value['seed']),
+                       seed=int(value['seed']), compose=value['compose'].lower() == 'true',
                        xela_port=XELA_PORT, netft_port=NETFT_PORT, can_port=CAN_PORT)
     actions, delay = [], 0.0
     for node in plan(args):
-        action = Node(package='tacforce_ros', executable=node.executable, output='screen',
-                      parameters=[str(p) for p in node.param_files] + [node.overrides])
+        action = (Node(package='tacforce_ros', executable=node.executable, output='screen',
+                       arguments=node.command_args()) if node.parts else
+                  Node(package='tacforce_ros', executable=node.executable, output='screen',
+                       parameters=[str(p) for p in node.param_files] + [node.overrides]))
         actions.append(TimerAction(period=delay, actions=[action]) if delay else action)
         if node.executable == 'sim_world':
             # The end of the scene (sim_duration): shut down, the drivers before the emulators.

@@ -74,11 +74,12 @@ def _free_ports(count: int) -> list[int]:
 
 def run_session(mode: str, scene: str, plate: str, out: Path, sim_duration: float,
                 model_config: Path | None = None, seed: int | None = None,
-                lockstep: bool = True, crash: tuple[str, float, float] | None = None) -> Path:
+                lockstep: bool = True, crash: tuple[str, float, float] | None = None,
+                compose: bool = False) -> Path:
     """Run the `session` tool once until its scene has run `sim_duration` simulated seconds
     (seed None: the scene's own; lockstep False: free-running at real time; crash: the
-    session's fault drill, node, at and down wall seconds); return the bag folder it
-    recorded."""
+    session's fault drill, node, at and down wall seconds; compose: the nodes in one process);
+    return the bag folder it recorded. Its output is kept in `out`/session.log."""
     session_exe = Path(sys.prefix) / 'lib' / 'tacforce_ros' / 'session'
     if not session_exe.is_file():
         raise NodePathUnavailable(f'{session_exe} is not installed (run ./run.sh setup)')
@@ -94,6 +95,8 @@ def run_session(mode: str, scene: str, plate: str, out: Path, sim_duration: floa
         command += ['--seed', str(seed)]
     if crash is not None:
         command += ['--crash', crash[0], f'{crash[1]:g}', f'{crash[2]:g}']
+    if compose:
+        command.append('--compose')
     env = dict(os.environ)
     env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
     # A domain of our own, so DDS traffic of other processes on this host stays out.

@@ -135,8 +135,8 @@ class AllegroDriver(TacforceNode):
                   'off (s, wall; above silent_warn_after)', range=(0.02, 60.0)),
     ) + STATUS_PARAMETERS + (REALTIME_PRIORITY,) + _controller_parameters()
 
-    def __init__(self) -> None:
-        super().__init__()
+    def __init__(self, **node_options) -> None:
+        super().__init__(**node_options)
         p = self.params
         try:
             self.hand = load_hand(p['hand_config'] or None)

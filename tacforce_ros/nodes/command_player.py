@@ -36,8 +36,8 @@ class CommandPlayer(TacforceNode):
                   'listen on the desired-force topic', range=(0, 100)),
     )
 
-    def __init__(self) -> None:
-        super().__init__()
+    def __init__(self, **node_options) -> None:
+        super().__init__(**node_options)
         try:
             self.sequence = ForceSequence.load(self.params['sequence'])
         except SequenceError as exc:

@@ -375,6 +375,15 @@ def parse_cli(node_cls: type[TacforceNode], args: Sequence[str]) -> None:
     parser.parse_args(remove_ros_args(list(args))[1:])
 
 
+def events_executor() -> Executor:
+    """rclpy's EventsExecutor (Jazzy and later), SingleThreadedExecutor where it is missing."""
+    try:
+        from rclpy.experimental import EventsExecutor
+    except ImportError:         # Humble
+        return SingleThreadedExecutor()
+    return EventsExecutor()
+
+
 def run_node(node_cls: type[TacforceNode], args: Sequence[str] | None = None, *,
              threads: int = 1, executor: Callable[[], Executor] | None = None) -> int:
     """main() of a node: --help, rclpy init, build the node, spin until SIGINT/SIGTERM or
@@ -388,40 +397,63 @@ def run_node(node_cls: type[TacforceNode], args: Sequence[str] | None = None, *,
     """
     args = list(sys.argv if args is None else args)
     parse_cli(node_cls, args)
+    return run_nodes([(node_cls, None)], args, threads=threads, executor=executor)
+
+
+def run_nodes(parts: Sequence[tuple[type[TacforceNode], Sequence[str] | None]],
+              args: Sequence[str], *, threads: int = 1,
+              executor: Callable[[], Executor] | None = None) -> int:
+    """run_node for one or several nodes in this process, on one executor: each part is a node
+    class and its own ROS arguments (None: the process's, `args`, which rclpy is initialised
+    with). Built in order; any node's error ends them all; on_shutdown() in reverse order."""
     _init_without_rclpy_signal_handlers(args)
     stop = threading.Event()
     previous = {sig: signal.signal(sig, lambda *_: stop.set())
                 for sig in (signal.SIGINT, signal.SIGTERM)}
-    node = spinner = None
-    logger = rclpy.logging.get_logger(node_cls.NODE_NAME)
+    nodes: list[TacforceNode] = []
+    spinner = None
+    logger = rclpy.logging.get_logger(parts[0][0].NODE_NAME)
+    code = EXIT_OK
     try:
         try:
-            node = node_cls()
-        except ParameterError as exc:
-            logger.fatal(f'refusing to start: {exc}')
-            return EXIT_BAD_PARAMETERS
-        logger = node.get_logger()
-        for message in unmatched_params_files(node, args):
-            logger.warning(message)
-        spinner = (executor() if executor is not None
-                   else MultiThreadedExecutor(num_threads=threads) if threads > 1
-                   else SingleThreadedExecutor())
-        spinner.add_node(node)
-        # Short spin slices: a signal only sets `stop`, which is seen within 0.1 s.
-        while not stop.is_set() and rclpy.ok():
-            spinner.spin_once(timeout_sec=0.1)
-        return EXIT_OK
-    except Exception as exc:    # noqa: BLE001 - report, still leave things safe below
-        logger.fatal(f'stopped by an error: {type(exc).__name__}: {exc}')
-        return EXIT_FAILURE
+            for node_cls, node_args in parts:
+                logger = rclpy.logging.get_logger(node_cls.NODE_NAME)
+                try:
+                    node = (node_cls() if node_args is None else
+                            node_cls(cli_args=list(node_args), use_global_arguments=False))
+                except ParameterError as exc:
+                    logger.fatal(f'refusing to start: {exc}')
+                    code = EXIT_BAD_PARAMETERS
+                    return code
+                nodes.append(node)
+                for message in unmatched_params_files(node, args if node_args is None
+                                                      else node_args):
+                    node.get_logger().warning(message)
+            spinner = (executor() if executor is not None
+                       else MultiThreadedExecutor(num_threads=threads) if threads > 1
+                       else SingleThreadedExecutor())
+            for node in nodes:
+                spinner.add_node(node)
+            # Short spin slices: a signal only sets `stop`, which is seen within 0.1 s.
+            while not stop.is_set() and rclpy.ok():
+                spinner.spin_once(timeout_sec=0.1)
+        except Exception as exc:    # noqa: BLE001 - report, still leave things safe below
+            logger.fatal(f'stopped by an error: {type(exc).__name__}: {exc}')
+            code = EXIT_FAILURE
     finally:
-        if node is not None:
-            try:
-                node.on_shutdown()
-            finally:
-                if spinner is not None:
-                    spinner.shutdown()      # lets go of the node's handles first
+        try:
+            for node in reversed(nodes):
+                try:
+                    node.on_shutdown()
+                except Exception as exc:    # noqa: BLE001 - the others must still be left safe
+                    node.get_logger().fatal(f'shutdown failed: {type(exc).__name__}: {exc}')
+                    code = EXIT_FAILURE
+        finally:
+            if spinner is not None:
+                spinner.shutdown()      # lets go of the nodes' handles first
+            for node in nodes:
                 node.destroy_node()
-        rclpy.try_shutdown()
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
+            rclpy.try_shutdown()
+            for sig, handler in previous.items():
+                signal.signal(sig, handler)
+    return code

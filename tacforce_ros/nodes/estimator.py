@@ -40,7 +40,6 @@ from pathlib import Path
 
 import numpy as np
 from geometry_msgs.msg import Point, WrenchStamped
-from rclpy.executors import Executor, SingleThreadedExecutor
 from std_srvs.srv import Trigger
 from tacforce_msgs.msg import ForceEstimateArray, TactileHand
 from visualization_msgs.msg import Marker, MarkerArray
@@ -55,8 +54,8 @@ from tacforce_ros.estimation.model_set import ModelConfigError, load_model_set
 from tacforce_ros.estimation.preprocessing import SAMPLE_RATE_HZ
 from tacforce_ros.hand.description import HandConfigError, load_hand
 from tacforce_ros.nodes.common import (REALTIME_PRIORITY, RELIABLE_QOS, ParameterError,
-                                       ParamSpec, TacforceNode, publisher_qos, run_node,
-                                       subscriber_qos)
+                                       ParamSpec, TacforceNode, events_executor,
+                                       publisher_qos, run_node, subscriber_qos)
 from tacforce_ros.nodes.messages import (SerializedMessages, TactileHandDecoder, stamp,
                                          serialized_estimates, serialized_wrenches)
 from tacforce_ros.paths import config_dir
@@ -100,8 +99,8 @@ class Estimator(TacforceNode):
         REALTIME_PRIORITY,
     )
 
-    def __init__(self) -> None:
-        super().__init__()
+    def __init__(self, **node_options) -> None:
+        super().__init__(**node_options)
         p = self.params
         try:
             self.hand = load_hand(p['hand_config'] or None)
@@ -284,15 +283,6 @@ class Estimator(TacforceNode):
             marker.pose.orientation.w = 1.0
             out.markers.append(marker)
         self.marker_publisher.publish(out)
-
-
-def events_executor() -> Executor:
-    """rclpy's EventsExecutor (Jazzy and later), SingleThreadedExecutor where it is missing."""
-    try:
-        from rclpy.experimental import EventsExecutor
-    except ImportError:         # Humble
-        return SingleThreadedExecutor()
-    return EventsExecutor()
 
 
 def main(args: list[str] | None = None) -> None:

@@ -46,8 +46,8 @@ class FtBridge(TacforceNode):
                   'records (s, wall time)', range=(0.1, 60.0)),
     ) + STATUS_PARAMETERS
 
-    def __init__(self) -> None:
-        super().__init__()
+    def __init__(self, **node_options) -> None:
+        super().__init__(**node_options)
         p = self.params
         self.publisher = self.create_publisher(WrenchStamped, TOPIC_WRENCH,
                                                publisher_qos(TOPIC_WRENCH))

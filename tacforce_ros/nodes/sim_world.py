@@ -129,8 +129,8 @@ class SimWorld(TacforceNode):
                   '~/real_time_factor every this many wall seconds', range=(0.5, 3600.0)),
     )
 
-    def __init__(self) -> None:
-        super().__init__()
+    def __init__(self, **node_options) -> None:
+        super().__init__(**node_options)
         p = self.params
         try:
             self.hand = load_hand(p['hand_config'] or None)

@@ -76,8 +76,8 @@ class SyncRecorder(TacforceNode):
         ParamSpec('autostart', False, 'start recording at start-up with the parameters above'),
     )
 
-    def __init__(self) -> None:
-        super().__init__()
+    def __init__(self, **node_options) -> None:
+        super().__init__(**node_options)
         try:
             self.hand = load_hand(self.params['hand_config'] or None)
         except (HandConfigError, OSError) as exc:

@@ -52,8 +52,8 @@ class XelaDriver(TacforceNode):
                   range=(0.0, 0.009)),
     ) + STATUS_PARAMETERS
 
-    def __init__(self) -> None:
-        super().__init__()
+    def __init__(self, **node_options) -> None:
+        super().__init__(**node_options)
         p = self.params
         if not p['url'].startswith(('ws://', 'wss://')):
             raise ParameterError(f'url: {p["url"]!r} is not a ws:// or wss:// URL')

@@ -41,6 +41,7 @@ from tacforce_ros.nodes.session_plan import SCENE_DONE_MARKER
 from tacforce_ros.paths import config_dir, output_folder
 from tacforce_ros.sim.closed_loop import FRICTION
 from tacforce_ros.sim.scene import load_scene
+from tacforce_ros.tools.session import CPU_REPORT
 
 LOOP_SCENE = 'closed_loop_spherical'
 CALIBRATION_SCENE = 'calibration_index_tip_spherical'
@@ -60,6 +61,16 @@ CONTACT_MIN_N = 0.2
 TRACK_N = 0.05
 TRACK_WINDOW_S = 0.5
 RECOVERY_S = 2.0
+
+
+def process_cpu(session_dir: Path) -> dict[str, float]:
+    """CPU seconds per process of a session (the session tool's report at its end)."""
+    log = session_dir / 'session.log'
+    for line in log.read_text(errors='replace').splitlines() if log.is_file() else ():
+        if line.startswith(CPU_REPORT):
+            return {name: float(value) for name, value in
+                    (item.split('=') for item in line[len(CPU_REPORT):].split(', ') if item)}
+    return {}
 
 
 def achieved_factor(session_dir: Path) -> float | None:
@@ -187,21 +198,23 @@ def crash_report(bag: Path, kinematics, sequence) -> dict:
                          controller_config('M3-lambda').estimate_timeout)
 
 
-def closed_loop_run(k: int, args, hand, kinematics, sequence, out: Path) -> dict:
+def closed_loop_run(k: int, args, hand, kinematics, sequence, out: Path,
+                    compose: bool = False) -> dict:
     seed = load_scene(LOOP_SCENE).seed + k
     direct = run_closed_loop(hand, kinematics, LOOP_SCENE, seed, controller_config('M3-lambda'),
                              sequence, load_model_set(args.model, hand),
                              control_rate=100.0, tare_frames=tare_frames())
     started = time.monotonic()
-    session_dir = out / f'closed_loop_{k}'
+    session_dir = out / f'closed_loop_{k}{"_composed" if compose else ""}'
     bag = node_path.run_session('closed_loop', LOOP_SCENE, 'spherical', session_dir,
                                 node_path.closed_loop_session_seconds(sequence.duration),
-                                args.model, seed=seed, lockstep=args.lockstep)
+                                args.model, seed=seed, lockstep=args.lockstep, compose=compose)
     wall = time.monotonic() - started
     trace, offset = node_path.node_trace(bag, sequence, tare_frames())
     compared = node_path.compare_closed_loop(trace, direct, offset)
     node, direct_m = compared['node'], compared['direct']
-    return {'run': k, 'seed': seed, 'session_wall_s': wall,
+    return {'run': k, 'seed': seed, 'composed': compose, 'session_wall_s': wall,
+            'cpu_s': process_cpu(session_dir),
             'achieved_real_time_factor': achieved_factor(session_dir),
             'e_tilde': {'node': node['e_tilde_mean'], 'direct': direct_m['e_tilde_mean']},
             'e_track': {'node': node['e_track_mean'], 'direct': direct_m['e_track_mean']},
@@ -230,6 +243,30 @@ def calibration_run(args, hand, kinematics, out: Path) -> dict:
             'e_hat_difference': compared['difference_n'], 'streams': streams, 'bag': str(bag)}
 
 
+def summary(runs: list[dict]) -> dict:
+    """How many runs agree with the direct path within issue 13's tolerances and had no `safe`
+    tick; mean session wall time and CPU seconds (the nodes, the simulator)."""
+    done = [r for r in runs if 'failed' not in r]
+    tolerance = {'e_tilde': 0.03, 'e_track': 0.02}     # issue 13's must-show
+    return {
+        'runs': len(runs), 'e_tilde_tolerance': tolerance['e_tilde'],
+        'e_track_tolerance': tolerance['e_track'],
+        'agree': sum(r['e_tilde_difference'] <= tolerance['e_tilde']
+                     and r['e_track_difference'] is not None
+                     and r['e_track_difference'] <= tolerance['e_track'] for r in done),
+        'no_safe_ticks': sum(r['watchdog']['safe'] == 0 for r in done),
+        'mean_session_wall_s': float(np.mean([r['session_wall_s'] for r in done]))
+        if done else None,
+        'mean_cpu_s_nodes': float(np.mean([nodes_cpu(r) for r in done])) if done else None,
+        'mean_cpu_s_simulator': float(np.mean([r['cpu_s'].get('sim_world', np.nan)
+                                               for r in done])) if done else None}
+
+
+def nodes_cpu(run: dict) -> float:
+    """CPU seconds of a run's node processes (all but the simulator)."""
+    return sum(v for name, v in run['cpu_s'].items() if name != 'sim_world')
+
+
 def _n(value, digits: int = 3) -> str:
     return '-' if value is None else f'{value:.{digits}f}'
 
@@ -237,30 +274,41 @@ def _n(value, digits: int = 3) -> str:
 def table(result: dict) -> str:
     lines = [f'bench_graph ({"lockstep" if result["lockstep"] else "free-running"}, '
              f'{result["sequence"]}, model {result["model"]})', '',
-             '| run | seed | e~ node | e~ direct | diff | e_track node | e_track direct | diff '
-             '| safe ticks | hold after engaging | real-time factor | duplicate stamps '
+             '| run | seed | processes | e~ node | e~ direct | diff | e_track node | '
+             'e_track direct | diff | safe ticks | hold after engaging | real-time factor | '
+             'session wall s | CPU s nodes / simulator | duplicate stamps '
              '(tactile/wrench/joints/state) | tactile frames missing |',
-             '|' + '---|' * 13]
-    for r in result['closed_loop']:
+             '|' + '---|' * 16]
+    runs = sorted(result['closed_loop'] + result['closed_loop_composed'],
+                  key=lambda r: (r['run'], r['composed']))
+    for r in runs:
+        processes = 'one (composed)' if r['composed'] else 'one per node'
         if 'failed' in r:
-            lines.append(f'| {r["run"]} | {r["seed"]} | FAILED: {r["failed"]} |')
+            lines.append(f'| {r["run"]} | {r["seed"]} | {processes} | FAILED: {r["failed"]} |')
             continue
         s = r['streams']
         duplicates = '/'.join(str(s.get(t, {}).get('duplicate_stamps', '-')) for t in (
             topics.TOPIC_TACTILE, topics.TOPIC_WRENCH, topics.TOPIC_JOINTS,
             topics.TOPIC_CONTROLLER_STATE))
         lines.append(
-            f'| {r["run"]} | {r["seed"]} | {_n(r["e_tilde"]["node"])} | '
+            f'| {r["run"]} | {r["seed"]} | {processes} | {_n(r["e_tilde"]["node"])} | '
             f'{_n(r["e_tilde"]["direct"])} | {_n(r["e_tilde_difference"])} | '
             f'{_n(r["e_track"]["node"])} | {_n(r["e_track"]["direct"])} | '
             f'{_n(r["e_track_difference"])} | {r["watchdog"]["safe"]} | '
             f'{r["watchdog"]["hold_after_engaging"]} | '
-            f'{_n(r["achieved_real_time_factor"], 2)} | {duplicates} | '
+            f'{_n(r["achieved_real_time_factor"], 2)} | {r["session_wall_s"]:.0f} | '
+            f'{nodes_cpu(r):.0f} / {_n(r["cpu_s"].get("sim_world"), 0)} | {duplicates} | '
             f'{s.get(topics.TOPIC_TACTILE, {}).get("missing_frames", "-")} |')
-    summary = result['summary']
-    lines += ['', f'agree (|e~ diff| <= {summary["e_tilde_tolerance"]} N and |e_track diff| <= '
-              f'{summary["e_track_tolerance"]} N): {summary["agree"]} of {summary["runs"]}; '
-              f'with zero safe ticks: {summary["no_safe_ticks"]} of {summary["runs"]}']
+    for key, name in (('summary', 'one process per node'),
+                      ('summary_composed', 'composed in one process')):
+        m = result[key]
+        if m['runs']:
+            lines += ['', f'{name}: agree (|e~ diff| <= {m["e_tilde_tolerance"]} N and |e_track '
+                      f'diff| <= {m["e_track_tolerance"]} N): {m["agree"]} of {m["runs"]}; with '
+                      f'zero safe ticks: {m["no_safe_ticks"]} of {m["runs"]}; mean session '
+                      f'{_n(m["mean_session_wall_s"], 0)} s wall, CPU '
+                      f'{_n(m["mean_cpu_s_nodes"], 0)} s nodes + '
+                      f'{_n(m["mean_cpu_s_simulator"], 0)} s simulator']
     c = result.get('calibration')
     if c and 'failed' not in c:
         lines += ['', f'calibration session: {_n(c["samples_per_simulated_s"], 1)} samples per '
@@ -297,6 +345,8 @@ def main(argv: list[str] | None = None) -> None:
                         help='estimator models YAML (index_tip closes the loop)')
     parser.add_argument('--calibration-seconds', type=float, default=40.0,
                         help='simulated seconds of the calibration session; 0: none')
+    parser.add_argument('--compose', action='store_true',
+                        help='each closed-loop run also with the nodes composed in one process')
     parser.add_argument('--crash', action=argparse.BooleanOptionalAction, default=True,
                         help='the fault run: the estimator killed mid-sequence and restarted '
                         '(default on)')
@@ -317,17 +367,19 @@ def main(argv: list[str] | None = None) -> None:
         parser.error(str(exc))
     sequence = ForceSequence.load(args.sequence)
     result: dict = {'lockstep': args.lockstep, 'sequence': args.sequence,
-                    'model': str(args.model), 'closed_loop': []}
+                    'model': str(args.model), 'closed_loop': [], 'closed_loop_composed': []}
     for k in range(args.runs):
-        try:
-            run = closed_loop_run(k, args, hand, kinematics, sequence, args.out)
-        except (node_path.NodePathUnavailable, OSError, ValueError) as exc:
-            run = {'run': k, 'seed': load_scene(LOOP_SCENE).seed + k, 'failed': str(exc)}
-        result['closed_loop'].append(run)
-        print(f'run {k}: ' + (run.get('failed') or
-                              f'e~ diff {run["e_tilde_difference"]:.3f} N, e_track diff '
-                              f'{_n(run["e_track_difference"])} N, safe ticks '
-                              f'{run["watchdog"]["safe"]}'), flush=True)
+        for compose in (False, True) if args.compose else (False,):
+            try:
+                run = closed_loop_run(k, args, hand, kinematics, sequence, args.out, compose)
+            except (node_path.NodePathUnavailable, OSError, ValueError) as exc:
+                run = {'run': k, 'seed': load_scene(LOOP_SCENE).seed + k, 'composed': compose,
+                       'failed': str(exc)}
+            result['closed_loop_composed' if compose else 'closed_loop'].append(run)
+            print(f'run {k}{" composed" if compose else ""}: ' + (
+                run.get('failed') or f'e~ diff {run["e_tilde_difference"]:.3f} N, e_track diff '
+                f'{_n(run["e_track_difference"])} N, safe ticks {run["watchdog"]["safe"]}'),
+                flush=True)
     if args.calibration_seconds > 0:
         try:
             result['calibration'] = calibration_run(args, hand, kinematics, args.out)
@@ -338,20 +390,14 @@ def main(argv: list[str] | None = None) -> None:
             result['crash'] = crash_run(args, kinematics, sequence, args.out)
         except (node_path.NodePathUnavailable, OSError, ValueError) as exc:
             result['crash'] = {'failed': str(exc)}
-    done = [r for r in result['closed_loop'] if 'failed' not in r]
-    tolerance = {'e_tilde': 0.03, 'e_track': 0.02}     # issue 13's must-show
-    result['summary'] = {
-        'runs': len(result['closed_loop']), 'e_tilde_tolerance': tolerance['e_tilde'],
-        'e_track_tolerance': tolerance['e_track'],
-        'agree': sum(r['e_tilde_difference'] <= tolerance['e_tilde']
-                     and r['e_track_difference'] is not None
-                     and r['e_track_difference'] <= tolerance['e_track'] for r in done),
-        'no_safe_ticks': sum(r['watchdog']['safe'] == 0 for r in done)}
+    for key in ('closed_loop', 'closed_loop_composed'):
+        result['summary' if key == 'closed_loop' else 'summary_composed'] = summary(result[key])
+    runs = result['closed_loop'] + result['closed_loop_composed']
     (args.out / 'bench_graph.json').write_text(json.dumps(result, indent=2))
     text = table(result)
     (args.out / 'bench_graph.md').write_text(text + '\n')
     print(text)
-    failed = (len(done) < len(result['closed_loop'])
+    failed = (any('failed' in r for r in runs)
               or any('failed' in result.get(part, {}) for part in ('calibration', 'crash')))
     sys.exit(1 if failed else 0)
 

@@ -11,6 +11,9 @@ In simulation, simulated time waits for the nodes that close the loop (closed lo
 controller, the estimate and the joint stream; calibration: the recorder; sim_world's
 lockstep); `--no-lockstep` runs it free at `--real-time-factor`.
 
+`--compose` runs every node but the simulator in one tacforce_container process (one executor);
+at the end the CPU seconds of each process are printed either way.
+
 `--crash NODE AT DOWN` is a fault drill: NODE is killed (SIGKILL, as a crash) AT wall seconds
 after the session started and started again, with the same arguments, DOWN seconds later (as
 launch's respawn would); its log goes on in the same file. The session's exit code then ignores
@@ -38,6 +41,7 @@ from tacforce_ros.nodes.session_plan import (CAN_PORT, MODES, NETFT_PORT, SCENE_
 from tacforce_ros.paths import output_folder
 
 POLL_S = 0.1
+CPU_REPORT = 'session: CPU seconds per process:'
 EXECUTABLES = Path(sys.prefix) / 'lib' / 'tacforce_ros'
 
 
@@ -71,7 +75,7 @@ def start_nodes(nodes: list[NodeLaunch], log_dir: Path, ready_timeout: float,
     procs = []
     for node in nodes:
         with open(log_dir / f'{node.executable}.log', log_mode) as log:   # the child keeps one
-            proc = subprocess.Popen([str(executable(node.executable)), *node.ros_args()],
+            proc = subprocess.Popen([str(executable(node.executable)), *node.command_args()],
                                     stdout=log, stderr=subprocess.STDOUT, start_new_session=True,
                                     env=env)
         procs.append((node.executable, proc))
@@ -81,6 +85,17 @@ def start_nodes(nodes: list[NodeLaunch], log_dir: Path, ready_timeout: float,
                   f'{ready_timeout:g} s', file=sys.stderr)
             break
     return procs
+
+
+def cpu_seconds(pid: int) -> float | None:
+    """User + system CPU seconds a running process has used, all its threads (Linux /proc;
+    None elsewhere or once it is gone)."""
+    try:
+        fields = Path(f'/proc/{pid}/stat').read_text().rsplit(')', 1)[1].split()
+    except OSError:
+        return None
+    # after the command name: state is field 3 of proc(5), utime and stime fields 14 and 15
+    return (int(fields[11]) + int(fields[12])) / os.sysconf('SC_CLK_TCK')
 
 
 def stop_nodes(procs: list[tuple[str, subprocess.Popen]], grace: float) -> dict[str, int]:
@@ -139,6 +154,9 @@ class CrashDrill:
     def __init__(self, crash: Crash, nodes: list[NodeLaunch], log_dir: Path) -> None:
         launch = next((n for n in nodes if n.executable == crash.node), None)
         if launch is None:
+            if any(p.executable == crash.node for n in nodes for p in n.parts):
+                raise PlanError(f'--crash: {crash.node!r} shares a process with other nodes '
+                                '(--compose): a crash drill needs it in a process of its own')
             raise PlanError(f'--crash: {crash.node!r} is not a node of this session '
                             f'({", ".join(n.executable for n in nodes)})')
         self.crash, self.launch, self.log_dir = crash, launch, log_dir
@@ -205,6 +223,9 @@ def run(args: SessionArgs, duration: float | None, grace: float,
                 break
             time.sleep(POLL_S)
     finally:
+        cpu = {name: cpu_seconds(proc.pid) for name, proc in procs}
+        print(f'{CPU_REPORT} ' + ', '.join(f'{name}={seconds:.1f}' for name, seconds in cpu.items()
+                                        if seconds is not None), flush=True)
         codes = stop_nodes(procs, grace)
         for sig, handler in previous.items():
             signal.signal(sig, handler)
@@ -244,6 +265,8 @@ def main(argv: list[str] | None = None) -> None:
                         help='stop after this many wall seconds (default: until Ctrl-C)')
     parser.add_argument('--grace', type=float, default=10.0,
                         help='seconds the nodes get to stop after SIGINT before being killed')
+    parser.add_argument('--compose', action='store_true',
+                        help='the nodes (all but the simulator) in one tacforce_container process')
     parser.add_argument('--crash', nargs=3, metavar=('NODE', 'AT', 'DOWN'),
                         help='fault drill: kill NODE AT wall seconds into the session, start it '
                         'again DOWN seconds later')
@@ -266,7 +289,7 @@ def main(argv: list[str] | None = None) -> None:
                              array=a.array, plate=a.plate, scene=a.scene,
                              model_config=a.model, out=str(a.out),
                              real_time_factor=a.real_time_factor, lockstep=a.lockstep,
-                             sim_duration=a.sim_duration, seed=a.seed,
+                             sim_duration=a.sim_duration, seed=a.seed, compose=a.compose,
                              xela_port=a.ports[0],
                              netft_port=a.ports[1], can_port=a.ports[2]),
                  a.duration, a.grace, crash))

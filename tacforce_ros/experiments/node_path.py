@@ -17,7 +17,9 @@ import numpy as np
 
 from tacforce_ros.control.force_controller import MODE_HOLD, MODE_SAFE
 from tacforce_ros.estimation.metrics import error_stats
-from tacforce_ros.experiments.closed_loop import METRIC_WINDOW, ClosedLoopTrace, trace_metrics
+from tacforce_ros.estimation.model_set import load_model_set
+from tacforce_ros.experiments.closed_loop import (METRIC_WINDOW, ClosedLoopTrace, run_closed_loop,
+                                                  trace_metrics)
 from tacforce_ros.nodes.session_plan import SESSION_SCENE_ENDED
 
 if TYPE_CHECKING:
@@ -118,6 +120,24 @@ def run_session(mode: str, scene: str, plate: str, out: Path, sim_duration: floa
         raise NodePathUnavailable(f'session {mode} exited {done.returncode} and recorded no bag '
                                   f'(log: {out / "session.log"}): {done.stderr.strip()[-300:]}')
     return bags[-1]
+
+
+def closed_loop_against_direct(hand: HandDescription, kinematics: HandKinematics, scene: str,
+                               plate: str, seed: int, model_config: Path, sequence, out: Path,
+                               controller, tare_frames: int, control_rate: float = 100.0,
+                               lockstep: bool = True, compose: bool = False
+                               ) -> tuple[dict, ClosedLoopTrace, ClosedLoopTrace, Path]:
+    """The closed loop of `sequence` on `scene` directly (in-process) and through the node
+    graph (`session`, into `out`), same seed, models and controller configuration: returns
+    compare_closed_loop's result, the node and direct traces, and the node run's bag."""
+    direct = run_closed_loop(hand, kinematics, scene, seed, controller, sequence,
+                             load_model_set(model_config, hand), control_rate=control_rate,
+                             tare_frames=tare_frames)
+    bag = run_session('closed_loop', scene, plate, out,
+                      closed_loop_session_seconds(sequence.duration), model_config, seed=seed,
+                      lockstep=lockstep, compose=compose)
+    trace, offset = node_trace(bag, sequence, tare_frames)
+    return compare_closed_loop(trace, direct, offset), trace, direct, bag
 
 
 def closed_loop_session_seconds(sequence_seconds: float) -> float:

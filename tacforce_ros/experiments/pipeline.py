@@ -587,7 +587,8 @@ def node_path_stage(ctx: Context, models: dict) -> dict:
     key = digest({'scenes': [scene_digest(calibration_scene), scene_digest(loop_scene)],
                   'model': Path(model).stem,
                   'code': source_digest(node_path.run_session, node_path.SESSION_MODULE,
-                                        run_closed_loop, *node_modules()),
+                                        node_path.closed_loop_against_direct, run_closed_loop,
+                                        *node_modules()),
                   'inputs': file_digest(*sorted((config_dir() / 'params').glob('*.yaml')),
                                         config_dir() / 'commands' / f'{s.sequence}.yaml')})
     cached = ctx.cache.load_json('node_path', key)
@@ -606,18 +607,12 @@ def node_path_stage(ctx: Context, models: dict) -> dict:
             bag, hand, kinematics, calibration_scene, load_scene(calibration_scene).seed, model,
             s.static_force)
         sequence = ForceSequence.load(s.sequence)
-        seed = load_scene(loop_scene).seed
-        config = model_config_file(ctx, 'M3-lambda', models)
-        direct = run_closed_loop(hand, kinematics, loop_scene, seed, controller_config('M3-lambda'),
-                                 sequence, load_model_set(config, hand),
-                                 control_rate=s.control_rate, tare_frames=tare_frames())
         ctx.log(f'stage node path: closed-loop run ({sequence.duration:g} s + start-up, '
                 'simulated)')
-        bag = node_path.run_session(
-            'closed_loop', loop_scene, HELD_OUT_PLATE, work / 'closed_loop',
-            node_path.closed_loop_session_seconds(sequence.duration), config, seed=seed)
-        trace, offset = node_path.node_trace(bag, sequence, tare_frames())
-        result['closed_loop'] = node_path.compare_closed_loop(trace, direct, offset)
+        result['closed_loop'], trace, direct, _ = node_path.closed_loop_against_direct(
+            hand, kinematics, loop_scene, HELD_OUT_PLATE, load_scene(loop_scene).seed,
+            model_config_file(ctx, 'M3-lambda', models), sequence, work / 'closed_loop',
+            controller_config('M3-lambda'), tare_frames(), control_rate=s.control_rate)
         np.savez(work / 'closed_loop_traces.npz',
                  **{f'node_{k}': v for k, v in trace.arrays().items()},
                  **{f'direct_{k}': v for k, v in direct.arrays().items()})

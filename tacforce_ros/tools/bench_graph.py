@@ -23,7 +23,6 @@ import argparse
 import json
 import re
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -33,7 +32,6 @@ from tacforce_ros.control.command_sequence import ForceSequence
 from tacforce_ros.control.force_controller import MODE_HOLD, MODE_SAFE
 from tacforce_ros.estimation.model_set import ModelConfigError, load_model_set, model_files
 from tacforce_ros.experiments import node_path
-from tacforce_ros.experiments.closed_loop import run_closed_loop
 from tacforce_ros.experiments.pipeline import Settings, controller_config, tare_frames
 from tacforce_ros.hand.description import load_hand
 from tacforce_ros.hand.kinematics import TIP_LINKS, HandKinematics
@@ -48,6 +46,7 @@ CALIBRATION_SCENE = 'calibration_index_tip_spherical'
 STREAMS = (topics.TOPIC_TACTILE, topics.TOPIC_WRENCH, topics.TOPIC_JOINTS, topics.TOPIC_SAMPLE,
            topics.TOPIC_CONTROLLER_STATE)
 _ACHIEVED = re.compile(r'([0-9.]+)x real time')
+_STOPPED = re.compile(r'stopped after ([0-9.]+) s')
 TACTILE_PERIOD_NS = 10_000_000      # uSkin frames at 100 Hz (the scenes' tactile_rate)
 # The fault run (issue 13): the estimator killed 40 wall seconds into the session, which is 18 to
 # 36 s into the sequence at 0.5x to 1x real time (a force step is commanded from 16 s on), and
@@ -63,13 +62,21 @@ TRACK_WINDOW_S = 0.5
 RECOVERY_S = 2.0
 
 
+def session_seconds(session_dir: Path) -> float | None:
+    """Wall seconds the session ran, from start to stop (the session tool's last line)."""
+    log = session_dir / 'session.log'
+    found = _STOPPED.search(log.read_text(errors='replace')) if log.is_file() else None
+    return float(found.group(1)) if found else None
+
+
 def process_cpu(session_dir: Path) -> dict[str, float]:
     """CPU seconds per process of a session (the session tool's report at its end)."""
     log = session_dir / 'session.log'
     for line in log.read_text(errors='replace').splitlines() if log.is_file() else ():
         if line.startswith(CPU_REPORT):
             return {name: float(value) for name, value in
-                    (item.split('=') for item in line[len(CPU_REPORT):].split(', ') if item)}
+                    (item.split('=') for item in line[len(CPU_REPORT):].strip().split(', ')
+                     if item)}
     return {}
 
 
@@ -201,19 +208,13 @@ def crash_report(bag: Path, kinematics, sequence) -> dict:
 def closed_loop_run(k: int, args, hand, kinematics, sequence, out: Path,
                     compose: bool = False) -> dict:
     seed = load_scene(LOOP_SCENE).seed + k
-    direct = run_closed_loop(hand, kinematics, LOOP_SCENE, seed, controller_config('M3-lambda'),
-                             sequence, load_model_set(args.model, hand),
-                             control_rate=100.0, tare_frames=tare_frames())
-    started = time.monotonic()
     session_dir = out / f'closed_loop_{k}{"_composed" if compose else ""}'
-    bag = node_path.run_session('closed_loop', LOOP_SCENE, 'spherical', session_dir,
-                                node_path.closed_loop_session_seconds(sequence.duration),
-                                args.model, seed=seed, lockstep=args.lockstep, compose=compose)
-    wall = time.monotonic() - started
-    trace, offset = node_path.node_trace(bag, sequence, tare_frames())
-    compared = node_path.compare_closed_loop(trace, direct, offset)
+    compared, *_, bag = node_path.closed_loop_against_direct(
+        hand, kinematics, LOOP_SCENE, 'spherical', seed, args.model, sequence, session_dir,
+        controller_config('M3-lambda'), tare_frames(), lockstep=args.lockstep, compose=compose)
     node, direct_m = compared['node'], compared['direct']
-    return {'run': k, 'seed': seed, 'composed': compose, 'session_wall_s': wall,
+    return {'run': k, 'seed': seed, 'composed': compose,
+            'session_wall_s': session_seconds(session_dir),
             'cpu_s': process_cpu(session_dir),
             'achieved_real_time_factor': achieved_factor(session_dir),
             'e_tilde': {'node': node['e_tilde_mean'], 'direct': direct_m['e_tilde_mean']},
@@ -255,7 +256,7 @@ def summary(runs: list[dict]) -> dict:
                      and r['e_track_difference'] is not None
                      and r['e_track_difference'] <= tolerance['e_track'] for r in done),
         'no_safe_ticks': sum(r['watchdog']['safe'] == 0 for r in done),
-        'mean_session_wall_s': float(np.mean([r['session_wall_s'] for r in done]))
+        'mean_session_wall_s': float(np.mean([r['session_wall_s'] or np.nan for r in done]))
         if done else None,
         'mean_cpu_s_nodes': float(np.mean([nodes_cpu(r) for r in done])) if done else None,
         'mean_cpu_s_simulator': float(np.mean([r['cpu_s'].get('sim_world', np.nan)
@@ -296,7 +297,7 @@ def table(result: dict) -> str:
             f'{_n(r["e_track"]["node"])} | {_n(r["e_track"]["direct"])} | '
             f'{_n(r["e_track_difference"])} | {r["watchdog"]["safe"]} | '
             f'{r["watchdog"]["hold_after_engaging"]} | '
-            f'{_n(r["achieved_real_time_factor"], 2)} | {r["session_wall_s"]:.0f} | '
+            f'{_n(r["achieved_real_time_factor"], 2)} | {_n(r["session_wall_s"], 0)} | '
             f'{nodes_cpu(r):.0f} / {_n(r["cpu_s"].get("sim_world"), 0)} | {duplicates} | '
             f'{s.get(topics.TOPIC_TACTILE, {}).get("missing_frames", "-")} |')
     for key, name in (('summary', 'one process per node'),

@@ -108,3 +108,33 @@ def test_crash_metrics_fail_a_lost_contact_a_late_hold_and_a_missing_outage():
     always_fresh = np.ones(1000, bool)
     assert 'never went stale' in crash_metrics(t, ['closed_loop'] * 1000, always_fresh, f_d,
                                                f_d, f_tilde, tip, 0.05)['failed']
+
+
+def test_session_figures_are_read_from_its_log_and_tabled_side_by_side(tmp_path):
+    """Wall time and CPU per process come from the session tool's own lines; a composed run is
+    tabled next to the run of the same seed with one process per node."""
+    from tacforce_ros.tools.bench_graph import process_cpu, session_seconds, summary, table
+    from tacforce_ros.tools.session import CPU_REPORT
+    (tmp_path / 'session.log').write_text(
+        'session closed_loop: started sim_world, tacforce_container\n'
+        f'{CPU_REPORT} sim_world=16.6, tacforce_container=30.6\n'
+        'session closed_loop: stopped after 34.7 s; exit codes sim_world=0\n')
+    assert session_seconds(tmp_path) == 34.7
+    assert process_cpu(tmp_path) == {'sim_world': 16.6, 'tacforce_container': 30.6}
+
+    def run(composed, cpu):
+        return {'run': 0, 'seed': 0, 'composed': composed, 'session_wall_s': 35.0, 'cpu_s': cpu,
+                'achieved_real_time_factor': 0.8, 'e_tilde': {'node': 0.07, 'direct': 0.072},
+                'e_track': {'node': 0.021, 'direct': 0.022}, 'e_tilde_difference': 0.002,
+                'e_track_difference': 0.001,
+                'watchdog': {'ticks': 8000, 'safe': 0, 'hold_after_engaging': 0},
+                'streams': {}}
+    separate = run(False, {'sim_world': 16.0, 'estimator': 3.0, 'allegro_driver': 10.0})
+    composed = run(True, {'sim_world': 17.0, 'tacforce_container': 30.0})
+    result = {'lockstep': True, 'sequence': 'paper_70s', 'model': 'm.yaml',
+              'closed_loop': [separate], 'closed_loop_composed': [composed],
+              'summary': summary([separate]), 'summary_composed': summary([composed])}
+    text = table(result)
+    assert '| 0 | 0 | one per node |' in text and '| 0 | 0 | one (composed) |' in text
+    assert '| 13 / 16 |' in text and '| 30 / 17 |' in text
+    assert 'composed in one process: agree' in text and '1 of 1' in text

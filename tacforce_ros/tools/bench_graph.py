@@ -272,6 +272,36 @@ def _n(value, digits: int = 3) -> str:
     return '-' if value is None else f'{value:.{digits}f}'
 
 
+def _part(name: str, part: dict | None, describe) -> list[str]:
+    """The table's lines of a one-off part (calibration session, fault run): its failure as
+    such, else `describe(part)`."""
+    if not part:
+        return []
+    return ['', f'{name}: ' + (f'FAILED: {part["failed"]}' if 'failed' in part
+                               else describe(part))]
+
+
+def _calibration_text(c: dict) -> str:
+    return (f'{_n(c["samples_per_simulated_s"], 1)} samples per simulated s, '
+            f'{c["tactile_frames_paired"]:.1%} of tactile frames paired, e_hat node '
+            f'{_n(c["e_hat"]["node"])} vs direct {_n(c["e_hat"]["direct"])} N, real-time factor '
+            f'{_n(c["achieved_real_time_factor"], 2)}; duplicate stamps / log time 0: '
+            + ', '.join(f'{t} {v["duplicate_stamps"]}/{v["log_time_zero"]}'
+                        for t, v in c['streams'].items()))
+
+
+def _crash_text(f: dict) -> str:
+    return (f'{f["crash"]["node"]} killed {f["crash"]["at_wall_s"]:g} s into the session, '
+            f'restarted {f["crash"]["down_wall_s"]:g} s later; last estimate at '
+            f'{f["last_estimate_s"]:.2f} s of the sequence, back at {f["estimate_back_s"]:.2f} s: '
+            f'hold {_n(f["hold_after_s"])} s after it (<= {HOLD_WITHIN_S:g}); least normal force '
+            f'{f["least_normal_force_n"]:.2f} N (> {CONTACT_MIN_N:g}), most shear per normal '
+            f'force {f["most_shear_per_normal"]:.2f} (< friction {FRICTION:g}), tip travel '
+            f'{f["tip_travel_mm"]:.2f} mm; tracking under {TRACK_N:g} N '
+            f'{_n(f["tracking_back_after_s"], 2)} s after the estimate returned '
+            f'(<= {RECOVERY_S:g}): {"passed" if f["passed"] else "FAILED"}')
+
+
 def table(result: dict) -> str:
     lines = [f'bench_graph ({"lockstep" if result["lockstep"] else "free-running"}, '
              f'{result["sequence"]}, model {result["model"]})', '',
@@ -310,30 +340,8 @@ def table(result: dict) -> str:
                       f'{_n(m["mean_session_wall_s"], 0)} s wall, CPU '
                       f'{_n(m["mean_cpu_s_nodes"], 0)} s nodes + '
                       f'{_n(m["mean_cpu_s_simulator"], 0)} s simulator']
-    c = result.get('calibration')
-    if c and 'failed' not in c:
-        lines += ['', f'calibration session: {_n(c["samples_per_simulated_s"], 1)} samples per '
-                  f'simulated s, {c["tactile_frames_paired"]:.1%} of tactile frames paired, '
-                  f'e_hat node {_n(c["e_hat"]["node"])} vs direct {_n(c["e_hat"]["direct"])} N, '
-                  f'real-time factor {_n(c["achieved_real_time_factor"], 2)}; duplicate stamps / '
-                  'log time 0: ' + ', '.join(f'{t} {v["duplicate_stamps"]}/{v["log_time_zero"]}'
-                                             for t, v in c['streams'].items())]
-    elif c:
-        lines += ['', f'calibration session: FAILED: {c["failed"]}']
-    f = result.get('crash')
-    if f and 'failed' not in f:
-        lines += ['', f'fault run ({f["crash"]["node"]} killed {f["crash"]["at_wall_s"]:g} s into '
-                  f'the session, restarted {f["crash"]["down_wall_s"]:g} s later; last estimate '
-                  f'at {f["last_estimate_s"]:.2f} s of the sequence, back at '
-                  f'{f["estimate_back_s"]:.2f} s): hold {_n(f["hold_after_s"])} s after it '
-                  f'(<= {HOLD_WITHIN_S:g}); least normal force {f["least_normal_force_n"]:.2f} N '
-                  f'(> {CONTACT_MIN_N:g}), most shear per normal force '
-                  f'{f["most_shear_per_normal"]:.2f} (< friction {FRICTION:g}), tip travel '
-                  f'{f["tip_travel_mm"]:.2f} mm; tracking under {TRACK_N:g} N '
-                  f'{_n(f["tracking_back_after_s"], 2)} s after the estimate returned '
-                  f'(<= {RECOVERY_S:g}): {"passed" if f["passed"] else "FAILED"}']
-    elif f:
-        lines += ['', f'fault run: FAILED: {f["failed"]}']
+    lines += _part('calibration session', result.get('calibration'), _calibration_text)
+    lines += _part('fault run', result.get('crash'), _crash_text)
     return '\n'.join(lines)
 
 

@@ -79,17 +79,22 @@ HELD_CLOCK_REPEAT_S = 0.02
 SLOW_FRACTION = 0.9     # an achieved factor below this fraction of the asked one is warned about
 
 
-def lockstep_streams(scene) -> tuple[dict[str, type], dict[str, type]]:
+def lockstep_streams(scene) -> tuple[dict[str, type], dict[str, type], dict[str, float]]:
     """The streams (topic: type) whose consumers close a scene's loop, periodic and ongoing
-    (sim/lockstep.py): lockstep waits for them. Closed loop: the controller's ticks and the
-    estimate of the scene's array (its wrench topic, published for valid estimates only: the
-    estimator's tare and a stopped tactile stream do not hold time), and the driver's joint
-    intake (the hand streams whatever simulated time does); calibration: the recorder's
-    samples."""
+    (sim/lockstep.py), and the periods (s) known in advance: lockstep waits for them. Closed
+    loop: the controller's ticks (period learnt) and the estimate of the scene's array (its
+    wrench topic, published for valid estimates only: the estimator's tare and a stopped tactile
+    stream do not hold time; one per tactile frame), and the driver's joint intake (the hand
+    streams whatever simulated time does); calibration: the recorder's samples (one per tactile
+    frame). A stream of the tactile rate holds time from its first message: one that had to
+    learn its period first let time run free while the estimator caught up after its tare
+    (bench_graph's fault run: estimates stale for 0.1 s right after the tare)."""
+    frame_period = 1.0 / scene.tactile_rate
     if scene.kind == 'closed_loop':
-        return ({TOPIC_CONTROLLER_STATE: ControllerState,
-                 array_wrench_topic(scene.array): WrenchStamped}, {TOPIC_JOINTS: JointState})
-    return {TOPIC_SAMPLE: CalibrationSample}, {}
+        wrench = array_wrench_topic(scene.array)
+        return ({TOPIC_CONTROLLER_STATE: ControllerState, wrench: WrenchStamped},
+                {TOPIC_JOINTS: JointState}, {wrench: frame_period})
+    return {TOPIC_SAMPLE: CalibrationSample}, {}, {TOPIC_SAMPLE: frame_period}
 
 
 class SimWorld(TacforceNode):
@@ -208,13 +213,13 @@ class SimWorld(TacforceNode):
         return self.sim.step(self._torques if self.takes_torques else None)
 
     def _lockstep_gate(self) -> TimeGate:
-        periodic, ongoing = lockstep_streams(self.sim.scene)
+        periodic, ongoing, periods = lockstep_streams(self.sim.scene)
         # A consumer stamps with its clock, which may still read the step before the data's
         # (that step's /clock can reach it after the data): a stamp, and the period learnt from
         # the stamps, can each be one step short, and two steps of slack keep the gate open.
         gate = TimeGate(list(periodic), self.params['lockstep_slack'] + 2.0 * self.sim.dt,
                         self.params['lockstep_silence'], ongoing=list(ongoing),
-                        on_event=self._gate_event)
+                        periods=periods, on_event=self._gate_event)
         for topic, message_type in {**periodic, **ongoing}.items():
             self.create_subscription(message_type, topic,
                                      lambda raw, topic=topic: gate.heard(topic,

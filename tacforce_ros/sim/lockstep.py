@@ -12,14 +12,16 @@ consumer's intake of it is never further behind than that, and as it keeps comin
 time it cannot hold time for ever. A consumer that falls behind therefore holds simulated time;
 the run gets slower, not different.
 
-Each stream's period is learnt from its stamps: the upper median of its last PERIOD_WINDOW
-intervals. A stream's stamps are its data's simulated time (a frame's arrival, a timer's tick),
-off by up to a step (the step's /clock can reach the consumer after its data) plus the slack (a
+A stream whose period is known (`periods`: one estimate or sample per tactile frame, whose rate
+is the simulator's own) holds time from its first message with that period; the period of any
+other is learnt from its stamps: the upper median of its last PERIOD_WINDOW intervals. A
+stream's stamps are its data's simulated time (a frame's arrival, a timer's tick), off by up to
+a step (the step's /clock can reach the consumer after its data) plus the slack (a
 tick's callback may run once simulated time has moved on); the median is off by less, which the
 slack covers, so the gate does not hold time before the stream's next message can exist. A gap
 the stream left while starved does not loosen the gate (the largest interval would: in a closed-
 loop session that let simulated time run past the estimator's stale timeout). A controller at 50
-Hz or a recorder at 100 Hz therefore needs no setting. A stream holds time once it has shown
+Hz therefore needs no setting. A stream of learnt period holds time once it has shown
 JOIN_INTERVALS intervals (start-up order does not matter), and a stream that stays silent for
 `silence` wall seconds while holding time is released (a node that died or stopped on purpose
 must not freeze the world, and a gate that waited for a message that cannot come would be
@@ -32,7 +34,7 @@ import threading
 import time
 from collections import deque
 from dataclasses import dataclass, field
-from typing import Callable, Sequence
+from typing import Callable, Mapping, Sequence
 
 PERIOD_WINDOW = 16      # stamp intervals a stream's period is taken over
 JOIN_INTERVALS = 8      # intervals a stream must have shown before it holds time
@@ -44,6 +46,7 @@ class GatedStream:
 
     name: str
     periodic: bool                    # one message per period of simulated time (else: ongoing)
+    known_period_ns: int | None = None    # a periodic stream's period when known, else learnt
     newest_ns: int | None = None      # newest stamp seen; None until the stream's first message
     intervals_ns: deque = field(default_factory=lambda: deque(maxlen=PERIOD_WINDOW))
     heard_wall: float = 0.0           # monotonic time of its last message
@@ -53,10 +56,12 @@ class GatedStream:
 
     def period_ns(self) -> int | None:
         """How far beyond its newest stamp its next message may be due: for a periodic stream
-        the upper median of its recent intervals (None until it has joined), for an ongoing one
-        nothing (0 from its first message)."""
+        its known period from its first message, or the upper median of its recent intervals
+        (None until it has joined); for an ongoing one nothing (0 from its first message)."""
+        if self.newest_ns is not None and (not self.periodic or self.known_period_ns):
+            return self.known_period_ns if self.periodic else 0
         if not self.periodic:
-            return None if self.newest_ns is None else 0
+            return None
         if len(self.intervals_ns) < JOIN_INTERVALS:
             return None
         return sorted(self.intervals_ns)[len(self.intervals_ns) // 2]
@@ -67,7 +72,7 @@ class TimeGate:
     periods and the slack."""
 
     def __init__(self, periodic: Sequence[str], slack_s: float, silence_s: float,
-                 ongoing: Sequence[str] = (),
+                 ongoing: Sequence[str] = (), periods: Mapping[str, float] | None = None,
                  on_event: Callable[[str], None] = lambda message: None,
                  clock: Callable[[], float] = time.monotonic) -> None:
         if slack_s < 0.0 or silence_s <= 0.0:
@@ -75,9 +80,15 @@ class TimeGate:
         names = [*periodic, *ongoing]
         if len(set(names)) != len(names):
             raise ValueError(f'streams named twice: {names}')
+        periods = dict(periods or {})
+        if set(periods) - set(periodic) or not all(p > 0.0 for p in periods.values()):
+            raise ValueError(f'periods {periods} must be > 0 s and name periodic streams')
         self.slack_ns = int(round(slack_s * 1e9))
         self.silence_s = silence_s
-        self.streams = {name: GatedStream(name, name in periodic) for name in names}
+        self.streams = {name: GatedStream(name, name in periodic,
+                                          int(round(periods[name] * 1e9)) if name in periods
+                                          else None)
+                        for name in names}
         self._on_event = on_event
         self._clock = clock
         self._changed = threading.Condition()

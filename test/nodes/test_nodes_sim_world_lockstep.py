@@ -60,9 +60,11 @@ def test_simulated_time_waits_for_a_slow_consumer_then_releases_it_and_ends():
 
             # The slow consumer: one sample per simulated step, stamped with the step's time
             # (as the recorder stamps a sample with its tactile frame's), CONSUMER_WALL_S
-            # apart. Once the gate has its period, no /clock may pass the gate's rule: one
-            # period (upper median of the intervals) + slack + two steps past the newest stamp
-            # (or the time reached when it joined, which the consumer must first catch up with).
+            # apart. The samples' period is the tactile frame period, known to the gate, so it
+            # holds time from the first one; from the 2 * JOIN_INTERVALS-th on (the time a
+            # learnt period would have joined) no /clock may pass the gate's rule: one period
+            # + slack + two steps past the newest stamp (or the time reached then, which the
+            # consumer must first catch up with).
             sent: list[int] = [clocks[-1]]
             samples.publish(sample(sent[-1]))
             beyond: list[int] = []
@@ -72,8 +74,8 @@ def test_simulated_time_waits_for_a_slow_consumer_then_releases_it_and_ends():
                 seen = len(clocks)
                 spin_until(node, lambda: time.monotonic() - wall >= CONSUMER_WALL_S, 10.0)
                 if joined_at is not None:
-                    intervals = sorted(b - a for a, b in zip(sent[-PERIOD_WINDOW - 1:],
-                                                             sent[-PERIOD_WINDOW:]))
+                    recent = sent[-PERIOD_WINDOW - 1:]
+                    intervals = sorted(b - a for a, b in zip(recent, recent[1:]))
                     limit = max(joined_at, sent[-1] + intervals[len(intervals) // 2]
                                 + SLACK_NS + 2 * STEP_NS)
                     beyond += [c - limit for c in clocks[seen:]]

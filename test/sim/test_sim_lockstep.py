@@ -95,6 +95,18 @@ def test_an_ongoing_stream_holds_time_from_its_start_before_it_speaks():
     assert gate.wait(10**12, timeout_s=0.0) and 'no longer waits' in events[-1]
 
 
+def test_a_stream_of_known_period_holds_time_from_its_first_message():
+    """The estimate of each tactile frame: its period is the simulator's frame period, so it
+    holds time at once instead of after JOIN_INTERVALS intervals of free-running time."""
+    gate = TimeGate(['/wrench', '/state'], slack_s=0.004, silence_s=5.0,
+                    periods={'/wrench': 0.01})
+    assert gate.holding(10**12) is None
+    gate.heard('/wrench', 500 * MS)
+    assert gate.holding(514 * MS) is None and gate.holding(515 * MS).name == '/wrench'
+    gate.heard('/state', 500 * MS)                   # a learnt one still has to join
+    assert gate.holding(514 * MS) is None
+
+
 def test_bad_settings_are_refused():
     with pytest.raises(ValueError, match='silence'):
         TimeGate(['/a'], slack_s=0.0, silence_s=0.0)
@@ -102,6 +114,10 @@ def test_bad_settings_are_refused():
         TimeGate(['/a', '/a'], slack_s=0.0, silence_s=1.0)
     with pytest.raises(ValueError, match='twice'):
         TimeGate(['/a'], slack_s=0.0, silence_s=1.0, ongoing=['/a'])
+    with pytest.raises(ValueError, match='periods'):
+        TimeGate(['/a'], slack_s=0.0, silence_s=1.0, ongoing=['/b'], periods={'/b': 0.01})
+    with pytest.raises(ValueError, match='periods'):
+        TimeGate(['/a'], slack_s=0.0, silence_s=1.0, periods={'/a': 0.0})
 
 
 @settings(max_examples=100, deadline=None)

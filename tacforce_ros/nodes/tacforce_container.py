@@ -22,20 +22,22 @@ from __future__ import annotations
 import sys
 from collections.abc import Sequence
 
-from tacforce_ros.nodes.allegro_driver import AllegroDriver
-from tacforce_ros.nodes.command_player import CommandPlayer
-from tacforce_ros.nodes.common import EXIT_BAD_PARAMETERS, TacforceNode, run_nodes
-from tacforce_ros.nodes.estimator import Estimator
-from tacforce_ros.nodes.ft_bridge import FtBridge
-from tacforce_ros.nodes.sim_world import SimWorld
-from tacforce_ros.nodes.sync_recorder import SyncRecorder
-from tacforce_ros.nodes.xela_driver import XelaDriver
+import importlib
 
-NODE_CLASSES: dict[str, type[TacforceNode]] = {
-    cls.NODE_NAME: cls for cls in (XelaDriver, FtBridge, AllegroDriver, Estimator, SyncRecorder,
-                                   CommandPlayer, SimWorld)}
+from tacforce_ros.nodes.common import EXIT_BAD_PARAMETERS, TacforceNode, run_nodes
+
+# Node name (= its executable and module under tacforce_ros.nodes): its class, imported only
+# when hosted (the simulator's module alone pulls in MuJoCo).
+NODE_CLASSES = {'xela_driver': 'XelaDriver', 'ft_bridge': 'FtBridge',
+                'allegro_driver': 'AllegroDriver', 'estimator': 'Estimator',
+                'sync_recorder': 'SyncRecorder', 'command_player': 'CommandPlayer',
+                'sim_world': 'SimWorld'}
 USAGE = ('usage: tacforce_container --node NAME [--ros-args ...] [--node NAME ...]; NAME one of '
          + ', '.join(NODE_CLASSES))
+
+
+def node_class(name: str) -> type[TacforceNode]:
+    return getattr(importlib.import_module(f'tacforce_ros.nodes.{name}'), NODE_CLASSES[name])
 
 
 def node_groups(args: Sequence[str]) -> list[tuple[type[TacforceNode], list[str]]]:
@@ -52,7 +54,7 @@ def node_groups(args: Sequence[str]) -> list[tuple[type[TacforceNode], list[str]
         if name not in NODE_CLASSES:
             raise ValueError(f'--node {name!r}: not a node of this package ({USAGE})')
         end = rest.index('--node') if '--node' in rest else len(rest)
-        groups.append((NODE_CLASSES[name], rest[:end]))
+        groups.append((node_class(name), rest[:end]))
         rest = rest[end:]
     names = [cls.NODE_NAME for cls, _ in groups]
     if len(set(names)) != len(names):

@@ -13,7 +13,7 @@ from tacforce_ros.estimation.model_set import write_synthetic_model_set
 from tacforce_ros.hand.description import load_hand
 from tacforce_ros.nodes.common import EXIT_BAD_PARAMETERS, EXIT_OK, subscriber_qos
 from tacforce_ros.nodes.session_plan import NodeLaunch, SessionArgs, composed, params_file, plan
-from tacforce_ros.nodes.tacforce_container import node_groups
+from tacforce_ros.nodes.tacforce_container import NODE_CLASSES, node_class, node_groups
 from tacforce_ros.sim.emulators.xela_server import XelaServerEmulator
 from tacforce_ros.topics import TOPIC_ESTIMATES
 
@@ -32,6 +32,10 @@ HAND = load_hand()
 def test_a_bad_command_line_is_refused_with_the_reason(args, message):
     with pytest.raises(ValueError, match=message):
         node_groups(args)
+
+
+def test_every_hostable_node_is_the_class_of_its_name():
+    assert all(node_class(name).NODE_NAME == name for name in NODE_CLASSES)
 
 
 def test_a_composed_session_keeps_the_simulator_apart_and_each_node_s_arguments():

@@ -70,7 +70,7 @@ class DeviceClock:
         self._last_device = device_ns
         offset = self.offset_ns(device_ns)
         bound = arrival_ns - device_ns
-        if offset is None or bound <= offset and not self.same_clock:
+        if not self.same_clock and (offset is None or bound <= offset):
             self._bound, offset = (bound, device_ns), bound
         stamp = device_ns + offset
         if self._last_stamp is not None and stamp <= self._last_stamp:

@@ -199,10 +199,11 @@ def test_stale_stream_ramps_to_safe_within_ramp_time(stale):
     assert state.mode == MODE_CLOSED_LOOP and np.any(state.integral_error != 0)
     integral = state.integral_error
     t_stale = 50 * DT
-    # The contact hold where the finger is, at rest: gravity + J^T R of the latched command.
+    # The contact hold where the finger is, at rest: the law with the latched command.
     hold = (KIN.gravity_torques(Q16)[:4] + KIN.fingertip_jacobian(Q16, 'index').T
             @ (KIN.rotation_between(Q16, cfg.force_frame, cfg.base_frame)
-               @ (f_d + np.asarray(cfg.k_i) * integral)))
+               @ (f_d + np.asarray(cfg.k_i) * integral))
+            - np.asarray(cfg.k_p) * (Q16[:4] - np.asarray(cfg.q_d)))
     distances, t = [], t_stale
     while t <= t_stale + 0.1 + 1e-9:
         age = t - t_stale + 0.06     # the last message is already past its timeout
@@ -279,22 +280,21 @@ def test_stale_estimate_moves_each_torque_only_between_the_law_and_the_hold(
 
 
 def test_the_hold_keeps_pressing_and_the_law_resumes_without_a_step():
-    """A stale estimate: the hold keeps the latched command's force whatever f_d does meanwhile,
-    and the integral it froze is the law's again when the estimate returns."""
-    cfg = config(k_i=(2.0, 2.0, 2.0))
-    ctrl = ForceController(cfg, KIN)
+    """A stale estimate: at the same pose the hold gives the torque of the law's last fresh
+    tick (its force command and its PD toward q_d), whatever f_d does meanwhile, and the
+    integral it froze is the law's again when the estimate returns."""
+    # q_d beyond the pose, as on a plate: the PD term is part of the press.
+    ctrl = ForceController(config(k_i=(2.0, 2.0, 2.0), q_d=(0.0, 0.8, 0.8, 0.8)), KIN)
     f_d = np.array([0.0, 0.0, 1.5])
     for k in range(30):
         law, state = ctrl.update(k * DT, Q16, ZERO16, f_d * 0.8, 0.0, 0.0, f_d)
+    assert state.saturation_scale == 1.0 and np.any(state.integral_error != 0)
     integral = state.integral_error
     for k in range(30, 50):       # stale; f_d changes meanwhile
         hold, state = ctrl.update(k * DT, Q16, ZERO16, f_d, 0.2, 0.0, 2 * f_d)
     assert state.mode == MODE_HOLD
     np.testing.assert_array_equal(state.integral_error, integral)
-    latched = (KIN.gravity_torques(Q16)[:4] + KIN.fingertip_jacobian(Q16, 'index').T
-               @ (KIN.rotation_between(Q16, cfg.force_frame, cfg.base_frame)
-                  @ (f_d + 2.0 * integral)))
-    np.testing.assert_allclose(hold, latched, atol=1e-12)
+    np.testing.assert_allclose(hold, law, atol=1e-12)
     for k in range(50, 56):       # back, no error: after the ramp in, the law as it was
         back, state = ctrl.update(k * DT, Q16, ZERO16, f_d, 0.0, 0.0, f_d)
     assert state.mode == MODE_CLOSED_LOOP and state.force_gain == 1.0

@@ -15,9 +15,8 @@ Around the law, in this order per tick:
    that of the last fresh tick (f_d + K_i * integral then), open loop, i.e. gravity + PD toward
    q_d + J^T R of that command. At the pose of that tick it is the torque the law gave there,
    so the fingertip keeps pressing as it was (an estimator that stops for a moment must not
-   drop what the finger holds; holding the angles of that moment instead removes the PD
-   term's share of the press: measured in simulation, 0.86 N -> 0.16 N and a slip on a 1 N
-   command), and it cannot run off: motion meets the same PD as in closed loop. A command
+   drop what the finger holds; holding the angles of that moment instead would remove the PD
+   term's share of the press), and it cannot run off: motion meets the same PD as in closed loop. A command
    that changes meanwhile is not followed (there is no estimate to close the loop on). A linear
    blend of the two saturated torques over `ramp_time` keeps every joint's |torque| within the
    range between the two. Stale joints make every feedback term meaningless (the law would be

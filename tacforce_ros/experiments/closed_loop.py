@@ -47,8 +47,11 @@ class ClosedLoopTrace:
 def run_closed_loop(hand: HandDescription, kinematics: HandKinematics, scene: str | Path,
                     seed: int, config: ForceControllerConfig, sequence: ForceSequence,
                     models: ModelSet | None, control_rate: float = 100.0,
-                    tare_frames: int = 50, settle_seconds: float = 2.0) -> ClosedLoopTrace:
+                    tare_frames: int = 50, settle_seconds: float = 2.0,
+                    estimator_outage: tuple[float, float] | None = None) -> ClosedLoopTrace:
     """Play `sequence` once. `models` None runs without an estimator (open loop only).
+    `estimator_outage` (start, end), seconds of the sequence: no estimate in between, as when
+    the estimator process is down (the in-process counterpart of `session --crash`).
 
     As a lab run: the finger first holds its start pose clear of the plate for
     `settle_seconds` (gravity compensation and the PD of the law, no force terms); over the last
@@ -104,7 +107,9 @@ def run_closed_loop(hand: HandDescription, kinematics: HandKinematics, scene: st
             if models is not None:
                 models.set_tare(np.stack(tare))
         if tick >= 0:
-            if models is not None and frame is not None:
+            down = estimator_outage is not None and (
+                estimator_outage[0] <= t < estimator_outage[1])
+            if models is not None and frame is not None and not down:
                 estimate = models.estimate(frame)
                 if estimate.valid[row]:
                     f_hat, estimate_time = estimate.force[row], t

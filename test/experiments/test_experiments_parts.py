@@ -153,6 +153,33 @@ def test_short_open_loop_run_presses_the_plate(hand, kinematics):
     assert run.f_tilde[-20:, 2].mean() < -0.8       # pressing down on the plate, in {F}
 
 
+def test_an_estimator_outage_keeps_the_press_and_tracking_returns(hand, kinematics):
+    """Issue 13's fault run in-process: no estimate for 2 s while a force with shear is held.
+    The contact hold keeps the press (the law with its last force command), the tip does not
+    slide (shear inside the friction cone), and the law tracks again once estimates return."""
+    from tacforce_ros.estimation.model_set import load_model_set
+    from tacforce_ros.paths import config_dir
+    from tacforce_ros.sim.closed_loop import FRICTION
+    sequence = ForceSequence.from_mapping({'frame_id': 'ft_sensor', 'segments': [
+        {'duration': 0.5, 'force': [0.0, 0.0, 0.0]},
+        {'duration': 1.0, 'force': [0.3, 0.0, -1.0], 'shape': 'ramp'},
+        {'duration': 7.5, 'force': [0.3, 0.0, -1.0]}]})
+    models = load_model_set(config_dir() / 'models' / 'default.yaml', hand)
+    run = run_closed_loop(hand, kinematics, 'closed_loop_spherical', 0,
+                          controller_config('M3-lambda'), sequence, models,
+                          estimator_outage=(4.0, 6.0))
+    before = (run.t >= 3.5) & (run.t < 4.0)
+    out = (run.t >= 4.0) & (run.t < 6.0)
+    stale = (run.t >= 4.0 + controller_config('M3-lambda').estimate_timeout + 0.01) & out
+    assert np.isnan(run.f_hat[stale]).all() and np.isfinite(run.f_hat[run.t >= 6.01]).all()
+    normal, shear = -run.f_tilde[:, 2], np.linalg.norm(run.f_tilde[:, :2], axis=1)
+    assert normal[before].mean() > 0.8
+    assert normal[out].min() > 0.8 * normal[before].mean()
+    assert np.max(shear[out] / normal[out]) < FRICTION
+    error = np.linalg.norm(run.f_d - run.f_hat, axis=1)
+    assert error[(run.t >= 7.5)].mean() < 0.05
+
+
 def test_node_comparison_reports_the_difference_against_the_tolerance():
     t = np.arange(0.0, 70.0, 0.01)
     f_d = np.array([0.0, 0.0, -2.0])

@@ -1,6 +1,7 @@
-"""ros2 launch tacforce_ros closed_loop.launch.py [sim:=true|false] [hand_side:=right] [array:=index_tip]
-[plate:=spherical] [scene:=...] [model:=...] [out:=bags] [real_time_factor:=1.0]
-[lockstep:=true] [sim_duration:=0.0]
+"""ros2 launch tacforce_ros closed_loop.launch.py [sim:=true|false] [hand_side:=right]
+[array:=index_tip] [plate:=spherical] [scene:=...] [model:=...] [sequence:=paper_70s]
+[out:=bags] [real_time_factor:=1.0] [lockstep:=true] [sim_duration:=0.0] [seed:=-1]
+[compose:=false]
 
 The node graph is tacforce_ros.nodes.session_plan's, shared with `session closed_loop`."""
 import sys

@@ -26,6 +26,8 @@ ARGUMENTS = {
     'plate': ('spherical', 'push-plate (calibration) or object (closed loop)'),
     'scene': ('', 'sim scene; empty: derived from the mode, array and plate'),
     'model': ('', 'estimator models YAML; empty: config/models/default.yaml'),
+    'sequence': ('', 'closed loop: force command sequence, a name in config/commands/ or a '
+                 'path; empty: paper_70s'),
     'out': ('bags', 'folder for the recorded bags'),
     'real_time_factor': ('1.0', 'simulated seconds per wall second (sim only; with lockstep '
                          'the most it runs at)'),
@@ -43,7 +45,8 @@ def _nodes(context, mode: str):
     args = SessionArgs(mode=mode, sim=value['sim'].lower() == 'true',
                        hand_side=value['hand_side'], array=value['array'],
                        plate=value['plate'], scene=value['scene'],
-                       model_config=value['model'], out=value['out'],
+                       model_config=value['model'], sequence=value['sequence'],
+                       out=value['out'],
                        real_time_factor=float(value['real_time_factor']),
                        lockstep=value['lockstep'].lower() == 'true',
                        sim_duration=float(value['sim_duration']),

@@ -77,10 +77,11 @@ def _free_ports(count: int) -> list[int]:
 def run_session(mode: str, scene: str, plate: str, out: Path, sim_duration: float,
                 model_config: Path | None = None, seed: int | None = None,
                 lockstep: bool = True, crash: tuple[str, float, float] | None = None,
-                compose: bool = False) -> Path:
+                compose: bool = False, sequence: str | None = None) -> Path:
     """Run the `session` tool once until its scene has run `sim_duration` simulated seconds
     (seed None: the scene's own; lockstep False: free-running at real time; crash: the
-    session's fault drill, node, at and down wall seconds; compose: the nodes in one process);
+    session's fault drill, node, at and down wall seconds; compose: the nodes in one process;
+    sequence: the closed loop's force command sequence, None: the command player's default);
     return the bag folder it recorded. Its output is kept in `out`/session.log."""
     session_exe = Path(sys.prefix) / 'lib' / 'tacforce_ros' / 'session'
     if not session_exe.is_file():
@@ -99,6 +100,8 @@ def run_session(mode: str, scene: str, plate: str, out: Path, sim_duration: floa
         command += ['--crash', crash[0], f'{crash[1]:g}', f'{crash[2]:g}']
     if compose:
         command.append('--compose')
+    if sequence is not None:
+        command += ['--sequence', sequence]
     env = dict(os.environ)
     env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
     # A domain of our own, so DDS traffic of other processes on this host stays out.
@@ -135,7 +138,7 @@ def closed_loop_against_direct(hand: HandDescription, kinematics: HandKinematics
                              tare_frames=tare_frames)
     bag = run_session('closed_loop', scene, plate, out,
                       closed_loop_session_seconds(sequence.duration), model_config, seed=seed,
-                      lockstep=lockstep, compose=compose)
+                      lockstep=lockstep, compose=compose, sequence=sequence.source)
     trace, offset = node_trace(bag, sequence, tare_frames)
     return compare_closed_loop(trace, direct, offset), trace, direct, bag
 

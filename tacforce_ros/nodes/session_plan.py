@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from tacforce_ros.control.command_sequence import ForceSequence, SequenceError
 from tacforce_ros.paths import config_dir, ros_home
 
 MODES = ('calibration', 'closed_loop')
@@ -90,6 +91,8 @@ class SessionArgs:
     plate: str = 'spherical'           # push-plate (calibration) or object (closed loop)
     scene: str = ''                    # empty: derived from mode, array and plate
     model_config: str = ''             # estimator models YAML; empty: the params file's
+    sequence: str = ''                 # closed loop: force command sequence (a name in
+    #                                    config/commands/ or a path); empty: the params file's
     out: str = 'bags'                  # bag folder of the recorder
     real_time_factor: float = 1.0     # sim: an upper bound under lockstep
     lockstep: bool = True              # sim: simulated time waits for the loop's consumers
@@ -147,6 +150,11 @@ def plan(args: SessionArgs) -> list[NodeLaunch]:
     hand = hand_config(args.hand_side)
     if not hand.is_file():
         raise PlanError(f'hand_side {args.hand_side!r}: no hand description {hand}')
+    if args.sequence:
+        try:
+            ForceSequence.load(args.sequence)    # a bad sequence fails before any node starts
+        except (SequenceError, OSError) as exc:
+            raise PlanError(f'sequence: {exc}') from exc
     common: dict[str, Any] = {'use_sim_time': True} if args.sim else {}
     hand_param = {'hand_config': str(hand)}
     nodes: list[NodeLaunch] = []
@@ -185,7 +193,8 @@ def plan(args: SessionArgs) -> list[NodeLaunch]:
                                  'control': 'force', 'estimate_array': args.array}))
         # The sequence starts once the controller and the recorder both listen.
         nodes.append(NodeLaunch('command_player', (params_file('command_player'),),
-                                {**common, 'min_subscribers': 2}))
+                                {**common, 'min_subscribers': 2,
+                                 **({'sequence': args.sequence} if args.sequence else {})}))
     # Both modes keep the raw streams (closed loop: the F/T reading is the reference).
     nodes.append(NodeLaunch('sync_recorder', (params_file('sync_recorder'),), {
         **common, **hand_param, 'output_dir': args.out, 'array': args.array,

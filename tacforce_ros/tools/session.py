@@ -248,6 +248,9 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument('--plate', default='spherical', help='push-plate or object')
     parser.add_argument('--scene', default='', help='sim scene (default from mode/array/plate)')
     parser.add_argument('--model', default='', help='estimator models YAML (closed_loop)')
+    parser.add_argument('--sequence', default='',
+                        help='force command sequence (closed_loop): a name in config/commands/ '
+                        'or a YAML path (default: command_player.yaml\'s, paper_70s)')
     parser.add_argument('--out', type=output_folder, default='bags',
                         help='folder for bags and node logs')
     parser.add_argument('--real-time-factor', type=float, default=1.0,
@@ -287,7 +290,7 @@ def main(argv: list[str] | None = None) -> None:
     os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     sys.exit(run(SessionArgs(mode=a.mode, sim=not a.hardware, hand_side=a.hand_side,
                              array=a.array, plate=a.plate, scene=a.scene,
-                             model_config=a.model, out=str(a.out),
+                             model_config=a.model, sequence=a.sequence, out=str(a.out),
                              real_time_factor=a.real_time_factor, lockstep=a.lockstep,
                              sim_duration=a.sim_duration, seed=a.seed, compose=a.compose,
                              xela_port=a.ports[0],

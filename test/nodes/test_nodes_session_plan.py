@@ -77,6 +77,16 @@ def test_negative_seed_other_than_the_scene_default_is_refused():
         plan(SessionArgs(mode='closed_loop', seed=-2))
 
 
+def test_a_chosen_sequence_reaches_the_command_player_and_a_missing_one_is_refused():
+    nodes = {n.executable: n for n in plan(SessionArgs(mode='closed_loop'))}
+    assert 'sequence' not in nodes['command_player'].overrides      # the params file's
+    nodes = {n.executable: n for n in plan(SessionArgs(mode='closed_loop',
+                                                       sequence='fault_drill'))}
+    assert nodes['command_player'].overrides['sequence'] == 'fault_drill'
+    with pytest.raises(PlanError, match='sequence: no_such_drill: no such file'):
+        plan(SessionArgs(mode='closed_loop', sequence='no_such_drill'))
+
+
 def test_lockstep_and_scene_length_reach_the_simulator():
     nodes = {n.executable: n for n in plan(SessionArgs(mode='closed_loop'))}
     assert nodes['sim_world'].overrides['lockstep'] is True        # the default

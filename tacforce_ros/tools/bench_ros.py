@@ -89,12 +89,22 @@ def table(result: dict) -> str:
 
 def run_estimator(probe: Probe, hand, args: argparse.Namespace, env: dict, tmp: Path,
                   priority: int) -> dict:
+    """One latency and sustained-rate run; `priority` > 0: the estimator's realtime_priority,
+    and the probe's threads at SCHED_FIFO `priority` while it measures.
+
+    The estimator is started while the probe is still on the normal scheduler: a child process
+    inherits the policy of the thread that forks it, so a probe at SCHED_FIFO would start the
+    estimator's whole start-up (imports, DDS discovery, model loading) at SCHED_FIFO too,
+    competing with the probe's own real-time threads on a 2-core machine before the node ever
+    chose its priority (it raises itself once its node exists)."""
     models = write_synthetic_model_set(tmp / 'models', hand)
     procs = start_nodes([NodeLaunch('estimator', (params_file('estimator'),), {
         'model_config': str(models), 'tare_at_start': False, 'marker_rate_hz': 0.0,
         'realtime_priority': priority})], tmp / 'logs', 30.0, env)
     measured = False
     try:
+        if priority > 0:
+            use_realtime_scheduling(priority)
         if procs[0][1].poll() is not None:
             raise RuntimeError(f'the estimator exited at start-up with code '
                                f'{procs[0][1].returncode}')
@@ -107,6 +117,8 @@ def run_estimator(probe: Probe, hand, args: argparse.Namespace, env: dict, tmp: 
                                        if os.sched_getscheduler(pid) == os.SCHED_FIFO else 0)
         return result
     finally:
+        if priority > 0:
+            use_realtime_scheduling(0)
         codes = stop_nodes(procs, grace=10.0)
         if not measured or any(codes.values()):      # the estimator's side of the story
             print((tmp / 'logs' / 'estimator.log').read_text()[-2000:])
@@ -153,16 +165,15 @@ def attempt(part: Callable[[], object]) -> object:
 
 def run_realtime_estimator(probe: Probe, hand, args: argparse.Namespace, env: dict,
                            tmp: Path) -> dict:
-    """The latency run with the estimator and the probe on SCHED_FIFO; fails, with the reason,
-    where the system refuses it or the estimator did not get it."""
+    """The latency run with the estimator and the probe on SCHED_FIFO; skipped, with the reason,
+    where the system refuses it to the probe or the estimator did not get it."""
     try:
-        use_realtime_scheduling(args.realtime_priority)
+        use_realtime_scheduling(args.realtime_priority)     # allowed here at all?
     except OSError as exc:
         raise RealtimeRefused(f'SCHED_FIFO refused to the probe ({exc})') from None
-    try:
-        realtime = run_estimator(probe, hand, args, env, tmp, args.realtime_priority)
     finally:
         use_realtime_scheduling(0)
+    realtime = run_estimator(probe, hand, args, env, tmp, args.realtime_priority)
     if realtime['realtime_priority'] == 0:
         raise RealtimeRefused('the estimator ran without SCHED_FIFO (refused to it)')
     return realtime

@@ -30,3 +30,54 @@ def test_a_failed_part_keeps_the_other_parts_results(tmp_path):
     assert result['estimator']['latency']['frames'] == 100, result['estimator']
     assert 'sim_world was not ready' in result['controller']['failed']
     assert 'controller | FAILED: RuntimeError: sim_world was not ready' in result['table']
+
+
+def test_the_real_time_part_starts_the_estimator_on_the_normal_scheduler(tmp_path, monkeypatch):
+    """A child process inherits the scheduling policy of the thread that starts it: the probe
+    goes SCHED_FIFO only after the estimator has started (the node raises itself), and is back
+    on the normal scheduler when the part ends."""
+    import argparse
+    import os
+
+    import pytest
+
+    from tacforce_ros.nodes.common import use_realtime_scheduling
+    from tacforce_ros.tools import bench_ros
+    try:
+        use_realtime_scheduling(50)
+    except OSError as exc:
+        pytest.skip(f'SCHED_FIFO not allowed here ({exc})')
+    try:
+        child = subprocess.Popen(['sleep', '5'])
+        assert os.sched_getscheduler(child.pid) == os.SCHED_FIFO      # inherited
+        child.kill()
+        child.wait()
+    finally:
+        use_realtime_scheduling(0)
+    policies = {}
+
+    def start_nodes(nodes, *args, **kwargs):
+        policies['at start'] = os.sched_getscheduler(0)
+        return [('estimator', subprocess.Popen(['sleep', '30']))]
+
+    def bench_estimator(*args, **kwargs):
+        policies['measuring'] = os.sched_getscheduler(0)
+        raise RuntimeError('stop here')
+
+    def stop_nodes(procs, grace):
+        for _, proc in procs:
+            proc.kill()
+            proc.wait()
+        return {}
+
+    monkeypatch.setattr(bench_ros, 'start_nodes', start_nodes)
+    monkeypatch.setattr(bench_ros, 'bench_estimator', bench_estimator)
+    monkeypatch.setattr(bench_ros, 'stop_nodes', stop_nodes)
+    (tmp_path / 'logs').mkdir()
+    (tmp_path / 'logs' / 'estimator.log').write_text('')
+    args = argparse.Namespace(realtime_priority=50, rates=[100.0], seconds=0.1,
+                              reliable_wrenches=False, latency_seconds=0.1)
+    with pytest.raises(RuntimeError, match='stop here'):
+        bench_ros.run_realtime_estimator(None, bench_ros.load_hand(), args, {}, tmp_path)
+    assert policies == {'at start': os.SCHED_OTHER, 'measuring': os.SCHED_FIFO}
+    assert os.sched_getscheduler(0) == os.SCHED_OTHER

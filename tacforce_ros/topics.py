@@ -13,6 +13,8 @@ TOPIC_MARKERS = '/tactile/markers'
 # Closed-loop sessions also carry the command and the controller's ticks.
 TOPIC_DESIRED = '/force_controller/desired'
 TOPIC_CONTROLLER_STATE = '/force_controller/state'
+# Health of the device links (diagnostic_msgs/DiagnosticArray), where ROS tools look for it.
+TOPIC_DIAGNOSTICS = '/diagnostics'
 
 # Sensor streams are published reliable and subscribed best-effort (sensor-data QoS); commands,
 # calibration samples and controller states are reliable both ways (nodes/common.py builds the
@@ -27,6 +29,7 @@ TOPIC_QOS = {
     TOPIC_SAMPLE: RELIABLE,
     TOPIC_DESIRED: RELIABLE,
     TOPIC_CONTROLLER_STATE: RELIABLE,
+    TOPIC_DIAGNOSTICS: RELIABLE,
 }
 
 

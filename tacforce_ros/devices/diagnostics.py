@@ -73,6 +73,38 @@ class LinkDiagnostics:
         return out
 
 
+# Levels of a link's health, numbered as diagnostic_msgs/DiagnosticStatus numbers them.
+OK, WARN, ERROR, STALE = 0, 1, 2, 3
+LEVEL_NAMES = {OK: 'OK', WARN: 'WARN', ERROR: 'ERROR', STALE: 'STALE'}
+# Counters whose increase over a report period makes the link WARN (data was lost or bad).
+TROUBLE_COUNTERS = ('malformed', 'gaps', 'reordered', 'reconnects')
+
+
+def link_health(now: LinkDiagnostics, before: LinkDiagnostics | None,
+                failure: str = '') -> tuple[int, str]:
+    """Level and message of a link over one report period, from two snapshots of its
+    counters (`before` None: the first report). `failure`: what the driver knows to be wrong
+    beyond the counters (a lost link, a hand made safe), which makes the link ERROR.
+
+    STALE: nothing has arrived yet. ERROR: the failure, or nothing arrived during the period
+    while something had before. WARN: data arrived but TROUBLE_COUNTERS rose. OK otherwise.
+    """
+    if failure:
+        return ERROR, failure
+    if math.isnan(now.last_seen):
+        return STALE, 'no data from the device yet'
+    if before is not None and now.received == before.received:
+        return ERROR, f'no data for {now.age():.1f} s'
+    rose = {name: getattr(now, name) - (getattr(before, name) if before else 0)
+            for name in TROUBLE_COUNTERS}
+    rose = {name: value for name, value in rose.items() if value > 0}
+    if rose:
+        return WARN, ('data lost or refused since the last report: '
+                      + ', '.join(f'{value} {name}' for name, value in rose.items())
+                      + (f' (last error: {now.last_error})' if now.last_error else ''))
+    return OK, 'streaming'
+
+
 def sequence_delta(new: int, last: int, bits: int = 32) -> int:
     """Signed difference ``new - last`` of wrapping unsigned counters (2**bits - 1 -> 0 is +1)."""
     half = 1 << (bits - 1)

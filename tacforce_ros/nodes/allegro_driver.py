@@ -176,7 +176,11 @@ class AllegroDriver(TacforceNode):
             raise ParameterError(f'interface/channel/host/port: hand not reachable: {exc}'
                                  ) from None
         self.driver.add_callback(self._on_joints)
-        self.status = LinkStatusReporter(self, self.driver)
+        self.status = LinkStatusReporter(
+            self, self.driver, f'Allegro {self.driver.serial}',
+            # Without control a hand made safe still streams what calibration needs.
+            failure=lambda: (f'hand made safe: {self.driver.safe_stop}'
+                             if self.driver.safe_stop and self.session is not None else ''))
         self.driver.start()
         self.create_timer(LINK_CHECK_PERIOD_S, self._check_hand,
                           clock=Clock(clock_type=ClockType.STEADY_TIME))
@@ -321,7 +325,7 @@ class AllegroDriver(TacforceNode):
 
     def on_shutdown(self) -> None:
         self.driver.close()          # stream off, zero torque, servos off
-        self.status.report()
+        self.status.final_report()
 
 
 def main(args: list[str] | None = None) -> None:

@@ -57,7 +57,7 @@ class FtBridge(TacforceNode):
             torque_unit=p['torque_unit'], stale_after=p['stale_after'],
             bias_window=p['bias_window'])
         self.client = self._connect()
-        self.status = LinkStatusReporter(self, self.client)
+        self.status = LinkStatusReporter(self, self.client, f'Net F/T {p["host"]}:{p["port"]}')
         self.client.start()
         self.create_service(Trigger, '~/bias', self._on_bias)
         # RDT is request-driven: a box that rebooted (or came up after us) streams only when
@@ -107,7 +107,7 @@ class FtBridge(TacforceNode):
 
     def on_shutdown(self) -> None:
         self.client.close()
-        self.status.report()
+        self.status.final_report()
 
 
 def main(args: list[str] | None = None) -> None:

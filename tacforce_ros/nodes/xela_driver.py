@@ -9,9 +9,8 @@ another computer, its clock within `max_clock_skew` of this one's rate). A frame
 time repeats the previous one's is the same reading and is not published (counted as same_stamp
 in the link report); under use_sim_time, frames that arrive before the first /clock are dropped
 and counted. Each TactileArray carries its array frame {S0} as frame_id.
-The client reconnects on its own; malformed frames are counted and dropped. Every
-`diagnostics_period` s (wall time) the link counters go to the log and, if `publish_status`,
-as JSON on ~/status (std_msgs/String: diagnostic_msgs is not available everywhere).
+The client reconnects on its own; malformed frames are counted and dropped. The link's health
+goes to /diagnostics every `diagnostics_period` s (wall time; nodes/link_status.py).
 """
 from __future__ import annotations
 
@@ -70,8 +69,9 @@ class XelaDriver(TacforceNode):
         self.device_clock = DeviceClock(p['server_clock'] == 'node', p['max_clock_skew'])
         self.client.add_callback(self._publish)
         self.status = LinkStatusReporter(
-            self, self.client, lambda: {'clock_resets': self.device_clock.counts.resets,
-                                        'stamps_moved': self.device_clock.counts.moved})
+            self, self.client, f'xela_server {p["url"]}',
+            lambda: {'clock_resets': self.device_clock.counts.resets,
+                     'stamps_moved': self.device_clock.counts.moved})
         self.client.start()
         self.get_logger().info(f'reading {p["url"]} ({self.hand.n_taxels} taxels, '
                                f'{len(self.hand.arrays)} arrays) -> {TOPIC_TACTILE}')
@@ -100,7 +100,7 @@ class XelaDriver(TacforceNode):
 
     def on_shutdown(self) -> None:
         self.client.close()
-        self.status.report()
+        self.status.final_report()
 
 
 def main(args: list[str] | None = None) -> None:

@@ -15,7 +15,7 @@ from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
 from tacforce_ros.nodes.session_plan import (CAN_PORT, NETFT_PORT, SCENE_DONE_MARKER, XELA_PORT,
-                                             SessionArgs, hand_config, plan)
+                                             SessionArgs, hand_config, launch_bool, plan)
 from tacforce_ros.paths import config_dir
 
 READY_DELAY_S = 3.0
@@ -42,15 +42,15 @@ ARGUMENTS = {
 
 def _nodes(context, mode: str):
     value = {name: LaunchConfiguration(name).perform(context) for name in ARGUMENTS}
-    args = SessionArgs(mode=mode, sim=value['sim'].lower() == 'true',
+    args = SessionArgs(mode=mode, sim=launch_bool('sim', value['sim']),
                        hand_side=value['hand_side'], array=value['array'],
                        plate=value['plate'], scene=value['scene'],
                        model_config=value['model'], sequence=value['sequence'],
                        out=value['out'],
                        real_time_factor=float(value['real_time_factor']),
-                       lockstep=value['lockstep'].lower() == 'true',
+                       lockstep=launch_bool('lockstep', value['lockstep']),
                        sim_duration=float(value['sim_duration']),
-                       seed=int(value['seed']), compose=value['compose'].lower() == 'true',
+                       seed=int(value['seed']), compose=launch_bool('compose', value['compose']),
                        xela_port=XELA_PORT, netft_port=NETFT_PORT, can_port=CAN_PORT)
     actions, delay = [], 0.0
     for node in plan(args):

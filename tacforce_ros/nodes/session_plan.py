@@ -14,6 +14,7 @@ from typing import Any
 
 from tacforce_ros.control.command_sequence import ForceSequence, SequenceError
 from tacforce_ros.paths import config_dir, ros_home
+from tacforce_ros.sim.scene import SceneError, load_scene
 
 MODES = ('calibration', 'closed_loop')
 HAND_SIDES = ('right', 'left')
@@ -115,6 +116,15 @@ class SessionArgs:
         return f'closed_loop_{self.plate}'
 
 
+def launch_bool(name: str, text: str) -> bool:
+    """A boolean launch argument as launch's own conditions read one (true/false/1/0, any
+    case); anything else is refused, so that `sim:=yes` cannot quietly start the hardware graph."""
+    value = text.strip().lower()
+    if value not in ('true', 'false', '1', '0'):
+        raise PlanError(f'{name}:={text!r}: expected true or false (or 1 or 0)')
+    return value in ('true', '1')
+
+
 def tare_file(session_id: str) -> Path:
     """Where a session's estimator keeps its tare: under ROS_HOME (~/.ros), not among the bags."""
     return ros_home() / 'tacforce_ros' / f'estimator_tare_{session_id}.npz'
@@ -150,6 +160,13 @@ def plan(args: SessionArgs) -> list[NodeLaunch]:
     hand = hand_config(args.hand_side)
     if not hand.is_file():
         raise PlanError(f'hand_side {args.hand_side!r}: no hand description {hand}')
+    if args.sim:
+        try:
+            scene = load_scene(args.scene_name())     # before any node starts, not in sim_world
+        except (SceneError, OSError) as exc:
+            raise PlanError(f'scene: {exc}') from exc
+        if scene.kind != args.mode:
+            raise PlanError(f'scene {scene.name!r} is a {scene.kind} scene, not {args.mode}')
     if args.sequence:
         try:
             ForceSequence.load(args.sequence)    # a bad sequence fails before any node starts

@@ -77,6 +77,23 @@ def test_negative_seed_other_than_the_scene_default_is_refused():
         plan(SessionArgs(mode='closed_loop', seed=-2))
 
 
+def test_boolean_launch_arguments_are_read_as_launch_reads_them_and_others_refused():
+    from tacforce_ros.nodes.session_plan import launch_bool
+    assert [launch_bool('sim', v) for v in ('true', 'True', '1', 'false', 'FALSE', '0')] == [
+        True, True, True, False, False, False]
+    for text in ('yes', '', 'ture', '2'):
+        with pytest.raises(PlanError, match=f"sim:={text!r}: expected true or false"):
+            launch_bool('sim', text)
+
+
+def test_a_missing_or_mismatched_scene_is_refused_before_any_node_starts():
+    with pytest.raises(PlanError, match='scene: .*nosuchplate'):
+        plan(SessionArgs(mode='closed_loop', plate='nosuchplate'))
+    with pytest.raises(PlanError, match='is a calibration scene, not closed_loop'):
+        plan(SessionArgs(mode='closed_loop', scene='calibration_index_tip_flat'))
+    assert plan(SessionArgs(mode='closed_loop', sim=False, plate='nosuchplate'))  # no scene
+
+
 def test_a_chosen_sequence_reaches_the_command_player_and_a_missing_one_is_refused():
     nodes = {n.executable: n for n in plan(SessionArgs(mode='closed_loop'))}
     assert 'sequence' not in nodes['command_player'].overrides      # the params file's

@@ -16,11 +16,11 @@ Around the law, in this order per tick:
    q_d + J^T R of that command. At the pose of that tick it is the torque the law gave there,
    so the fingertip keeps pressing as it was (an estimator that stops for a moment must not
    drop what the finger holds; holding the angles of that moment instead would remove the PD
-   term's share of the press), and it cannot run off: motion meets the same PD as in closed loop. A command
-   that changes meanwhile is not followed (there is no estimate to close the loop on). A linear
-   blend of the two saturated torques over `ramp_time` keeps every joint's |torque| within the
-   range between the two. Stale joints make every feedback term meaningless (the law would be
-   evaluated at an old q), so then the command of the last tick with fresh joints fades linearly
+   term's share of the press), and it cannot run off: motion meets the same PD as in closed
+   loop. A command that changes meanwhile is not followed (there is no estimate to close the
+   loop on). A linear blend of the two saturated torques over `ramp_time` keeps every joint's
+   |torque| within the range between the two. Stale joints make every feedback term
+   meaningless (the law would be evaluated at an old q), so then the command of the last tick with fresh joints fades linearly
    to zero: no joint's |torque| ever rises above its value at that moment. The integral is
    frozen while the estimate is stale, so that the law resumes where it left off when the
    estimate returns, and reset once stale joints have faded the torque out. When the streams

@@ -64,14 +64,6 @@ class LinkDiagnostics:
         with self._lock:
             return dataclasses.replace(self)
 
-    def as_dict(self) -> dict[str, float | int | str]:
-        """Counters plus the current age, e.g. for a diagnostic_msgs KeyValue list or JSON."""
-        snap = self.snapshot()
-        out = {f.name: getattr(snap, f.name) for f in dataclasses.fields(snap)
-               if not f.name.startswith('_')}
-        out['age_s'] = snap.age()
-        return out
-
 
 # Levels of a link's health, numbered as diagnostic_msgs/DiagnosticStatus numbers them.
 OK, WARN, ERROR, STALE = 0, 1, 2, 3

@@ -186,8 +186,7 @@ def crash_run(k: int, args, kinematics, out: Path) -> dict:
                                 args.model, seed=seed, lockstep=args.lockstep, crash=CRASH,
                                 sequence=sequence.source)
     return {'run': k, 'seed': seed, 'sequence': FAULT_SEQUENCE,
-            'crash': {'node': CRASH[0], 'at_wall_s': CRASH[1],
-                                    'down_wall_s': CRASH[2]},
+            'crash': {'node': CRASH[0], 'at_wall_s': CRASH[1], 'down_wall_s': CRASH[2]},
             'achieved_real_time_factor': achieved_factor(session_dir),
             **crash_report(bag, kinematics, sequence), 'bag': str(bag)}
 

@@ -11,23 +11,22 @@ test/control/ checks the sign used here removes a constant plant error.
 
 Around the law, in this order per tick:
 1. Watchdog. `f_hat_age` and `q_age` come from the caller. A stale or non-finite estimate ramps
-   from the law's torque to a contact hold: the law itself with its force command frozen at
-   that of the last fresh tick (f_d + K_i * integral then), open loop, i.e. gravity + PD toward
-   q_d + J^T R of that command. At the pose of that tick it is the torque the law gave there,
-   so the fingertip keeps pressing as it was (an estimator that stops for a moment must not
-   drop what the finger holds; holding the angles of that moment instead would remove the PD
-   term's share of the press), and it cannot run off: motion meets the same PD as in closed
-   loop. A command that changes meanwhile is not followed (there is no estimate to close the
-   loop on). A linear blend of the two saturated torques over `ramp_time` keeps every joint's
-   |torque| within the range between the two. Stale joints make every feedback term
-   meaningless (the law would be evaluated at an old q), so then the command of the last tick with fresh joints fades linearly
-   to zero: no joint's |torque| ever rises above its value at that moment. The integral is
-   frozen while the estimate is stale, so that the law resumes where it left off when the
-   estimate returns, and reset once stale joints have faded the torque out. When the streams
-   come back, the gains ramp in again at the same rate (no torque step). Worst case from the
-   last good message to the hold (or to zero torque): timeout + ramp_time + one tick
-   (defaults: 50 + 50 ms). Each state says why the controller is in its mode (`reason`), for the
-   log of its transitions.
+   from the law's torque to a contact hold: the law itself with its force command frozen at that of
+   the last fresh tick (f_d + K_i * integral then), open loop, i.e. gravity + PD toward q_d + J^T R
+   of that command. At the pose of that tick it is the torque the law gave there, so the fingertip
+   keeps pressing as it was (an estimator that stops for a moment must not drop what the finger
+   holds; holding the angles of that moment instead would remove the PD term's share of the press),
+   and it cannot run off: motion meets the same PD as in closed loop. A command that changes
+   meanwhile is not followed (there is no estimate to close the loop on). A linear blend of the two
+   saturated torques over `ramp_time` keeps every joint's |torque| within the range between the
+   two. Stale joints make every feedback term meaningless (the law would be evaluated at an old q),
+   so then the command of the last tick with fresh joints fades linearly to zero: no joint's
+   |torque| ever rises above its value at that moment. The integral is frozen while the estimate is
+   stale, so that the law resumes where it left off when the estimate returns, and reset once stale
+   joints have faded the torque out. When the streams come back, the gains ramp in again at the
+   same rate (no torque step). Worst case from the last good message to the hold (or to zero
+   torque): timeout + ramp_time + one tick (defaults: 50 + 50 ms). Each state says why the
+   controller is in its mode (`reason`), for the log of its transitions.
 2. Integral with a rate limiter (each axis of e_f clipped to `integral_rate_limit` N before
    integrating, so one bad estimate moves the integral by at most that many N s per second),
    clamped to +/- `integral_limit`, and conditional integration: while saturated, a step that

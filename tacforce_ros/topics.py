@@ -13,6 +13,8 @@ TOPIC_MARKERS = '/tactile/markers'
 # Closed-loop sessions also carry the command and the controller's ticks.
 TOPIC_DESIRED = '/force_controller/desired'
 TOPIC_CONTROLLER_STATE = '/force_controller/state'
+# Joint torques for the hand driver (sensor_msgs/JointState: name and effort), from any controller.
+TOPIC_TORQUE_COMMAND = '/allegro_driver/torque_command'
 # Health of the device links (diagnostic_msgs/DiagnosticArray), where ROS tools look for it.
 TOPIC_DIAGNOSTICS = '/diagnostics'
 
@@ -29,6 +31,7 @@ TOPIC_QOS = {
     TOPIC_SAMPLE: RELIABLE,
     TOPIC_DESIRED: RELIABLE,
     TOPIC_CONTROLLER_STATE: RELIABLE,
+    TOPIC_TORQUE_COMMAND: RELIABLE,
     TOPIC_DIAGNOSTICS: RELIABLE,
 }
 

@@ -1,27 +1,22 @@
-"""allegro_driver: Allegro Hand V4 over CAN -> /joint_states, and the fingertip force controller.
+"""allegro_driver: the Allegro Hand V4 over CAN -> /joint_states, and joint torques from a topic.
 
-Joint states (sensor_msgs/JointState, 16 joints in Allegro order, position rad, velocity rad/s by
-finite differences on the node clock, effort = last commanded torque N m) are published for
-every complete FINGER_POSE cycle (333 Hz at `position_period_ms` = 3); under sim time a cycle
-arriving before the node clock has moved since the previous one is the same instant and is not
-published (counted as same_stamp in the link report).
+The hand and nothing else, as a ros2_control hardware interface is: controllers are other nodes
+(force_controller, or yours). Joint states (sensor_msgs/JointState, 16 joints in Allegro order,
+position rad, velocity rad/s by finite differences on the node clock, effort = the torque last
+sent N m) are published for every complete FINGER_POSE cycle (333 Hz at `position_period_ms` =
+3); under sim time a cycle arriving before the node clock has moved since the previous one is the
+same instant and is not published (counted as same_stamp in the link report).
 
-`control` = force runs one finger's closed loop (tacforce_ros/control/finger_session.py: the same
-object the in-process experiments run) with the paper's law (control/force_controller.py,
-parameters `force_controller.*`, see config/params/force_controller.yaml) for the selected finger at
-`control_rate_hz` on the node clock (sim time under use_sim_time): f_d from
-/force_controller/desired (geometry_msgs/Vector3Stamped, in force_controller.force_frame),
-f_hat from /tactile/estimates (the entry of `estimate_array`; invalid or missing entries count as
-stale). K_i = 0 is the open-loop baseline. The other fingers hold the pose they had at start-up
-(gravity + PD, `others_kp`/`others_kd`). The force controller engages on the first desired
-force once (closed loop) a valid estimate has arrived, i.e. once the estimator has tared: until
-then the finger holds the pose it had at start-up with the law's own PD and gravity terms and no
-force terms (k_i = 0, q_d = that pose, reported as mode "hold"), so a session starts as a lab
-run does: clear of the plate, the estimator tared, then q_d brings the tip into contact. The
-controller's watchdog ramps the force terms to a position hold when the estimate goes stale and
-fades the last command to zero torque when the joint stream does; every tick is published as
-tacforce_msgs/ControllerState on /force_controller/state, and every change of mode or of its
-cause is logged once.
+`control` = torque: joint torques come on /allegro_driver/torque_command (sensor_msgs/JointState:
+`name` the commanded joints, `effort` their torques N m; other fields ignored). Each command is
+sent to the hand as it arrives, with the firmware's per-joint clamps. A joint never commanded
+holds the pose it had at start-up (gravity + PD, `others_kp`/`others_kd`), so fingers nobody
+controls stay where they are. A joint whose commands stop (none for `command_timeout` s on the
+node clock) gets zero torque: the driver's own loop (`control_rate_hz`) checks, so zero torque
+follows the last command within `command_timeout` + 1/`control_rate_hz`; the servos stay on and
+the joint stream goes on, and the joint takes commands again as soon as they return. The stop
+and the return are logged once each. A command naming an unknown joint, or with a non-finite
+torque or mismatched lengths, is refused whole, counted and logged (throttled).
 `control` = off (calibration sessions) only publishes joint states and never commands torque.
 On shutdown the driver stops the stream, sends zero torque and switches the servos off.
 
@@ -29,23 +24,18 @@ Faults (README, fault table): a lost link (socketcand connection closed, CAN err
 ERROR, the hand made safe as far as the bus still allows, and the node exits with code 1 in
 either mode (restart it, or let launch respawn it). A silent hand (link up, no joint data): WARN
 after `silent_warn_after` and the stream requested again; after `silent_timeout` zero torque and
-servos off, logged at ERROR; with `control` = force the node then exits with code 1, with
+servos off, logged at ERROR; with `control` = torque the node then exits with code 1, with
 `control` = off it keeps asking for the stream and publishes again when it returns.
 """
 from __future__ import annotations
 
 import sys
-from dataclasses import fields
 
 import can
 import numpy as np
-from geometry_msgs.msg import Vector3Stamped
 from rclpy.clock import Clock, ClockType
 from sensor_msgs.msg import JointState
-from tacforce_msgs.msg import ControllerState, ForceEstimateArray
 
-from tacforce_ros.control.finger_session import FingerSession
-from tacforce_ros.control.force_controller import ControllerConfigError, ForceControllerConfig
 from tacforce_ros.devices.allegro import (N_JOINTS, AllegroConfig, AllegroError, AllegroV4Driver,
                                           JointSample)
 from tacforce_ros.devices.polling import LinkLost
@@ -54,27 +44,14 @@ from tacforce_ros.hand.kinematics import HandKinematics
 from tacforce_ros.nodes.common import (REALTIME_PRIORITY, ParameterError, ParamSpec,
                                        TacforceNode, publisher_qos, run_node, subscriber_qos)
 from tacforce_ros.nodes.link_status import STATUS_PARAMETERS, LinkStatusReporter
-from tacforce_ros.nodes.messages import stamp, stamp_ns, vector3
-from tacforce_ros.topics import (TOPIC_CONTROLLER_STATE, TOPIC_DESIRED, TOPIC_ESTIMATES,
-                                 TOPIC_JOINTS)
+from tacforce_ros.nodes.messages import stamp
+from tacforce_ros.topics import TOPIC_JOINTS, TOPIC_TORQUE_COMMAND
 
-CONTROLLER_GROUP = 'force_controller'
 # The Allegro's joint stream: one FINGER_POSE cycle every 3 ms.
 MAX_CONTROL_RATE_HZ = 1000.0 / 3.0
 # Wall-time period of the check that ends the node on a lost link (and, under force control, on
 # a hand the driver made safe): the exit follows the fault within this.
 LINK_CHECK_PERIOD_S = 0.05
-
-def _controller_parameters() -> tuple[ParamSpec, ...]:
-    """force_controller.* parameters, defaults from ForceControllerConfig (one source)."""
-    defaults = ForceControllerConfig()
-    specs = []
-    for f in fields(ForceControllerConfig):
-        value = getattr(defaults, f.name)
-        value = [float(v) for v in value] if isinstance(value, tuple) else value
-        specs.append(ParamSpec(f'{CONTROLLER_GROUP}.{f.name}', value, f.metadata['help']))
-    return tuple(specs)
-
 
 class JointVelocity:
     """Joint velocity from positions: finite differences on the caller's clock, low-passed
@@ -99,7 +76,7 @@ class JointVelocity:
 
 
 class AllegroDriver(TacforceNode):
-    """Allegro V4 joint states and torque control with the fingertip force controller."""
+    """Allegro V4 joint states, and joint torques from /allegro_driver/torque_command."""
 
     NODE_NAME = 'allegro_driver'
     PARAMETERS = (
@@ -114,18 +91,19 @@ class AllegroDriver(TacforceNode):
                   'carries none: false)'),
         ParamSpec('position_period_ms', 3, 'FINGER_POSE stream period (ms)', range=(1, 100)),
         ParamSpec('hand_config', '', 'hand description YAML; empty = the default hand'),
-        ParamSpec('control', 'force', 'force: run the force controller; off: joint states '
-                  'only, no torque ever sent', choices=('force', 'off')),
-        ParamSpec('control_rate_hz', 100.0, 'controller loop rate (Hz, node clock), up to the '
-                  '333 Hz joint stream', range=(1.0, MAX_CONTROL_RATE_HZ)),
-        ParamSpec('estimate_array', 'index_tip', 'array whose estimate closes the loop'),
+        ParamSpec('control', 'torque', 'torque: joint torques from the torque_command topic; '
+                  'off: joint states only, no torque ever sent', choices=('torque', 'off')),
+        ParamSpec('control_rate_hz', 100.0, 'rate of the driver\'s own loop (holds, command '
+                  'timeouts) on the node clock (Hz)', range=(1.0, MAX_CONTROL_RATE_HZ)),
+        ParamSpec('command_timeout', 0.05, 'a joint without a torque command for this long '
+                  'gets zero torque (s, node clock)', range=(0.001, 10.0)),
         ParamSpec('gravity', [0.0, 0.0, -9.81], 'gravity in the hand base frame (m/s^2), from '
                   'the mounting', range=(-20.0, 20.0)),
         ParamSpec('velocity_cutoff_hz', 30.0, 'low-pass cutoff of the joint velocity (Hz)',
                   range=(1.0, 150.0)),
-        ParamSpec('others_kp', 1.0, 'stiffness holding the other fingers (N m/rad)',
+        ParamSpec('others_kp', 1.0, 'stiffness holding the joints nobody commands (N m/rad)',
                   range=(0.0, 10.0)),
-        ParamSpec('others_kd', 0.03, 'damping of the other fingers (N m s/rad)',
+        ParamSpec('others_kd', 0.03, 'damping of the joints nobody commands (N m s/rad)',
                   range=(0.0, 1.0)),
         ParamSpec('clock_timeout', 30.0, 'use_sim_time: longest wait for the first /clock '
                   'before the hand is opened (s, wall)', range=(0.1, 600.0)),
@@ -133,7 +111,7 @@ class AllegroDriver(TacforceNode):
                   'warn and ask for the stream again (s, wall)', range=(0.01, 10.0)),
         ParamSpec('silent_timeout', 2.0, 'no joint data for this long: zero torque and servos '
                   'off (s, wall; above silent_warn_after)', range=(0.02, 60.0)),
-    ) + STATUS_PARAMETERS + (REALTIME_PRIORITY,) + _controller_parameters()
+    ) + STATUS_PARAMETERS + (REALTIME_PRIORITY,)
 
     def __init__(self, **node_options) -> None:
         super().__init__(**node_options)
@@ -143,28 +121,25 @@ class AllegroDriver(TacforceNode):
             self.kin = HandKinematics.for_hand(self.hand, gravity=np.asarray(p['gravity']))
         except (HandConfigError, OSError, ValueError) as exc:
             raise ParameterError(f'hand_config/gravity: {exc}') from None
-        self.session: FingerSession | None = None
-        if p['control'] == 'force':
-            self.session = FingerSession(self._controller_config(), self.kin)
+        if not p['silent_warn_after'] < p['silent_timeout']:
+            raise ParameterError(f'silent_timeout: {p["silent_timeout"]} must be above '
+                                 f'silent_warn_after ({p["silent_warn_after"]})')
+        self.controlled = p['control'] == 'torque'
+        self._joint_index = {name: k for k, name in enumerate(self.kin.joint_names)}
         self.joint_publisher = self.create_publisher(JointState, TOPIC_JOINTS,
                                                      publisher_qos(TOPIC_JOINTS))
         self.velocity = JointVelocity(p['velocity_cutoff_hz'])
         self._joints: tuple[np.ndarray, np.ndarray, int] | None = None   # q, qdot, node ns
         self._q_hold: np.ndarray | None = None
         self._tau = np.zeros(N_JOINTS)
-        self._desired: np.ndarray | None = None      # None until the first command
-        self._estimate: tuple[np.ndarray, int] | None = None     # f_hat, stamp ns
+        self._command = np.zeros(N_JOINTS)                # last commanded torque per joint
+        self._command_ns = np.full(N_JOINTS, -1, np.int64)   # its time; -1: never commanded
+        self._timed_out = np.zeros(N_JOINTS, bool)
+        self._commanded_since_tick = False
         self.refused_commands = 0
-        if not p['silent_warn_after'] < p['silent_timeout']:
-            raise ParameterError(f'silent_timeout: {p["silent_timeout"]} must be above '
-                                 f'silent_warn_after ({p["silent_warn_after"]})')
-        if self.session is not None:
-            self.create_subscription(Vector3Stamped, TOPIC_DESIRED, self._on_desired,
-                                     subscriber_qos(TOPIC_DESIRED))
-            self.create_subscription(ForceEstimateArray, TOPIC_ESTIMATES, self._on_estimates,
-                                     subscriber_qos(TOPIC_ESTIMATES))
-            self.state_publisher = self.create_publisher(ControllerState, TOPIC_CONTROLLER_STATE,
-                                                         publisher_qos(TOPIC_CONTROLLER_STATE))
+        if self.controlled:
+            self.create_subscription(JointState, TOPIC_TORQUE_COMMAND, self._on_command,
+                                     subscriber_qos(TOPIC_TORQUE_COMMAND))
         # Servos on (the end of the hand's start-up) only once this node can stamp and time, and
         # as its last step, with every topic in place: in simulation that is when simulated time
         # starts, so control acts from its first step (on a loaded 2-core host the ROS entities
@@ -178,41 +153,22 @@ class AllegroDriver(TacforceNode):
         self.driver.add_callback(self._on_joints)
         self.status = LinkStatusReporter(
             self, self.driver, f'Allegro {self.driver.serial}',
+            lambda: {'refused_commands': self.refused_commands},
             # Without control a hand made safe still streams what calibration needs.
             failure=lambda: (f'hand made safe: {self.driver.safe_stop}'
-                             if self.driver.safe_stop and self.session is not None else ''))
+                             if self.driver.safe_stop and self.controlled else ''))
         self.driver.start()
         self.create_timer(LINK_CHECK_PERIOD_S, self._check_hand,
                           clock=Clock(clock_type=ClockType.STEADY_TIME))
-        if self.session is not None:
-            self.create_timer(1.0 / p['control_rate_hz'], self._control)
+        if self.controlled:
+            self.create_timer(1.0 / p['control_rate_hz'], self._tick)
         info = self.driver.hand_info
         self.get_logger().info(
             f'Allegro {self.driver.serial} ({info.side}, fw 0x{info.firmware_version:04x}) on '
-            f'{p["interface"]}:{p["channel"]}; control '
-            + (f'force on {self.session.config.finger} at {p["control_rate_hz"]:g} Hz, '
-               f'{"open loop" if self.session.controller.open_loop else "closed loop"} with '
-               f'{p["estimate_array"]}' if self.session else 'off (joint states only)'))
-
-    def _controller_config(self) -> ForceControllerConfig:
-        group = {name.split('.', 1)[1]: value for name, value in self.params.items()
-                 if name.startswith(CONTROLLER_GROUP + '.')}
-        try:
-            config = ForceControllerConfig.from_mapping(group)
-        except ControllerConfigError as exc:
-            raise ParameterError(f'{CONTROLLER_GROUP}.{exc}') from None
-        array = self.params['estimate_array']
-        if array not in {a.name for a in self.hand.arrays}:
-            raise ParameterError(f'estimate_array: {array!r} is not an array of the hand')
-        expected = self.hand.array(array).frame_id
-        if config.estimate_frame != expected:
-            raise ParameterError(f'{CONTROLLER_GROUP}.estimate_frame: {config.estimate_frame!r}'
-                                 f' but the estimates of {array} are in {expected!r}')
-        for name in ('base_frame', 'force_frame'):
-            if not self.kin.has_frame(getattr(config, name)):
-                raise ParameterError(f'{CONTROLLER_GROUP}.{name}: {getattr(config, name)!r} is '
-                                     'not a frame of the URDF')
-        return config
+            f'{p["interface"]}:{p["channel"]}; '
+            + (f'joint torques from {TOPIC_TORQUE_COMMAND} (zero after '
+               f'{p["command_timeout"]:g} s without)' if self.controlled
+               else 'control off (joint states only)'))
 
     def _driver_config(self) -> AllegroConfig:
         p = self.params
@@ -231,12 +187,12 @@ class AllegroDriver(TacforceNode):
     # --- the hand's health (its events are logged by LinkStatusReporter) ---------------------
 
     def _check_hand(self) -> None:
-        """Ends the node (exit code 1, via run_node) on a lost link, and under force control
-        on a hand the driver made safe: a controller cannot act on either."""
+        """Ends the node (exit code 1, via run_node) on a lost link, and under torque control
+        on a hand the driver made safe: no command can act on either."""
         if self.driver.fatal_error is not None:
             raise RuntimeError(f'Allegro link failed: {self.driver.fatal_error}')
-        if self.session is not None and self.driver.safe_stop:
-            raise RuntimeError(f'force control ended: {self.driver.safe_stop}')
+        if self.controlled and self.driver.safe_stop:
+            raise RuntimeError(f'torque control ended: {self.driver.safe_stop}')
 
     # --- inputs (joint callback runs in the driver's thread) --------------------------------
 
@@ -254,42 +210,42 @@ class AllegroDriver(TacforceNode):
         msg.header.stamp = stamp(now)
         self.joint_publisher.publish(msg)
 
-    def _on_desired(self, msg: Vector3Stamped) -> None:
-        frame = self.session.config.force_frame
-        if msg.header.frame_id not in ('', frame):
+    def _on_command(self, msg: JointState) -> None:
+        joints = [self._joint_index.get(name) for name in msg.name]
+        effort = np.asarray(msg.effort, dtype=np.float64)
+        if (None in joints or len(joints) != len(effort) or len(set(joints)) != len(joints)
+                or not np.all(np.isfinite(effort))):
             self.refused_commands += 1
-            self.get_logger().warn(f'desired force in {msg.header.frame_id!r} refused: the '
-                                   f'controller takes {frame!r} ({self.refused_commands} so far)',
-                                   throttle_duration_sec=5.0)
+            self.get_logger().warn(
+                f'torque command refused ({self.refused_commands} so far): names must be joints '
+                f'of the hand, once each, with one finite effort each; got {list(msg.name)} '
+                f'and {len(effort)} efforts', throttle_duration_sec=5.0)
             return
-        desired = np.array([msg.vector.x, msg.vector.y, msg.vector.z])
-        if np.all(np.isfinite(desired)):
-            self._desired = desired
+        now = self.now_ns()
+        self._command[joints] = effort
+        self._command_ns[joints] = now
+        self._commanded_since_tick = True
+        self._send(now)
 
-    def _on_estimates(self, msg: ForceEstimateArray) -> None:
-        item = next((e for e in msg.estimates if e.name == self.params['estimate_array']), None)
-        if item is None or not item.valid:
-            self._estimate = None          # invalid or stale: the watchdog takes over
-            return
-        self._estimate = (np.array([item.force.x, item.force.y, item.force.z]),
-                          stamp_ns(item.header.stamp))
+    # --- torque out --------------------------------------------------------------------------
 
-    # --- control tick ------------------------------------------------------------------------
+    def _tick(self) -> None:
+        """The driver's own loop: sends holds and command timeouts when no command did."""
+        if not self._commanded_since_tick:
+            self._send(self.now_ns())
+        self._commanded_since_tick = False
 
-    def _control(self) -> None:
+    def _send(self, now: int) -> None:
         if self._joints is None or self.driver.fatal_error is not None or self.driver.safe_stop:
             return      # nothing to act on yet, or _check_hand is about to end the node
-        now = self.now_ns()
-        q, qdot, q_ns = self._joints
-        estimate = self._estimate
-        f_hat, f_age = ((estimate[0], (now - estimate[1]) * 1e-9) if estimate is not None
-                        else (np.full(3, np.nan), float('inf')))
-        tau_finger, state, transition = self.session.update(
-            now * 1e-9, q, qdot, f_hat, f_age, (now - q_ns) * 1e-9, self._desired)
-        if transition is not None:
-            self.get_logger().info(str(transition))
-        tau = state.hold_gain * self._hold_others(q, qdot)
-        tau[self.session.joints] = tau_finger
+        q, qdot, _ = self._joints
+        p = self.params
+        never = self._command_ns < 0
+        timed_out = ~never & (now - self._command_ns > p['command_timeout'] * 1e9)
+        self._log_timeouts(timed_out)
+        hold = (self.kin.gravity_torques(q) - p['others_kd'] * qdot
+                - p['others_kp'] * (q - self._q_hold))
+        tau = np.where(never, hold, np.where(timed_out, 0.0, self._command))
         try:
             self.driver.set_torques(tau)
         except LinkLost as error:
@@ -297,31 +253,21 @@ class AllegroDriver(TacforceNode):
         except AllegroError:
             # The polling thread made the hand safe after this tick's check: the same end.
             if self.driver.safe_stop:
-                raise RuntimeError(f'force control ended: {self.driver.safe_stop}') from None
+                raise RuntimeError(f'torque control ended: {self.driver.safe_stop}') from None
             raise
         self._tau = tau
-        self.state_publisher.publish(self._state_message(now, state, q, qdot))
 
-    def _hold_others(self, q: np.ndarray, qdot: np.ndarray) -> np.ndarray:
-        p = self.params
-        return (self.kin.gravity_torques(q) - p['others_kd'] * qdot
-                - p['others_kp'] * (q - self._q_hold))
-
-    def _state_message(self, now: int, state, q: np.ndarray, qdot: np.ndarray
-                       ) -> ControllerState:
-        joints = self.session.joints
-        msg = ControllerState(finger=self.session.config.finger, mode=state.mode,
-                              desired_force=vector3(state.desired_force),
-                              estimated_force=vector3(state.estimated_force),
-                              integral_error=vector3(state.integral_error),
-                              q=q[joints].tolist(), qdot=qdot[joints].tolist(),
-                              tau_cmd=state.tau_cmd.tolist(),
-                              saturation_scale=float(state.saturation_scale),
-                              estimate_fresh=state.estimate_fresh,
-                              joints_fresh=state.joints_fresh)
-        msg.header.stamp = stamp(now)
-        msg.header.frame_id = self.session.config.force_frame
-        return msg
+    def _log_timeouts(self, timed_out: np.ndarray) -> None:
+        stopped, resumed = timed_out & ~self._timed_out, ~timed_out & self._timed_out
+        names = self.kin.joint_names
+        if stopped.any():
+            self.get_logger().warning(
+                f'torque commands stopped for {self.params["command_timeout"]:g} s: zero torque '
+                f'on {[names[k] for k in np.flatnonzero(stopped)]} (servos stay on)')
+        if resumed.any():
+            self.get_logger().info(
+                f'torque commands back on {[names[k] for k in np.flatnonzero(resumed)]}')
+        self._timed_out = timed_out
 
     def on_shutdown(self) -> None:
         self.driver.close()          # stream off, zero torque, servos off

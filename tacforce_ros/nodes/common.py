@@ -21,11 +21,11 @@ QoS (one table, `TOPIC_QOS` in tacforce_ros/topics.py, decides per topic; `publi
 Time. Nodes stamp and time everything with their own clock (`now_ns()`, `create_timer`), which
 follows /clock when `use_sim_time` is true (declared by rclpy itself); never time.time().
 
-Scheduling. Nodes on the 100 Hz path (estimator, allegro_driver) offer `realtime_priority`:
-above 0 every thread of the process (rclpy's and the DDS layer's) runs SCHED_FIFO at that
-priority, as ros2_control's real-time threads do, so a frame is not kept waiting behind
-ordinary processes; without the right (CAP_SYS_NICE or an rtprio limit) the node says so and runs
-normally. 0 (the default) leaves the normal scheduler.
+Scheduling. Nodes on the 100 Hz path (estimator, force_controller, allegro_driver) offer
+`realtime_priority`: above 0 every thread of the process (rclpy's and the DDS layer's) runs
+SCHED_FIFO at that priority, as ros2_control's real-time threads do, so a frame is not kept
+waiting behind ordinary processes; without the right (CAP_SYS_NICE or an rtprio limit) the node
+says so and runs normally. 0 (the default) leaves the normal scheduler.
 
 Distros. Uses only API present in Humble, Jazzy and Kilted; `SignalHandlerOptions` (Humble+) is
 imported defensively.

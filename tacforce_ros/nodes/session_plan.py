@@ -204,10 +204,12 @@ def plan(args: SessionArgs) -> list[NodeLaunch]:
             **common, **hand_param,
             'tare_file': str(tare_file(args.session_id)),
             **({'model_config': args.model_config} if args.model_config else {})}))
-        nodes.append(NodeLaunch('allegro_driver',
-                                (params_file('allegro_driver'), params_file('force_controller')),
+        # The hand, then the controller that sends it the finger's torques.
+        nodes.append(NodeLaunch('allegro_driver', (params_file('allegro_driver'),),
                                 {**common, **hand_param, **sim_devices['allegro'],
-                                 'control': 'force', 'estimate_array': args.array}))
+                                 'control': 'torque'}))
+        nodes.append(NodeLaunch('force_controller', (params_file('force_controller'),),
+                                {**common, **hand_param, 'estimate_array': args.array}))
         # The sequence starts once the controller and the recorder both listen.
         nodes.append(NodeLaunch('command_player', (params_file('command_player'),),
                                 {**common, 'min_subscribers': 2,

@@ -29,7 +29,8 @@ from tacforce_ros.nodes.common import EXIT_BAD_PARAMETERS, TacforceNode, run_nod
 # Node name (= its executable and module under tacforce_ros.nodes): its class, imported only
 # when hosted (the simulator's module alone pulls in MuJoCo).
 NODE_CLASSES = {'xela_driver': 'XelaDriver', 'ft_bridge': 'FtBridge',
-                'allegro_driver': 'AllegroDriver', 'estimator': 'Estimator',
+                'allegro_driver': 'AllegroDriver', 'force_controller': 'ForceControllerNode',
+                'estimator': 'Estimator',
                 'sync_recorder': 'SyncRecorder', 'command_player': 'CommandPlayer',
                 'sim_world': 'SimWorld'}
 USAGE = ('usage: tacforce_container --node NAME [--ros-args ...] [--node NAME ...]; NAME one of '

@@ -5,13 +5,13 @@
    last wrench - the frame's stamp), split into the estimator's part (its first and last wrench
    publish times); once on the normal scheduler, and once with the estimator's
    realtime_priority parameter and the probe's threads (standing in for a consumer that is
-   real-time too, e.g. allegro_driver with realtime_priority) at SCHED_FIFO --realtime-priority
+   real-time too, e.g. force_controller with realtime_priority) at SCHED_FIFO --realtime-priority
    (skipped when 0 or refused). On the normal scheduler the tail is mostly wake-up delay: a
    woken DDS thread waits up to a scheduler tick (~4 ms) for a core held by another process;
 2. sustained input: frames published at each --rates value for --seconds; ForceEstimateArray
    messages received vs frames sent (drops), and the rate achieved;
-3. controller loop: allegro_driver (force control) against sim_world's hand emulator, periods
-   of /force_controller/state stamps at 100 Hz and 333 Hz: mean, p99 |period - nominal|.
+3. controller loop: force_controller and allegro_driver against sim_world's hand emulator,
+   periods of /force_controller/state stamps at 100 Hz and 333 Hz: mean, p99 |period - nominal|.
 
 The probe measures the estimator, not itself: it publishes frames serialized in advance (only
 the stamp is written per frame), takes every message serialized (no Python message objects),
@@ -132,13 +132,14 @@ def run_controller(probe: Probe, args: argparse.Namespace, env: dict, tmp: Path)
             NodeLaunch('sim_world', (params_file('sim_world'),), {
                 'publish_clock': False, 'lockstep': False, 'xela_port': xela,
                 'netft_port': netft, 'can_port': can}, ready_port=can),
-            NodeLaunch('allegro_driver', (params_file('allegro_driver'),
-                                          params_file('force_controller')), {
+            NodeLaunch('allegro_driver', (params_file('allegro_driver'),), {
                 'interface': 'socketcand', 'channel': 'can0', 'host': '127.0.0.1',
-                'port': can, 'rtr_requests': False, 'control_rate_hz': rate})],
+                'port': can, 'rtr_requests': False}),
+            NodeLaunch('force_controller', (params_file('force_controller'),),
+                       {'control_rate_hz': rate})],
             tmp / 'logs', 30.0, env)
         try:
-            if len(procs) < 2:
+            if len(procs) < 3:
                 log = (tmp / 'logs' / 'sim_world.log').read_text().strip().splitlines()
                 raise RuntimeError(f'sim_world was not ready on port {can} within 30 s'
                                    + (f': {log[-1]}' if log else ''))

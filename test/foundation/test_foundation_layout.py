@@ -43,7 +43,7 @@ def test_the_model_set_lives_with_the_estimation_core():
 def test_topic_names_are_spelled_only_in_topics():
     """Every topic name is a constant of tacforce_ros/topics.py (docstrings may mention them)."""
     prefixes = ('/tactile', '/ft_sensor', '/joint_states', '/calibration', '/session', '/sim/',
-                '/force_controller')
+                '/force_controller', '/allegro_driver', '/diagnostics')
     spelled = []
     for path in ROOT.rglob('*.py'):
         if path.name == 'topics.py' and path.parent == ROOT:

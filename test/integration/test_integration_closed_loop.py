@@ -1,7 +1,7 @@
 """The closed loop through the real node graph over DDS (issue 6 must-show): sim_world with the
 project's closed-loop scene on the spherical plate, its device emulators, xela_driver,
-ft_bridge, estimator (the default model of config/models/), allegro_driver with
-config/params/force_controller.yaml, command_player and sync_recorder, as `session closed_loop`
+ft_bridge, estimator (the default model of config/models/), allegro_driver, force_controller
+(config/params/force_controller.yaml), command_player and sync_recorder, as `session closed_loop`
 starts them. A 2 N press is held within 0.2 N of the simulator's ground truth.
 
 The command: f_d = 0 while the finger holds its start pose clear of the plate and the estimator

@@ -1,5 +1,5 @@
 """The estimation graph over DDS in simulation: sim_world -> xela_driver -> estimator (a model on
-every array) -> allegro_driver's force controller.
+every array) -> force_controller -> allegro_driver.
 
 * a third-party subscriber sees the 18 per-array WrenchStamped topics at 100 Hz, in the array
   frames;
@@ -30,7 +30,7 @@ from graph_support import (Graph, graph_nodes, session_args, synthetic_model_set
 
 pytestmark = pytest.mark.ros
 DOMAIN = unique_domain_id(offset=83)
-NODES = ('sim_world', 'xela_driver', 'estimator', 'allegro_driver')
+NODES = ('sim_world', 'xela_driver', 'estimator', 'allegro_driver', 'force_controller')
 SAFE_MODES = ('safe', 'hold')
 # A starved machine runs the graph slower (4 Hz of estimates seen on a CI host): wait while
 # messages keep coming, fail when none came for STALLED_AFTER_S.
@@ -151,9 +151,9 @@ def test_stale_tactile_stream_makes_the_controller_safe_within_100_ms(graph):
                             first_hold.integral_error.z], 0.0)
         # The transition is logged once, with its cause (the estimator marks the stale array
         # invalid, so the controller has no valid estimate).
-        driver_log = (running.log_dir / 'allegro_driver.log').read_text()
+        controller_log = (running.log_dir / 'force_controller.log').read_text()
         assert re.search(r'controller (closed_loop|safe) -> (safe|hold): no valid estimate',
-                         driver_log), driver_log[-3000:]
+                         controller_log), controller_log[-3000:]
         stale = [e for e in estimates if e.estimates and e.estimates[0].status == 'stale']
         assert stale and all(not x.valid for e in stale for x in e.estimates)
         # The stream returns: the controller ramps back into closed loop.

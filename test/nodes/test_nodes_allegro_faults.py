@@ -1,6 +1,7 @@
 """allegro_driver as a real process against the emulated hand over socketcand on loopback: a
 closed link ends it with code 1 in either mode (no hang, no spin), a silent hand is warned
-about, asked for its stream again, and made safe."""
+about, asked for its stream again, and made safe; alone, it takes joint torques from its topic
+and zeroes them when the commands stop."""
 import re
 import sys
 import time
@@ -8,15 +9,18 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import rclpy
+from sensor_msgs.msg import JointState
 
-from tacforce_ros.nodes.common import EXIT_FAILURE
-from tacforce_ros.paths import config_dir
+from tacforce_ros.nodes.common import EXIT_FAILURE, publisher_qos
 from tacforce_ros.sim.emulators.allegro import AllegroEmulator
+from tacforce_ros.topics import TOPIC_TORQUE_COMMAND
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / 'devices'))
 from devices_support import wait_until  # noqa: E402
-from ros_processes import OutputLines, executable, start, unique_domain_id  # noqa: E402
+from ros_processes import (OutputLines, executable, rclpy_node, start,  # noqa: E402
+                           unique_domain_id)
 
 pytestmark = pytest.mark.ros
 DOMAIN = unique_domain_id(offset=71)
@@ -30,13 +34,12 @@ def driver(hand: AllegroEmulator, control: str, silent_timeout: float) -> Output
     params = ['interface:=socketcand', 'channel:=can0', f'host:={host}', f'port:={port}',
               'rtr_requests:=false', f'control:={control}', 'diagnostics_period:=0.0',
               f'silent_warn_after:={WARN_AFTER_S}', f'silent_timeout:={silent_timeout}']
-    proc = start([executable('allegro_driver'), '--ros-args', '--params-file',
-                  config_dir() / 'params' / 'force_controller.yaml',
+    proc = start([executable('allegro_driver'), '--ros-args',
                   *[a for p in params for a in ('-p', p)]], DOMAIN)
     return OutputLines(proc)
 
 
-@pytest.mark.parametrize('control', ['off', 'force'])
+@pytest.mark.parametrize('control', ['off', 'torque'])
 def test_a_closed_link_ends_the_driver_with_an_error(control):
     with AllegroEmulator(lambda: POSE, lambda tau: None) as hand:
         out = driver(hand, control, silent_timeout=10.0)
@@ -98,9 +101,9 @@ def test_a_silent_hand_is_warned_about_asked_again_and_made_safe_without_control
     assert warned_at >= WARN_AFTER_S - 0.01 and safe_at >= timeout - 0.01, text[-2000:]
 
 
-def test_a_silent_hand_ends_force_control():
+def test_a_silent_hand_ends_torque_control():
     with AllegroEmulator(lambda: POSE, lambda tau: None) as hand:
-        out = driver(hand, 'force', silent_timeout=1.0)
+        out = driver(hand, 'torque', silent_timeout=1.0)
         try:
             assert out.wait_for(STARTED, 60.0), out.text()[-2000:]
             hand.pause_stream()
@@ -109,4 +112,54 @@ def test_a_silent_hand_ends_force_control():
             text = out.stop()
         assert wait_until(lambda: not hand.servo_on, 30.0) and np.all(hand.torques == 0)
     assert code == EXIT_FAILURE, text[-2000:]
-    assert 'hand silent' in text and 'force control ended' in text, text[-2000:]
+    assert 'hand silent' in text and 'torque control ended' in text, text[-2000:]
+
+
+def test_the_driver_alone_takes_joint_torques_and_zeroes_them_when_commands_stop():
+    """A user's controller: torques on /allegro_driver/torque_command reach the hand (firmware
+    clamps applied); a command naming no joint of the hand is refused whole; when commands stop
+    the commanded joints get zero torque after command_timeout, the servos stay on and the
+    uncommanded joints keep their hold; commands that return act again."""
+    names = [f'joint_{k}.0' for k in range(4)]
+    wanted = np.array([0.1, -0.1, 0.05, 0.2])
+    timeout = 0.2
+    with AllegroEmulator(lambda: POSE, lambda tau: None) as hand, \
+            rclpy_node('torque_user', DOMAIN) as node:
+        host, port = hand.address
+        params = ['interface:=socketcand', 'channel:=can0', f'host:={host}', f'port:={port}',
+                  'rtr_requests:=false', 'control:=torque', f'command_timeout:={timeout}']
+        out = OutputLines(start([executable('allegro_driver'), '--ros-args',
+                                 *[a for p in params for a in ('-p', p)]], DOMAIN))
+        publisher = node.create_publisher(JointState, TOPIC_TORQUE_COMMAND,
+                                          publisher_qos(TOPIC_TORQUE_COMMAND))
+
+        def command(efforts, joint_names=names):
+            publisher.publish(JointState(name=joint_names, effort=list(map(float, efforts))))
+            rclpy.spin_once(node, timeout_sec=0.01)
+
+        def commanding_until(done, seconds):
+            deadline = time.monotonic() + seconds
+            while not done() and time.monotonic() < deadline:
+                command(wanted)
+            return done()
+
+        try:
+            assert out.wait_for(STARTED, 60.0), out.text()[-2000:]
+            held = wait_until(lambda: hand.servo_on and np.any(hand.torques[4:] != 0), 30.0)
+            assert held, 'the uncommanded joints are not held'
+            assert commanding_until(
+                lambda: np.allclose(hand.torques[:4], wanted, atol=0.01), 30.0), hand.torques
+            last_command = time.monotonic()
+            command([0.1], ['wrist'])                          # refused whole
+            assert wait_until(lambda: np.all(hand.torques[:4] == 0), 30.0), hand.torques
+            zeroed = time.monotonic() - last_command
+            assert out.wait_for('torque command refused', 30.0), out.text()[-2000:]
+            assert hand.servo_on and np.any(hand.torques[4:] != 0)
+            assert out.wait_for('torque commands stopped', 30.0), out.text()[-2000:]
+            assert commanding_until(
+                lambda: np.allclose(hand.torques[:4], wanted, atol=0.01), 30.0), hand.torques
+            assert out.wait_for('torque commands back', 30.0), out.text()[-2000:]
+        finally:
+            text = out.stop()
+    print(f'zero torque {zeroed:.3f} s after the last command (command_timeout {timeout} s)')
+    assert zeroed >= timeout - 0.02, text[-2000:]      # not before its time (a lower bound)

@@ -1,0 +1,200 @@
+"""force_controller: one finger's closed force loop, from the topics to joint torques.
+
+Runs tacforce_ros/control/finger_session.py (the object the in-process experiments run) with the
+paper's law (control/force_controller.py, parameters `force_controller.*`, see
+config/params/force_controller.yaml) for the selected finger at `control_rate_hz` on the node
+clock (sim time under use_sim_time). Inputs: the joints from /joint_states (their header stamp
+is their time), f_d from /force_controller/desired (geometry_msgs/Vector3Stamped, in
+force_controller.force_frame), f_hat from /tactile/estimates (the entry of `estimate_array`;
+invalid or missing entries count as stale). Output: the finger's four joint torques on
+/allegro_driver/torque_command (sensor_msgs/JointState, name and effort), which allegro_driver
+sends to the hand; it holds the other joints itself and zeroes a joint whose commands stop.
+K_i = 0 is the open-loop baseline.
+
+The controller engages on the first desired force once (closed loop) a valid estimate has
+arrived, i.e. once the estimator has tared: until then the finger holds the pose it had at the
+first tick with the law's own PD and gravity terms and no force terms (k_i = 0, q_d = that pose,
+reported as mode "hold"), so a session starts as a lab run does: clear of the plate, the
+estimator tared, then q_d brings the tip into contact. The watchdog ramps the force terms to the
+contact hold when the estimate goes stale and fades the last command to zero torque when the
+joint stream does; every tick is published as tacforce_msgs/ControllerState on
+/force_controller/state, and every change of mode or of its cause is logged once.
+"""
+from __future__ import annotations
+
+import sys
+from dataclasses import fields
+
+import numpy as np
+from geometry_msgs.msg import Vector3Stamped
+from sensor_msgs.msg import JointState
+from tacforce_msgs.msg import ControllerState, ForceEstimateArray
+
+from tacforce_ros.control.finger_session import FingerSession
+from tacforce_ros.control.force_controller import ControllerConfigError, ForceControllerConfig
+from tacforce_ros.devices.allegro import N_JOINTS
+from tacforce_ros.hand.description import HandConfigError, load_hand
+from tacforce_ros.hand.kinematics import HandKinematics
+from tacforce_ros.nodes.common import (REALTIME_PRIORITY, ParameterError, ParamSpec,
+                                       TacforceNode, publisher_qos, run_node, subscriber_qos)
+from tacforce_ros.nodes.messages import stamp, stamp_ns, vector3
+from tacforce_ros.topics import (TOPIC_CONTROLLER_STATE, TOPIC_DESIRED, TOPIC_ESTIMATES,
+                                 TOPIC_JOINTS, TOPIC_TORQUE_COMMAND)
+
+CONTROLLER_GROUP = 'force_controller'
+# The Allegro's joint stream: one FINGER_POSE cycle every 3 ms.
+MAX_CONTROL_RATE_HZ = 1000.0 / 3.0
+
+
+def _controller_parameters() -> tuple[ParamSpec, ...]:
+    """force_controller.* parameters, defaults from ForceControllerConfig (one source)."""
+    defaults = ForceControllerConfig()
+    specs = []
+    for f in fields(ForceControllerConfig):
+        value = getattr(defaults, f.name)
+        value = [float(v) for v in value] if isinstance(value, tuple) else value
+        specs.append(ParamSpec(f'{CONTROLLER_GROUP}.{f.name}', value, f.metadata['help']))
+    return tuple(specs)
+
+
+class ForceControllerNode(TacforceNode):
+    """The fingertip force controller of one finger, between the topics and the hand driver."""
+
+    NODE_NAME = 'force_controller'
+    PARAMETERS = (
+        ParamSpec('hand_config', '', 'hand description YAML; empty = the default hand'),
+        ParamSpec('control_rate_hz', 100.0, 'controller loop rate (Hz, node clock), up to the '
+                  '333 Hz joint stream', range=(1.0, MAX_CONTROL_RATE_HZ)),
+        ParamSpec('estimate_array', 'index_tip', 'array whose estimate closes the loop'),
+        ParamSpec('gravity', [0.0, 0.0, -9.81], 'gravity in the hand base frame (m/s^2), from '
+                  'the mounting', range=(-20.0, 20.0)),
+        REALTIME_PRIORITY,
+    ) + _controller_parameters()
+
+    def __init__(self, **node_options) -> None:
+        super().__init__(**node_options)
+        p = self.params
+        try:
+            self.hand = load_hand(p['hand_config'] or None)
+            self.kin = HandKinematics.for_hand(self.hand, gravity=np.asarray(p['gravity']))
+        except (HandConfigError, OSError, ValueError) as exc:
+            raise ParameterError(f'hand_config/gravity: {exc}') from None
+        self.session = FingerSession(self._controller_config(), self.kin)
+        self.joint_names = self.kin.joint_names[self.session.joints]
+        self._joints: tuple[np.ndarray, np.ndarray, int] | None = None   # q, qdot, stamp ns
+        self._desired: np.ndarray | None = None      # None until the first command
+        self._estimate: tuple[np.ndarray, int] | None = None     # f_hat, stamp ns
+        self.refused_commands = 0
+        self.refused_joint_states = 0
+        self.create_subscription(JointState, TOPIC_JOINTS, self._on_joints,
+                                 subscriber_qos(TOPIC_JOINTS))
+        self.create_subscription(Vector3Stamped, TOPIC_DESIRED, self._on_desired,
+                                 subscriber_qos(TOPIC_DESIRED))
+        self.create_subscription(ForceEstimateArray, TOPIC_ESTIMATES, self._on_estimates,
+                                 subscriber_qos(TOPIC_ESTIMATES))
+        self.torque_publisher = self.create_publisher(JointState, TOPIC_TORQUE_COMMAND,
+                                                      publisher_qos(TOPIC_TORQUE_COMMAND))
+        self.state_publisher = self.create_publisher(ControllerState, TOPIC_CONTROLLER_STATE,
+                                                     publisher_qos(TOPIC_CONTROLLER_STATE))
+        self.create_timer(1.0 / p['control_rate_hz'], self._control)
+        self.get_logger().info(
+            f'force control of {self.session.config.finger} at {p["control_rate_hz"]:g} Hz, '
+            f'{"open loop" if self.session.controller.open_loop else "closed loop"} with '
+            f'{p["estimate_array"]}; torques to {TOPIC_TORQUE_COMMAND}')
+
+    def _controller_config(self) -> ForceControllerConfig:
+        group = {name.split('.', 1)[1]: value for name, value in self.params.items()
+                 if name.startswith(CONTROLLER_GROUP + '.')}
+        try:
+            config = ForceControllerConfig.from_mapping(group)
+        except ControllerConfigError as exc:
+            raise ParameterError(f'{CONTROLLER_GROUP}.{exc}') from None
+        array = self.params['estimate_array']
+        if array not in {a.name for a in self.hand.arrays}:
+            raise ParameterError(f'estimate_array: {array!r} is not an array of the hand')
+        expected = self.hand.array(array).frame_id
+        if config.estimate_frame != expected:
+            raise ParameterError(f'{CONTROLLER_GROUP}.estimate_frame: {config.estimate_frame!r}'
+                                 f' but the estimates of {array} are in {expected!r}')
+        for name in ('base_frame', 'force_frame'):
+            if not self.kin.has_frame(getattr(config, name)):
+                raise ParameterError(f'{CONTROLLER_GROUP}.{name}: {getattr(config, name)!r} is '
+                                     'not a frame of the URDF')
+        return config
+
+    # --- inputs ------------------------------------------------------------------------------
+
+    def _on_joints(self, msg: JointState) -> None:
+        if (list(msg.name) != self.kin.joint_names or len(msg.position) != N_JOINTS
+                or len(msg.velocity) != N_JOINTS):
+            self.refused_joint_states += 1
+            self.get_logger().warn(f'joint state refused ({self.refused_joint_states} so far): '
+                                   f'expected the 16 joints {self.kin.joint_names[0]}.. in '
+                                   'order with positions and velocities',
+                                   throttle_duration_sec=5.0)
+            return
+        self._joints = (np.asarray(msg.position, np.float64),
+                        np.asarray(msg.velocity, np.float64), stamp_ns(msg.header.stamp))
+
+    def _on_desired(self, msg: Vector3Stamped) -> None:
+        frame = self.session.config.force_frame
+        if msg.header.frame_id not in ('', frame):
+            self.refused_commands += 1
+            self.get_logger().warn(f'desired force in {msg.header.frame_id!r} refused: the '
+                                   f'controller takes {frame!r} ({self.refused_commands} so far)',
+                                   throttle_duration_sec=5.0)
+            return
+        desired = np.array([msg.vector.x, msg.vector.y, msg.vector.z])
+        if np.all(np.isfinite(desired)):
+            self._desired = desired
+
+    def _on_estimates(self, msg: ForceEstimateArray) -> None:
+        item = next((e for e in msg.estimates if e.name == self.params['estimate_array']), None)
+        if item is None or not item.valid:
+            self._estimate = None          # invalid or stale: the watchdog takes over
+            return
+        self._estimate = (np.array([item.force.x, item.force.y, item.force.z]),
+                          stamp_ns(item.header.stamp))
+
+    # --- control tick ------------------------------------------------------------------------
+
+    def _control(self) -> None:
+        if self._joints is None:
+            return      # nothing to act on yet
+        now = self.now_ns()
+        q, qdot, q_ns = self._joints
+        estimate = self._estimate
+        f_hat, f_age = ((estimate[0], (now - estimate[1]) * 1e-9) if estimate is not None
+                        else (np.full(3, np.nan), float('inf')))
+        tau, state, transition = self.session.update(
+            now * 1e-9, q, qdot, f_hat, f_age, (now - q_ns) * 1e-9, self._desired)
+        if transition is not None:
+            self.get_logger().info(str(transition))
+        command = JointState(name=self.joint_names, effort=tau.tolist())
+        command.header.stamp = stamp(now)
+        self.torque_publisher.publish(command)
+        self.state_publisher.publish(self._state_message(now, state, q, qdot))
+
+    def _state_message(self, now: int, state, q: np.ndarray, qdot: np.ndarray
+                       ) -> ControllerState:
+        joints = self.session.joints
+        msg = ControllerState(finger=self.session.config.finger, mode=state.mode,
+                              desired_force=vector3(state.desired_force),
+                              estimated_force=vector3(state.estimated_force),
+                              integral_error=vector3(state.integral_error),
+                              q=q[joints].tolist(), qdot=qdot[joints].tolist(),
+                              tau_cmd=state.tau_cmd.tolist(),
+                              saturation_scale=float(state.saturation_scale),
+                              estimate_fresh=state.estimate_fresh,
+                              joints_fresh=state.joints_fresh)
+        msg.header.stamp = stamp(now)
+        msg.header.frame_id = self.session.config.force_frame
+        return msg
+
+
+def main(args: list[str] | None = None) -> None:
+    sys.exit(run_node(ForceControllerNode, args))
+
+
+if __name__ == '__main__':
+    main()

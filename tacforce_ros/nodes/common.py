@@ -74,8 +74,10 @@ def publisher_qos(topic: str) -> QoSProfile:
 
 
 def subscriber_qos(topic: str, depth: int | None = None) -> QoSProfile:
-    """Subscriber QoS of `topic`; `depth` deepens the history for a consumer that must ride
-    out CPU hiccups without losing samples (a recorder), keeping the reliability policy."""
+    """Subscriber QoS of `topic`; `depth` sets the history, keeping the reliability policy:
+    deeper for a consumer that must ride out CPU hiccups without losing samples (a recorder),
+    1 for one that acts on the newest sample only (a controller: rclpy takes a queue's oldest
+    message first, one per executor pass, so a history of several feeds it old states)."""
     base = SENSOR_SUBSCRIBER_QOS if qos_kind(topic) == SENSOR else RELIABLE_QOS
     if depth is None:
         return base

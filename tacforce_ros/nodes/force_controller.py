@@ -87,11 +87,11 @@ class ForceControllerNode(TacforceNode):
         self.refused_commands = 0
         self.refused_joint_states = 0
         self.create_subscription(JointState, TOPIC_JOINTS, self._on_joints,
-                                 subscriber_qos(TOPIC_JOINTS))
+                                 subscriber_qos(TOPIC_JOINTS, depth=1))
         self.create_subscription(Vector3Stamped, TOPIC_DESIRED, self._on_desired,
                                  subscriber_qos(TOPIC_DESIRED))
         self.create_subscription(ForceEstimateArray, TOPIC_ESTIMATES, self._on_estimates,
-                                 subscriber_qos(TOPIC_ESTIMATES))
+                                 subscriber_qos(TOPIC_ESTIMATES, depth=1))
         self.torque_publisher = self.create_publisher(JointState, TOPIC_TORQUE_COMMAND,
                                                       publisher_qos(TOPIC_TORQUE_COMMAND))
         self.state_publisher = self.create_publisher(ControllerState, TOPIC_CONTROLLER_STATE,

@@ -39,10 +39,10 @@ from sensor_msgs.msg import JointState
 from tacforce_ros.devices.allegro import (N_JOINTS, AllegroConfig, AllegroError, AllegroV4Driver,
                                           JointSample)
 from tacforce_ros.devices.polling import LinkLost
-from tacforce_ros.hand.description import HandConfigError, load_hand
-from tacforce_ros.hand.kinematics import HandKinematics
-from tacforce_ros.nodes.common import (REALTIME_PRIORITY, ParameterError, ParamSpec,
-                                       TacforceNode, publisher_qos, run_node, subscriber_qos)
+from tacforce_ros.nodes.common import (GRAVITY, HAND_CONFIG, REALTIME_PRIORITY, ParamSpec,
+                                       ParameterError, TacforceNode, hand_parameter,
+                                       kinematics_parameter, publisher_qos, run_node,
+                                       subscriber_qos)
 from tacforce_ros.nodes.link_status import STATUS_PARAMETERS, LinkStatusReporter
 from tacforce_ros.nodes.messages import stamp
 from tacforce_ros.topics import TOPIC_JOINTS, TOPIC_TORQUE_COMMAND
@@ -90,15 +90,14 @@ class AllegroDriver(TacforceNode):
         ParamSpec('rtr_requests', True, 'ask HAND_INFO/SERIAL with RTR frames (socketcand '
                   'carries none: false)'),
         ParamSpec('position_period_ms', 3, 'FINGER_POSE stream period (ms)', range=(1, 100)),
-        ParamSpec('hand_config', '', 'hand description YAML; empty = the default hand'),
+        HAND_CONFIG,
         ParamSpec('control', 'torque', 'torque: joint torques from the torque_command topic; '
                   'off: joint states only, no torque ever sent', choices=('torque', 'off')),
         ParamSpec('control_rate_hz', 100.0, 'rate of the driver\'s own loop (holds, command '
                   'timeouts) on the node clock (Hz)', range=(1.0, MAX_CONTROL_RATE_HZ)),
         ParamSpec('command_timeout', 0.05, 'a joint without a torque command for this long '
                   'gets zero torque (s, node clock)', range=(0.001, 10.0)),
-        ParamSpec('gravity', [0.0, 0.0, -9.81], 'gravity in the hand base frame (m/s^2), from '
-                  'the mounting', range=(-20.0, 20.0)),
+        GRAVITY,
         ParamSpec('velocity_cutoff_hz', 30.0, 'low-pass cutoff of the joint velocity (Hz)',
                   range=(1.0, 150.0)),
         ParamSpec('others_kp', 1.0, 'stiffness holding the joints nobody commands (N m/rad)',
@@ -116,11 +115,8 @@ class AllegroDriver(TacforceNode):
     def __init__(self, **node_options) -> None:
         super().__init__(**node_options)
         p = self.params
-        try:
-            self.hand = load_hand(p['hand_config'] or None)
-            self.kin = HandKinematics.for_hand(self.hand, gravity=np.asarray(p['gravity']))
-        except (HandConfigError, OSError, ValueError) as exc:
-            raise ParameterError(f'hand_config/gravity: {exc}') from None
+        self.hand = hand_parameter(p)
+        self.kin = kinematics_parameter(self.hand, p)
         if not p['silent_warn_after'] < p['silent_timeout']:
             raise ParameterError(f'silent_timeout: {p["silent_timeout"]} must be above '
                                  f'silent_warn_after ({p["silent_warn_after"]})')

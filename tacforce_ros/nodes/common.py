@@ -45,6 +45,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import rclpy
 from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
                                 SetParametersResult)
@@ -55,6 +56,7 @@ from rclpy.utilities import remove_ros_args
 from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy,
                        qos_profile_sensor_data)
 
+from tacforce_ros.hand.description import HandConfigError, HandDescription, load_hand
 from tacforce_ros.topics import SENSOR, qos_kind
 
 EXIT_OK = 0
@@ -159,6 +161,30 @@ class ParamSpec:
         raise ParameterError(f'{self.name}: {flag} is a boolean, expected a string: YAML reads '
                              'unquoted on/off, yes/no, y/n and true/false as booleans; quote '
                              f"the value, e.g. {self.name}: '{words[-1].lower()}'")
+
+
+HAND_CONFIG = ParamSpec('hand_config', '', 'hand description YAML; empty = the default hand')
+GRAVITY = ParamSpec('gravity', [0.0, 0.0, -9.81], 'gravity in the hand base frame (m/s^2), from '
+                    'the mounting', range=(-20.0, 20.0))
+
+
+def hand_parameter(params: dict) -> HandDescription:
+    """The hand that `hand_config` names; a description that does not load is refused."""
+    try:
+        return load_hand(params['hand_config'] or None)
+    except (HandConfigError, OSError) as exc:
+        raise ParameterError(f'hand_config: {exc}') from None
+
+
+def kinematics_parameter(hand: HandDescription, params: dict):
+    """The hand's HandKinematics under `gravity`; a URDF the kinematics cannot use is refused."""
+    # Imported here: pinocchio costs every node 0.2-0.4 s of start-up (python -X importtime),
+    # and only the nodes that move the hand need it.
+    from tacforce_ros.hand.kinematics import HandKinematics
+    try:
+        return HandKinematics.for_hand(hand, gravity=np.asarray(params['gravity']))
+    except (HandConfigError, OSError, ValueError) as exc:
+        raise ParameterError(f'hand_config/gravity: {exc}') from None
 
 
 REALTIME_PRIORITY = ParamSpec(

@@ -52,10 +52,9 @@ except ImportError:     # Humble
 from tacforce_ros.estimation.causal_filter import FilterDesignError
 from tacforce_ros.estimation.model_set import ModelConfigError, load_model_set
 from tacforce_ros.estimation.preprocessing import SAMPLE_RATE_HZ
-from tacforce_ros.hand.description import HandConfigError, load_hand
-from tacforce_ros.nodes.common import (REALTIME_PRIORITY, RELIABLE_QOS, ParameterError,
-                                       ParamSpec, TacforceNode, events_executor,
-                                       publisher_qos, run_node, subscriber_qos)
+from tacforce_ros.nodes.common import (HAND_CONFIG, REALTIME_PRIORITY, RELIABLE_QOS, ParamSpec,
+                                       ParameterError, TacforceNode, events_executor,
+                                       hand_parameter, publisher_qos, run_node, subscriber_qos)
 from tacforce_ros.nodes.messages import (SerializedMessages, TactileHandDecoder, stamp,
                                          serialized_estimates, serialized_wrenches)
 from tacforce_ros.paths import config_dir
@@ -78,7 +77,7 @@ class Estimator(TacforceNode):
     PARAMETERS = (
         ParamSpec('model_config', '', 'YAML listing one model file per array; empty = '
                   'config/models/default.yaml'),
-        ParamSpec('hand_config', '', 'hand description YAML; empty = the default hand'),
+        HAND_CONFIG,
         ParamSpec('stale_timeout', 0.025, 'input counted stale after this long without a '
                   'tactile frame (s, node clock)', range=(0.001, 10.0)),
         ParamSpec('stale_check_rate_hz', 200.0, 'invalid estimates per second while stale',
@@ -102,13 +101,11 @@ class Estimator(TacforceNode):
     def __init__(self, **node_options) -> None:
         super().__init__(**node_options)
         p = self.params
+        self.hand = hand_parameter(p)
         try:
-            self.hand = load_hand(p['hand_config'] or None)
             self.models = load_model_set(p['model_config']
                                          or config_dir() / 'models' / 'default.yaml', self.hand)
-        except (HandConfigError, OSError) as exc:
-            raise ParameterError(f'hand_config: {exc}') from None
-        except ModelConfigError as exc:
+        except (ModelConfigError, OSError) as exc:
             raise ParameterError(f'model_config: {exc}') from None
         try:
             self.models.estimator.set_lowpass(p['lowpass_hz'], p['frame_rate_hz'],

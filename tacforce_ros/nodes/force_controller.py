@@ -33,10 +33,10 @@ from tacforce_msgs.msg import ControllerState, ForceEstimateArray
 from tacforce_ros.control.finger_session import FingerSession
 from tacforce_ros.control.force_controller import ControllerConfigError, ForceControllerConfig
 from tacforce_ros.devices.allegro import N_JOINTS
-from tacforce_ros.hand.description import HandConfigError, load_hand
-from tacforce_ros.hand.kinematics import HandKinematics
-from tacforce_ros.nodes.common import (REALTIME_PRIORITY, ParameterError, ParamSpec,
-                                       TacforceNode, publisher_qos, run_node, subscriber_qos)
+from tacforce_ros.nodes.common import (GRAVITY, HAND_CONFIG, REALTIME_PRIORITY, ParamSpec,
+                                       ParameterError, TacforceNode, hand_parameter,
+                                       kinematics_parameter, publisher_qos, run_node,
+                                       subscriber_qos)
 from tacforce_ros.nodes.messages import stamp, stamp_ns, vector3
 from tacforce_ros.topics import (TOPIC_CONTROLLER_STATE, TOPIC_DESIRED, TOPIC_ESTIMATES,
                                  TOPIC_JOINTS, TOPIC_TORQUE_COMMAND)
@@ -62,23 +62,19 @@ class ForceControllerNode(TacforceNode):
 
     NODE_NAME = 'force_controller'
     PARAMETERS = (
-        ParamSpec('hand_config', '', 'hand description YAML; empty = the default hand'),
+        HAND_CONFIG,
         ParamSpec('control_rate_hz', 100.0, 'controller loop rate (Hz, node clock), up to the '
                   '333 Hz joint stream', range=(1.0, MAX_CONTROL_RATE_HZ)),
         ParamSpec('estimate_array', 'index_tip', 'array whose estimate closes the loop'),
-        ParamSpec('gravity', [0.0, 0.0, -9.81], 'gravity in the hand base frame (m/s^2), from '
-                  'the mounting', range=(-20.0, 20.0)),
+        GRAVITY,
         REALTIME_PRIORITY,
     ) + _controller_parameters()
 
     def __init__(self, **node_options) -> None:
         super().__init__(**node_options)
         p = self.params
-        try:
-            self.hand = load_hand(p['hand_config'] or None)
-            self.kin = HandKinematics.for_hand(self.hand, gravity=np.asarray(p['gravity']))
-        except (HandConfigError, OSError, ValueError) as exc:
-            raise ParameterError(f'hand_config/gravity: {exc}') from None
+        self.hand = hand_parameter(p)
+        self.kin = kinematics_parameter(self.hand, p)
         self.session = FingerSession(self._controller_config(), self.kin)
         self.joint_names = self.kin.joint_names[self.session.joints]
         self._joints: tuple[np.ndarray, np.ndarray, int] | None = None   # q, qdot, stamp ns

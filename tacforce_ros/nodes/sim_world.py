@@ -56,9 +56,9 @@ from std_srvs.srv import SetBool
 from sensor_msgs.msg import JointState
 from tacforce_msgs.msg import CalibrationSample, ControllerState
 
-from tacforce_ros.hand.description import HandConfigError, load_hand
-from tacforce_ros.nodes.common import (RELIABLE_QOS, ParameterError, ParamSpec, TacforceNode,
-                                       publisher_qos, run_node, subscriber_qos)
+from tacforce_ros.nodes.common import (HAND_CONFIG, RELIABLE_QOS, ParamSpec, ParameterError,
+                                       TacforceNode, hand_parameter, publisher_qos, run_node,
+                                       subscriber_qos)
 from tacforce_ros.nodes.messages import header_stamp_ns, stamp, wrench_stamped
 from tacforce_ros.nodes.session_plan import SCENE_DONE_MARKER
 from tacforce_ros.sim import SceneError, make_simulator
@@ -118,7 +118,7 @@ class SimWorld(TacforceNode):
                   range=(0, 65535)),
         ParamSpec('can_port', 29536, 'socketcand (Allegro CAN) emulator TCP port on 127.0.0.1 '
                   '(0: any)', range=(0, 65535)),
-        ParamSpec('hand_config', '', 'hand description YAML; empty = the default hand'),
+        HAND_CONFIG,
         ParamSpec('start_with_servos', True, 'closed-loop scenes: simulated time starts when '
                   'the hand\'s servos are first switched on (false: at start-up)'),
         ParamSpec('lockstep', True, 'simulated time waits for the nodes closing the loop '
@@ -137,12 +137,12 @@ class SimWorld(TacforceNode):
     def __init__(self, **node_options) -> None:
         super().__init__(**node_options)
         p = self.params
+        self.hand = hand_parameter(p)
         try:
-            self.hand = load_hand(p['hand_config'] or None)
             self.sim = make_simulator(p['scene'], self.hand,
                                       None if p['seed'] < 0 else p['seed'])
-        except (HandConfigError, SceneError, OSError) as exc:
-            raise ParameterError(f'scene/hand_config: {exc}') from None
+        except (SceneError, OSError) as exc:
+            raise ParameterError(f'scene: {exc}') from None
         scene = self.sim.scene
         self.array = self.hand.array(scene.array)
         self.takes_torques = scene.kind == 'closed_loop'

@@ -35,9 +35,8 @@ from tacforce_msgs.srv import StartRecording
 
 from tacforce_ros.bagio import (TOPIC_TYPES, BagError, CalibrationBagWriter, calibration_sample,
                                 session_metadata, typestore)
-from tacforce_ros.hand.description import HandConfigError, load_hand
-from tacforce_ros.nodes.common import (ParameterError, ParamSpec, TacforceNode, publisher_qos,
-                                       run_node, subscriber_qos)
+from tacforce_ros.nodes.common import (HAND_CONFIG, ParamSpec, ParameterError, TacforceNode,
+                                       hand_parameter, publisher_qos, run_node, subscriber_qos)
 from tacforce_ros.recording.synchroniser import ApproximateTimeSynchroniser
 from tacforce_ros.topics import (TOPIC_CONTROLLER_STATE, TOPIC_DESIRED, TOPIC_JOINTS,
                                  TOPIC_SAMPLE, TOPIC_SIM_CONTACT, TOPIC_TACTILE, TOPIC_WRENCH)
@@ -72,16 +71,13 @@ class SyncRecorder(TacforceNode):
         ParamSpec('scene', '', 'simulation: the scene sim_world runs (session metadata)'),
         ParamSpec('seed', -1, 'simulation: the simulator seed for the session metadata; -1 = '
                   'the scene\'s own (stored empty)', range=(-1, 2**31 - 1)),
-        ParamSpec('hand_config', '', 'hand description YAML; empty = the default hand'),
+        HAND_CONFIG,
         ParamSpec('autostart', False, 'start recording at start-up with the parameters above'),
     )
 
     def __init__(self, **node_options) -> None:
         super().__init__(**node_options)
-        try:
-            self.hand = load_hand(self.params['hand_config'] or None)
-        except (HandConfigError, OSError) as exc:
-            raise ParameterError(f'hand_config: {exc}') from None
+        self.hand = hand_parameter(self.params)
         problem = self._array_problem(self.params['array'])
         if problem:
             raise ParameterError(problem)

@@ -20,9 +20,8 @@ from tacforce_msgs.msg import TactileHand
 
 from tacforce_ros.devices.device_clock import DEFAULT_MAX_SKEW, DeviceClock
 from tacforce_ros.devices.xela import XelaClient, XelaConfig, XelaFrame
-from tacforce_ros.hand.description import HandConfigError, load_hand
-from tacforce_ros.nodes.common import (ParameterError, ParamSpec, TacforceNode, publisher_qos,
-                                       run_node)
+from tacforce_ros.nodes.common import (HAND_CONFIG, ParamSpec, ParameterError, TacforceNode,
+                                       hand_parameter, publisher_qos, run_node)
 from tacforce_ros.nodes.link_status import STATUS_PARAMETERS, LinkStatusReporter
 from tacforce_ros.nodes.messages import tactile_hand
 from tacforce_ros.topics import TOPIC_TACTILE
@@ -42,7 +41,7 @@ class XelaDriver(TacforceNode):
                   range=(0.005, 10.0)),
         ParamSpec('reconnect_max', 2.0, 'longest wait between reconnect attempts (s)',
                   range=(0.01, 60.0)),
-        ParamSpec('hand_config', '', 'hand description YAML; empty = the default hand'),
+        HAND_CONFIG,
         ParamSpec('server_clock', 'node', 'node: the server\'s frame times are on the node '
                   'clock (server on this host, or the simulator\'s); own: a clock of its own, '
                   'mapped', choices=('node', 'own')),
@@ -56,10 +55,7 @@ class XelaDriver(TacforceNode):
         p = self.params
         if not p['url'].startswith(('ws://', 'wss://')):
             raise ParameterError(f'url: {p["url"]!r} is not a ws:// or wss:// URL')
-        try:
-            self.hand = load_hand(p['hand_config'] or None)
-        except (HandConfigError, OSError) as exc:
-            raise ParameterError(f'hand_config: {exc}') from None
+        self.hand = hand_parameter(p)
         self.publisher = self.create_publisher(TactileHand, TOPIC_TACTILE,
                                                publisher_qos(TOPIC_TACTILE))
         self.client = XelaClient(XelaConfig(url=p['url'], sensor_key=p['sensor_key'],

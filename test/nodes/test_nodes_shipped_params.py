@@ -1,0 +1,38 @@
+"""The shipped parameter files agree with the one declaration of each node's parameters (its
+PARAMETERS table): every key a declared parameter, every value of its type and within its
+range, so a file and the code cannot drift apart."""
+import pytest
+import yaml
+
+from tacforce_ros.nodes.tacforce_container import NODE_CLASSES, node_class
+from tacforce_ros.paths import config_dir
+
+ROS_DECLARED = {'use_sim_time'}         # declared by rclpy itself
+
+
+def flattened(params: dict, prefix: str = '') -> dict:
+    """ros__parameters as rcl reads them: nested mappings are dotted names."""
+    out = {}
+    for key, value in params.items():
+        if isinstance(value, dict):
+            out.update(flattened(value, f'{prefix}{key}.'))
+        else:
+            out[f'{prefix}{key}'] = value
+    return out
+
+
+def test_every_node_has_a_shipped_parameter_file():
+    assert sorted(p.stem for p in (config_dir() / 'params').glob('*.yaml')) == sorted(NODE_CLASSES)
+
+
+@pytest.mark.parametrize('node', sorted(NODE_CLASSES))
+def test_a_shipped_parameter_file_holds_only_declared_parameters_of_valid_values(node):
+    doc = yaml.safe_load((config_dir() / 'params' / f'{node}.yaml').read_text())
+    assert list(doc) == [node]
+    values = flattened(doc[node]['ros__parameters'])
+    specs = {spec.name: spec for spec in node_class(node).PARAMETERS}
+    undeclared = set(values) - set(specs) - ROS_DECLARED
+    assert not undeclared, f'{node}.yaml sets parameters {node} does not declare: {undeclared}'
+    for name, value in values.items():
+        if name in specs:
+            specs[name].coerce(value)     # raises ParameterError naming what is wrong

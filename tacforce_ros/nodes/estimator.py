@@ -22,10 +22,11 @@ for frames at `frame_rate_hz`; estimation/causal_filter.py): less noise on the e
 price of the filter's group delay, logged at start-up, which the controller sees. Off by default.
 
 Per frame the node handles bytes, not message objects: /tactile/raw is taken serialized and
-decoded by one precomputed gather (messages.TactileHandDecoder), and the 19 outgoing messages
+decoded by one precomputed gather (serialized.TactileHandDecoder), and the 19 outgoing messages
 are serialized layouts made at start-up whose stamps and numbers are overwritten
-(messages.SerializedMessages). Objects made at start-up are frozen out of the garbage
-collector's full passes, which otherwise stall a frame by milliseconds now and then.
+(serialized.SerializedMessages; `bench_messages` measures what this saves). Objects made at
+start-up are frozen out of the garbage collector's full passes, which otherwise stall a frame by
+milliseconds now and then.
 
 Executor: rclpy's EventsExecutor where it exists (Jazzy and later, rclpy.experimental), which
 dispatches each frame without rebuilding a wait set over every entity of the node; it keeps the
@@ -55,8 +56,9 @@ from tacforce_ros.estimation.preprocessing import SAMPLE_RATE_HZ
 from tacforce_ros.nodes.common import (HAND_CONFIG, REALTIME_PRIORITY, RELIABLE_QOS, ParamSpec,
                                        ParameterError, TacforceNode, events_executor,
                                        hand_parameter, publisher_qos, run_node, subscriber_qos)
-from tacforce_ros.nodes.messages import (SerializedMessages, TactileHandDecoder, stamp,
-                                         serialized_estimates, serialized_wrenches)
+from tacforce_ros.nodes.messages import stamp
+from tacforce_ros.nodes.serialized import (SerializedMessages, TactileHandDecoder,
+                                           serialized_estimates, serialized_wrenches)
 from tacforce_ros.paths import config_dir
 from tacforce_ros.topics import (TOPIC_ESTIMATES, TOPIC_MARKERS, TOPIC_TACTILE,
                                  array_wrench_topic)

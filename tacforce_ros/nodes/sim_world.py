@@ -59,7 +59,8 @@ from tacforce_msgs.msg import CalibrationSample, ControllerState
 from tacforce_ros.nodes.common import (HAND_CONFIG, RELIABLE_QOS, ParamSpec, ParameterError,
                                        TacforceNode, hand_parameter, publisher_qos, run_node,
                                        subscriber_qos)
-from tacforce_ros.nodes.messages import header_stamp_ns, stamp, wrench_stamped
+from tacforce_ros.nodes.messages import stamp, wrench_stamped
+from tacforce_ros.nodes.serialized import header_stamp_ns
 from tacforce_ros.nodes.session_plan import SCENE_DONE_MARKER
 from tacforce_ros.sim import SceneError, make_simulator
 from tacforce_ros.sim.emulators.allegro import AllegroEmulator

@@ -11,9 +11,9 @@ from rclpy.serialization import deserialize_message, serialize_message
 from tacforce_msgs.msg import ForceEstimate, ForceEstimateArray
 
 from tacforce_ros.hand.description import load_hand
-from tacforce_ros.nodes.messages import (TactileHandDecoder, serialized_estimates,
-                                         serialized_wrenches, stamp, tactile_hand, vector3,
-                                         wrench_stamped)
+from tacforce_ros.nodes.messages import stamp, tactile_hand, vector3, wrench_stamped
+from tacforce_ros.nodes.serialized import (TactileHandDecoder, serialized_estimates,
+                                           serialized_wrenches)
 
 HAND = load_hand()
 NAMES = [a.name for a in HAND.arrays]

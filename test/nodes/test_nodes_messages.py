@@ -2,14 +2,16 @@
 and the joint velocity filter follows a ramp and ignores repeated stamps."""
 import numpy as np
 import pytest
+from rclpy.serialization import serialize_message
 from hypothesis import given
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
 from tacforce_ros.hand.description import load_hand
 from tacforce_ros.nodes.allegro_driver import JointVelocity
-from tacforce_ros.nodes.messages import (flat_counts, header_stamp_ns, stamp, stamp_ns,
-                                         tactile_hand, wrench_stamped)
+from tacforce_ros.nodes.messages import (flat_counts, stamp, stamp_ns, tactile_hand,
+                                         wrench_stamped)
+from tacforce_ros.nodes.serialized import TactileHandDecoder, header_stamp_ns
 
 HAND = load_hand()
 
@@ -21,6 +23,9 @@ def test_tactile_hand_round_trips(counts, ns):
     assert stamp_ns(msg.header.stamp) == ns and msg.server_sequence == 7
     assert [a.header.frame_id for a in msg.arrays] == [a.frame_id for a in HAND.arrays]
     np.testing.assert_array_equal(flat_counts(msg, HAND), counts)
+    ns_read, read = TactileHandDecoder(HAND).decode(serialize_message(msg))
+    assert ns_read == ns
+    np.testing.assert_array_equal(read, counts)
 
 
 def test_mismatched_frames_are_named():

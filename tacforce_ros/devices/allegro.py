@@ -196,6 +196,11 @@ class AllegroConfig:
                              f'{self.silent_warn_after} and {self.silent_timeout}')
 
 
+# The joint stream at the default period (one FINGER_POSE cycle every 3 ms): a control loop
+# faster than it has no new joint state to act on.
+MAX_JOINT_RATE_HZ = 1000.0 / AllegroConfig.position_period_ms
+
+
 @dataclass(frozen=True)
 class JointSample:
     """One full FINGER_POSE cycle (all four fingers): positions (16,) float64 rad."""

@@ -36,8 +36,8 @@ import numpy as np
 from rclpy.clock import Clock, ClockType
 from sensor_msgs.msg import JointState
 
-from tacforce_ros.devices.allegro import (N_JOINTS, AllegroConfig, AllegroError, AllegroV4Driver,
-                                          JointSample)
+from tacforce_ros.devices.allegro import (MAX_JOINT_RATE_HZ, N_JOINTS, AllegroConfig, AllegroError,
+                                          AllegroV4Driver, JointSample)
 from tacforce_ros.devices.polling import LinkLost
 from tacforce_ros.nodes.common import (GRAVITY, HAND_CONFIG, REALTIME_PRIORITY, ParamSpec,
                                        ParameterError, TacforceNode, hand_parameter,
@@ -47,8 +47,6 @@ from tacforce_ros.nodes.link_status import STATUS_PARAMETERS, LinkStatusReporter
 from tacforce_ros.nodes.messages import stamp
 from tacforce_ros.topics import TOPIC_JOINTS, TOPIC_TORQUE_COMMAND
 
-# The Allegro's joint stream: one FINGER_POSE cycle every 3 ms.
-MAX_CONTROL_RATE_HZ = 1000.0 / 3.0
 # Wall-time period of the check that ends the node on a lost link (and, under force control, on
 # a hand the driver made safe): the exit follows the fault within this.
 LINK_CHECK_PERIOD_S = 0.05
@@ -94,7 +92,7 @@ class AllegroDriver(TacforceNode):
         ParamSpec('control', 'torque', 'torque: joint torques from the torque_command topic; '
                   'off: joint states only, no torque ever sent', choices=('torque', 'off')),
         ParamSpec('control_rate_hz', 100.0, 'rate of the driver\'s own loop (holds, command '
-                  'timeouts) on the node clock (Hz)', range=(1.0, MAX_CONTROL_RATE_HZ)),
+                  'timeouts) on the node clock (Hz)', range=(1.0, MAX_JOINT_RATE_HZ)),
         ParamSpec('command_timeout', 0.05, 'a joint without a torque command for this long '
                   'gets zero torque (s, node clock)', range=(0.001, 10.0)),
         GRAVITY,

@@ -32,7 +32,7 @@ from tacforce_msgs.msg import ControllerState, ForceEstimateArray
 
 from tacforce_ros.control.finger_session import FingerSession
 from tacforce_ros.control.force_controller import ControllerConfigError, ForceControllerConfig
-from tacforce_ros.devices.allegro import N_JOINTS
+from tacforce_ros.devices.allegro import MAX_JOINT_RATE_HZ, N_JOINTS
 from tacforce_ros.nodes.common import (GRAVITY, HAND_CONFIG, REALTIME_PRIORITY, ParamSpec,
                                        ParameterError, TacforceNode, hand_parameter,
                                        kinematics_parameter, publisher_qos, run_node,
@@ -42,8 +42,6 @@ from tacforce_ros.topics import (TOPIC_CONTROLLER_STATE, TOPIC_DESIRED, TOPIC_ES
                                  TOPIC_JOINTS, TOPIC_TORQUE_COMMAND)
 
 CONTROLLER_GROUP = 'force_controller'
-# The Allegro's joint stream: one FINGER_POSE cycle every 3 ms.
-MAX_CONTROL_RATE_HZ = 1000.0 / 3.0
 
 
 def _controller_parameters() -> tuple[ParamSpec, ...]:
@@ -64,7 +62,7 @@ class ForceControllerNode(TacforceNode):
     PARAMETERS = (
         HAND_CONFIG,
         ParamSpec('control_rate_hz', 100.0, 'controller loop rate (Hz, node clock), up to the '
-                  '333 Hz joint stream', range=(1.0, MAX_CONTROL_RATE_HZ)),
+                  '333 Hz joint stream', range=(1.0, MAX_JOINT_RATE_HZ)),
         ParamSpec('estimate_array', 'index_tip', 'array whose estimate closes the loop'),
         GRAVITY,
         REALTIME_PRIORITY,

@@ -17,6 +17,7 @@ TOOLS = {
     'bench_ros': 'bench_ros',       # tactile->wrench latency, input rate, controller jitter
     'bench_graph': 'bench_graph',   # node graph vs direct path: agreement, watchdog trips, rates
     'bench_messages': 'bench_messages',  # what the estimator's serialized fast path saves
+    'bench_train': 'bench_train',   # cross-validation folds trained one at a time vs together
     'sim_record': 'sim_record',     # simulated calibration sessions -> rosbag2 (mcap)
     'session': 'session',           # start a calibration or closed-loop session without ros2 launch
     'reproduce': 'reproduce',       # the main job: the paper's experiments in simulation + report

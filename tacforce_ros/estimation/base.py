@@ -31,6 +31,20 @@ class ForceModel(ABC):
     def fit(self, X: np.ndarray, F: np.ndarray) -> ForceModel:
         """X (N, n, 3) float64 standardised taxel inputs; F (N, 3) float64 standardised force."""
 
+    @classmethod
+    def fit_many(cls, models: Sequence[ForceModel],
+                 data: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray]]) -> None:
+        """Fit models[i] on data[i] = (X, F, groups), each as fit() would.
+
+        This default fits them one by one; kinds that can train several models as one (M4, M5:
+        torch_batched) override it.
+        """
+        for model, (X, F, groups) in zip(models, data, strict=True):
+            if model.needs_groups:
+                model.fit(X, F, groups=groups)
+            else:
+                model.fit(X, F)
+
     @abstractmethod
     def predict(self, X: np.ndarray) -> np.ndarray:
         """(N, n, 3) -> (N, 3), numpy only."""

@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from tacforce_ros.estimation.metrics import ErrorStats, average_folds, error_stats
-from tacforce_ros.estimation.training import fit_bundle
+from tacforce_ros.estimation.training import fit_bundles
 
 if TYPE_CHECKING:
     from tacforce_ros.hand.description import TaxelArray
@@ -38,21 +38,34 @@ class CrossValidation:
 
 
 def cross_validate(array: TaxelArray, kind: str, hyper: dict[str, Any], X: np.ndarray,
-                   F: np.ndarray, plates: np.ndarray) -> CrossValidation:
-    """X counts and F newtons with offsets removed; one fold per distinct plate."""
+                   F: np.ndarray, plates: np.ndarray, together: bool = True) -> CrossValidation:
+    """X counts and F newtons with offsets removed; one fold per distinct plate.
+
+    together: fit the folds' models in one fit_bundles call (M4 and M5 then train as one
+    network, and each fold's train_seconds is the call's time over the folds); False fits them
+    one at a time, each timed alone (bench_train compares the two).
+    """
     plates = np.asarray(plates)
     labels = list(dict.fromkeys(plates.tolist()))
     if len(labels) < 2:
         raise ValueError(f'cross-validation needs >= 2 plates, got {labels}')
-    result = CrossValidation(kind=kind)
-    for plate in labels:
-        test = plates == plate
+    folds = [(plate, plates == plate) for plate in labels]
+    data = [(X[~test], F[~test], plates[~test]) for _, test in folds]
+    if together:
         started = time.perf_counter()
-        bundle = fit_bundle(array, kind, hyper, X[~test], F[~test], plates[~test])
-        seconds = time.perf_counter() - started
+        bundles = fit_bundles(array, kind, hyper, data)
+        seconds = [(time.perf_counter() - started) / len(folds)] * len(folds)
+    else:
+        bundles, seconds = [], []
+        for fold in data:
+            started = time.perf_counter()
+            bundles += fit_bundles(array, kind, hyper, [fold])
+            seconds.append(time.perf_counter() - started)
+    result = CrossValidation(kind=kind)
+    for (plate, test), bundle, fold_seconds in zip(folds, bundles, seconds):
         pred = bundle.predict(X[test])
         result.folds.append(Fold(test_plate=str(plate), stats=error_stats(F[test], pred),
-                                 train_seconds=seconds,
+                                 train_seconds=fold_seconds,
                                  hyperparameters=bundle.model.hyperparameters()))
         result.n_parameters = bundle.model.n_parameters()
     return result

@@ -27,6 +27,7 @@ from typing import TYPE_CHECKING, Any, ClassVar
 import numpy as np
 
 from tacforce_ros.estimation.base import ForceModel, ModelNotFittedError, check_inputs
+from tacforce_ros.estimation.torch_batched import fit_models_stacked
 from tacforce_ros.estimation.torch_training import (STATE_DTYPE, TorchTraining, checked_state,
                                                     fit_torch_regressor, load_module_state,
                                                     module_state)
@@ -49,6 +50,15 @@ def mlp_forward(x: np.ndarray, w1: np.ndarray, b1: np.ndarray,
     (x (N, 3n), w1 (3n, 16)) and k stacked models on one sample each (x (k, 1, 3n), w1 (k, 3n, 16)).
     """
     return relu(x @ w1 + b1) @ w2 + b2
+
+
+def stacked_mlp_forward(torch: Any, params: dict, buffers: dict, x: torch.Tensor,
+                        mask: torch.Tensor) -> torch.Tensor:
+    """Training forward of k stacked M4 networks (torch_batched.StackedForward)."""
+    hidden = torch.relu(torch.baddbmm(params['hidden.bias'][:, None], x,
+                                      params['hidden.weight'].transpose(1, 2)))
+    return torch.baddbmm(params['output.bias'][:, None], hidden,
+                         params['output.weight'].transpose(1, 2))
 
 
 class MLPModel(ForceModel):
@@ -83,7 +93,19 @@ class MLPModel(ForceModel):
         X = check_inputs(X, self.array.n_taxels, F)
         module = fit_torch_regressor(self._build, X.reshape(len(X), 3 * self.array.n_taxels), F,
                                      self.training)
-        self._state = checked_state(module_state(module), self._state_shapes(), self.kind)
+        return self._set_state(module_state(module))
+
+    @classmethod
+    def fit_many(cls, models: Sequence[ForceModel],
+                 data: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray]]) -> None:
+        """Models of one input width and hidden width train as one stacked network."""
+        fit_models_stacked(same_kind_models(cls, models), [(X, F) for X, F, _ in data],
+                           lambda m: (m.array.n_taxels, m.hidden),
+                           lambda m, X: X.reshape(len(X), 3 * m.array.n_taxels),
+                           stacked_mlp_forward)
+
+    def _set_state(self, arrays: dict[str, np.ndarray]) -> MLPModel:
+        self._state = checked_state(arrays, self._state_shapes(), self.kind)
         return self
 
     def _fitted_state(self) -> dict[str, np.ndarray]:
@@ -117,9 +139,7 @@ class MLPModel(ForceModel):
     @classmethod
     def from_state(cls, array: TaxelArray, hyper: dict,
                    arrays: dict[str, np.ndarray]) -> MLPModel:
-        model = cls(array, **hyper)
-        model._state = checked_state(arrays, model._state_shapes(), cls.kind)
-        return model
+        return cls(array, **hyper)._set_state(arrays)
 
     @classmethod
     def compile_batch(cls, models: Sequence[ForceModel]) -> Callable[[np.ndarray], np.ndarray]:

@@ -19,6 +19,7 @@ weights stacked per grid shape so k arrays run as one batched matmul chain.
 """
 from __future__ import annotations
 
+import functools
 from collections import OrderedDict
 from collections.abc import Callable, Sequence
 from dataclasses import asdict
@@ -29,6 +30,7 @@ from numpy.lib.stride_tricks import sliding_window_view
 
 from tacforce_ros.estimation.base import ForceModel, ModelNotFittedError, check_inputs
 from tacforce_ros.estimation.m4_mlp import mlp_forward, relu, same_kind_models
+from tacforce_ros.estimation.torch_batched import fit_models_stacked
 from tacforce_ros.estimation.torch_training import (STATE_DTYPE, TorchTraining, checked_state,
                                                     fit_torch_regressor, load_module_state,
                                                     module_state)
@@ -127,6 +129,15 @@ class CNNModel(ForceModel):
         nchw = self.images(X).transpose(0, 3, 1, 2)
         module = fit_torch_regressor(self._build, np.ascontiguousarray(nchw), F, self.training)
         return self._set_state(module_state(module))
+
+    @classmethod
+    def fit_many(cls, models: Sequence[ForceModel],
+                 data: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray]]) -> None:
+        """Models of one padded grid and layer widths train as one stacked network."""
+        fit_models_stacked(same_kind_models(cls, models), [(X, F) for X, F, _ in data],
+                           lambda m: (m.grid.shape, m.channels, m.dense),
+                           lambda m, X: m.images(X),
+                           stacked_cnn_forward)
 
     def _set_state(self, arrays: dict[str, np.ndarray]) -> CNNModel:
         state = checked_state(arrays, self._state_shapes(), self.kind)
@@ -233,6 +244,83 @@ class CNNModel(ForceModel):
             return out
 
         return forward
+
+
+@functools.lru_cache(maxsize=32)     # cached: read by every training step, never written
+def conv_as_matrix_index(in_shape: tuple[int, int, int], out_channels: int,
+                         kernel: int) -> np.ndarray:
+    """Index that spreads a 'valid' convolution's weights into its dense matrix.
+
+    For channels-last images (H, W, C) flattened, the convolution with weight (O, C, k, k) is the
+    matrix product with a (H*W*C, h*w*O) matrix whose entries are weights or zero; entry e is
+    weight.ravel()[index[e]], or zero where index[e] is weight.size (an appended zero).
+    """
+    H, W, C = in_shape
+    h, w = H - kernel + 1, W - kernel + 1
+    index = np.full((H, W, C, h, w, out_channels), out_channels * C * kernel * kernel)
+    o, c, a, b = np.meshgrid(np.arange(out_channels), np.arange(C), np.arange(kernel),
+                             np.arange(kernel), indexing='ij')
+    flat = np.ravel_multi_index((o, c, a, b), (out_channels, C, kernel, kernel))
+    for i in range(h):
+        for j in range(w):
+            index[i + a, j + b, c, i, j, o] = flat
+    index = index.reshape(H * W * C, h * w * out_channels)
+    return index
+
+
+def stacked_cnn_forward(torch: Any, params: dict, buffers: dict, x: torch.Tensor,
+                        mask: torch.Tensor) -> torch.Tensor:
+    """Training forward of k stacked M5 networks (torch_batched.StackedForward).
+
+    x (k, B, H, W, 3) channels-last images. On maps this small each 'valid' convolution is
+    cheapest as one batched matmul with its dense (Toeplitz) matrix, gathered from the weights
+    at each step. Measured per step for 5 networks: torch's grouped convolution, and im2col with
+    batched matmuls (for every layer, or for conv1 only), each took longer than this form
+    (backward- and copy-bound). BatchNorm statistics are per network, over its real samples.
+    """
+    k, batch, H, W, C = x.shape
+    y, shape = x.reshape(k, batch, -1), (H, W, C)
+    for name, kernel in zip(('conv1', 'conv2', 'conv3'), KERNELS):
+        weight = params[f'{name}.weight']                    # (k, O, C, kh, kw)
+        out_channels = weight.shape[1]
+        index = torch.as_tensor(conv_as_matrix_index(shape, out_channels, kernel))
+        padded = torch.cat([weight.reshape(k, -1), weight.new_zeros(k, 1)], dim=1)
+        # index_select, not indexing: its backward is index_add, where indexing's is a
+        # sort-based index_put under torch's deterministic mode.
+        matrix = padded.index_select(1, index.reshape(-1)).view(k, *index.shape)
+        shape = (shape[0] - kernel + 1, shape[1] - kernel + 1, out_channels)
+        bias = params[f'{name}.bias'].repeat(1, shape[0] * shape[1])[:, None]
+        y = torch.relu(torch.baddbmm(bias, y, matrix))
+        if name == 'conv2':
+            y = _masked_batch_norm(torch, y.view(k, batch, -1, out_channels), mask, params,
+                                   buffers).reshape(k, batch, -1)
+    y = y.view(k, batch, *shape).permute(0, 1, 4, 2, 3)         # torch's Flatten order
+    y = torch.relu(torch.baddbmm(params['dense.bias'][:, None], y.reshape(k, batch, -1),
+                                 params['dense.weight'].transpose(1, 2)))
+    return torch.baddbmm(params['output.bias'][:, None], y, params['output.weight'].transpose(1, 2))
+
+
+def _masked_batch_norm(torch: Any, y: torch.Tensor, mask: torch.Tensor, params: dict,
+                       buffers: dict) -> torch.Tensor:
+    """Training-mode BatchNorm2d of channels-last y (k, B, h*w, C) per network over its real
+    samples, and its running statistics updated as torch's (momentum 0.1, unbiased variance)."""
+    momentum = 0.1                       # torch's BatchNorm2d default, as in _build
+    counts = mask.sum(dim=1) * y.shape[2]
+    n = counts.clamp(min=1).to(y.dtype)[:, None]
+    weight = None if bool(mask.all()) else mask.to(y.dtype)[:, :, None, None]
+    mean = (y if weight is None else y * weight).sum(dim=(1, 2)) / n
+    centred = y - mean[:, None, None]
+    squared = centred.square()
+    variance = (squared if weight is None else squared * weight).sum(dim=(1, 2)) / n
+    scale = torch.rsqrt(variance + BN_EPS) * params['norm.weight']
+    with torch.no_grad():
+        update = (counts > 1)[:, None]
+        unbiased = variance * n / (n - 1).clamp(min=1)
+        for name, value in (('norm.running_mean', mean), ('norm.running_var', unbiased)):
+            running = buffers[name]
+            running.copy_(torch.where(update, (1 - momentum) * running + momentum * value,
+                                      running))
+    return centred * scale[:, None, None] + params['norm.bias'][:, None, None]
 
 
 def _cnn_forward(images: np.ndarray, weights: Sequence[np.ndarray]) -> np.ndarray:

@@ -1,6 +1,7 @@
-"""Fit one model on offset-corrected data: standardise, fit, wrap into a ModelBundle."""
+"""Fit models on offset-corrected data: standardise, fit, wrap into ModelBundles."""
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -22,14 +23,23 @@ def fit_bundle(array: TaxelArray, kind: str, hyper: dict[str, Any], X: np.ndarra
     Standardisation statistics come from these samples only, so in cross-validation the
     held-out plate never shapes them.
     """
-    x_scaler = Standardiser.fit(X, TAXEL_STD_FLOOR)
-    f_scaler = Standardiser.fit(F, FORCE_STD_FLOOR)
-    model = model_class(kind)(array, **hyper)
-    Xs, Fs = x_scaler.transform(X), f_scaler.transform(F)
-    if model.needs_groups:
-        model.fit(Xs, Fs, groups=np.asarray(plates))
-    else:
-        model.fit(Xs, Fs)
-    return ModelBundle(model=model, x_scaler=x_scaler, f_scaler=f_scaler,
-                       x_offset=np.zeros((array.n_taxels, 3)) if x_offset is None else x_offset,
-                       provenance=dict(provenance or {}))
+    bundle, = fit_bundles(array, kind, hyper, [(X, F, plates)])
+    if x_offset is not None:
+        bundle.x_offset = x_offset
+    bundle.provenance.update(provenance or {})
+    return bundle
+
+
+def fit_bundles(array: TaxelArray, kind: str, hyper: dict[str, Any],
+                data: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray]]) -> list[ModelBundle]:
+    """fit_bundle on each (X, F, plates) of `data` (e.g. the folds of a cross-validation), with
+    the models fitted together by ForceModel.fit_many (M4 and M5 train as one network)."""
+    scalers = [(Standardiser.fit(X, TAXEL_STD_FLOOR), Standardiser.fit(F, FORCE_STD_FLOOR))
+               for X, F, _ in data]
+    cls = model_class(kind)
+    models = [cls(array, **hyper) for _ in data]
+    cls.fit_many(models, [(x_scaler.transform(X), f_scaler.transform(F), np.asarray(plates))
+                          for (X, F, plates), (x_scaler, f_scaler) in zip(data, scalers)])
+    return [ModelBundle(model=model, x_scaler=x_scaler, f_scaler=f_scaler,
+                        x_offset=np.zeros((array.n_taxels, 3)))
+            for model, (x_scaler, f_scaler) in zip(models, scalers)]

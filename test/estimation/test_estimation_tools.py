@@ -12,7 +12,7 @@ from tacforce_ros.estimation.dataset import CalibrationDataset, DatasetError, co
 from tacforce_ros.estimation.model_io import load_model
 from tacforce_ros.estimation.synthetic import synthetic_dataset
 from tacforce_ros.hand.kinematics import HandKinematics
-from tacforce_ros.tools import bench, train
+from tacforce_ros.tools import bench, bench_train, train
 
 
 def test_synthetic_is_deterministic_and_labelled(phalanx):
@@ -150,7 +150,30 @@ def test_bench_synthetic_writes_json_table_and_plot(tmp_path):
     assert '(x ' in (out / 'bench.md').read_text()
 
 
-@pytest.mark.parametrize('tool', ['train', 'bench'])
+def test_bench_train_times_both_ways_and_their_results_agree(tmp_path):
+    out = tmp_path / 'bench_train'
+    code = bench_train.main(['--array', 'index_middle', '--samples', '2000', '--epochs', '2',
+                             '--models', 'M3', 'M4', '--out', str(out)])
+    assert code == 0
+    result = json.loads((out / 'bench_train.json').read_text())
+    assert result['samples'] == 2000 and result['folds'] == 5
+    for label in ('M3', 'M4'):
+        row = result['models'][label]
+        assert row['one_at_a_time']['seconds'] > 0 and row['together']['seconds'] > 0
+        assert len(row['together']['e_hat_per_fold']) == 5
+        assert row['e_hat_max_difference'] < 1e-4
+    assert '| M4 |' in (out / 'bench_train.md').read_text()
+
+
+def test_bench_train_refuses_an_unwritable_output_before_training(tmp_path, capsys):
+    blocker = tmp_path / 'file'
+    blocker.write_text('')
+    with pytest.raises(SystemExit) as exc:
+        bench_train.main(['--out', str(blocker / 'out')])
+    assert exc.value.code == 2
+
+
+@pytest.mark.parametrize('tool', ['train', 'bench', 'bench_train'])
 def test_tools_have_help(tool):
     out = subprocess.run([sys.executable, '-m', f'tacforce_ros.tools.{tool}', '--help'],
                          capture_output=True, text=True, timeout=60)

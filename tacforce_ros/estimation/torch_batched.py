@@ -1,0 +1,210 @@
+"""Train k small torch networks of one architecture as one network with stacked weights.
+
+The folds of a cross-validation, the arrays of a campaign and the repeats of a search are tiny
+networks on same-shaped data; trained one at a time, each step is dominated by per-operation
+overhead, not arithmetic. Here one step runs all k: a batched forward over weights stacked on a
+leading model axis (batched matmul, grouped convolution), one backward, one Adam update.
+
+Each network keeps what one-at-a-time training (torch_training.fit_torch_regressor) gives it: its
+initial weights (built under its own seed), its shuffling generator, its minibatches (the short
+last batch of an epoch included), its Adam moments and step count. A network whose epoch has no
+batch left at a step is masked out: no loss, no Adam step, no BatchNorm statistics. The result
+equals one-at-a-time training up to float32 rounding: the batched kernels add in another order,
+and those differences grow slowly over the steps (test_estimation_batched_training measures it).
+
+Torch is imported inside the functions, as in torch_training.
+"""
+from __future__ import annotations
+
+from collections.abc import Callable, Hashable, Sequence
+from typing import TYPE_CHECKING, Any, Protocol
+
+import numpy as np
+
+from tacforce_ros.estimation.base import check_inputs
+from tacforce_ros.estimation.torch_training import (SKIPPED_TORCH_STATE, STATE_DTYPE,
+                                                    TorchTraining, reproducible_torch,
+                                                    state_name)
+
+if TYPE_CHECKING:
+    import torch
+
+# torch.optim.Adam's defaults, which the one-at-a-time fit uses.
+ADAM_BETAS = (0.9, 0.999)
+ADAM_EPS = 1e-8
+
+
+class StackedForward(Protocol):
+    def __call__(self, torch: Any, params: dict[str, torch.Tensor],
+                 buffers: dict[str, torch.Tensor], x: torch.Tensor,
+                 mask: torch.Tensor) -> torch.Tensor:
+        """x (k, B, ...) inputs, mask (k, B) bool of real samples -> (k, B, 3) outputs.
+
+        params and buffers are the modules' state_dict entries stacked on a leading k axis; a
+        training-mode layer with statistics (BatchNorm) updates its buffers in place, for the
+        networks with at least one real sample only.
+        """
+
+
+def fit_models_stacked(models: Sequence[Any], data: Sequence[tuple[np.ndarray, np.ndarray]],
+                       architecture: Callable[[Any], Hashable],
+                       network_inputs: Callable[[Any, np.ndarray], np.ndarray],
+                       forward: StackedForward) -> None:
+    """Fit models[i] (M4 or M5) on data[i] = (X, F), stacking those of one architecture and
+    training settings; a model alone in its group trains one at a time (model.fit).
+
+    architecture(model) keys the groups; network_inputs(model, X) is what its network reads.
+    """
+    groups: dict[Hashable, list[int]] = {}
+    for i, model in enumerate(models):
+        t = model.training
+        key = (architecture(model), t.epochs, t.batch_size, t.learning_rate, t.threads)
+        groups.setdefault(key, []).append(i)
+    for rows in groups.values():
+        if len(rows) == 1:
+            models[rows[0]].fit(*data[rows[0]])
+            continue
+        checked = [check_inputs(data[i][0], models[i].array.n_taxels, data[i][1]) for i in rows]
+        states = fit_stacked([models[i]._build for i in rows], forward,
+                             [network_inputs(models[i], X).astype(np.float32)
+                              for i, X in zip(rows, checked)],
+                             [np.asarray(data[i][1], dtype=np.float64) for i in rows],
+                             [models[i].training for i in rows])
+        for i, state in zip(rows, states):
+            models[i]._set_state(state)
+
+
+def fit_stacked(builds: Sequence[Callable[[Any], torch.nn.Module]], forward: StackedForward,
+                inputs: Sequence[np.ndarray], targets: Sequence[np.ndarray],
+                trainings: Sequence[TorchTraining]) -> list[dict[str, np.ndarray]]:
+    """Train build_i(torch) on (inputs_i, targets_i) with Adam + MSE, all k in one loop.
+
+    Every build must give the same architecture, every input the same per-sample shape, and every
+    training the same epochs, batch size, learning rate and threads (seeds may differ). Returns
+    each network's state as torch_training.module_state would.
+    """
+    import torch
+
+    k = len(builds)
+    if not (k == len(inputs) == len(targets) == len(trainings)) or k == 0:
+        raise ValueError('fit_stacked needs one build, input, target and training per network')
+    settings = {(t.epochs, t.batch_size, t.learning_rate, t.threads) for t in trainings}
+    if len(settings) != 1:
+        raise ValueError(f'networks trained together must share epochs, batch size, learning '
+                         f'rate and threads; got {sorted(settings)}')
+    if len({np.shape(x)[1:] for x in inputs}) != 1 or min(len(x) for x in inputs) < 1:
+        raise ValueError('inputs must be non-empty and of one per-sample shape')
+    epochs, batch_size, learning_rate, threads = settings.pop()
+    with reproducible_torch(threads):
+        modules = []
+        for build, training in zip(builds, trainings):
+            with torch.random.fork_rng(devices=[]):
+                torch.manual_seed(training.seed)
+                modules.append(build(torch).to(torch.float32))
+        weights = _StackedWeights(torch, modules)
+        adam = _MaskedAdam(torch, weights.flat, learning_rate)
+        shuffles = [torch.Generator().manual_seed(t.seed) for t in trainings]
+        sizes = np.array([len(x) for x in inputs])
+        feature_shape, width = np.shape(inputs[0])[1:], int(np.prod(np.shape(inputs[0])[1:]))
+        # Inputs and targets side by side, network i's sample j in row i * N_max + j, so one
+        # index_select per step fetches every network's batch.
+        samples = _padded(torch, [np.concatenate([np.reshape(x, (len(x), width)), y], axis=1)
+                                  for x, y in zip(inputs, targets)])
+        first_rows, samples = torch.arange(k)[:, None] * samples.shape[1], samples.flatten(0, 1)
+        steps = -(-int(sizes.max()) // batch_size)
+        real = torch.arange(steps * batch_size)[None] < torch.as_tensor(sizes)[:, None]
+        for _ in range(epochs):
+            order = torch.zeros((k, steps * batch_size), dtype=torch.long)
+            for i, (size, shuffle) in enumerate(zip(sizes, shuffles)):
+                order[i, :size] = torch.randperm(int(size), generator=shuffle)
+            order += first_rows
+            for start in range(0, steps * batch_size, batch_size):
+                counts = np.clip(sizes - start, 0, batch_size)
+                mask = real[:, start:start + batch_size]
+                batch = samples.index_select(0, order[:, start:start + batch_size].reshape(-1))
+                batch = batch.view(k, batch_size, width + 3)
+                prediction = forward(torch, weights.params(), weights.buffers,
+                                     batch[..., :width].view(k, batch_size, *feature_shape), mask)
+                squared = (prediction - batch[..., width:]).square().sum(dim=2)
+                if counts.min() < batch_size:
+                    squared = squared * mask
+                denominator = torch.from_numpy(3.0 * np.maximum(counts, 1)).float()
+                loss = (squared.sum(dim=1) / denominator).sum()
+                weights.flat.grad = None
+                loss.backward()
+                adam.step(counts > 0)
+        return weights.states()
+
+
+def _padded(torch: Any, arrays: Sequence[np.ndarray]) -> torch.Tensor:
+    """(k, N_max, ...) float32 tensor holding each array from row 0, zeros after."""
+    out = torch.zeros((len(arrays), max(len(a) for a in arrays), *np.shape(arrays[0])[1:]),
+                      dtype=torch.float32)
+    for i, a in enumerate(arrays):
+        out[i, :len(a)] = torch.as_tensor(np.asarray(a, dtype=np.float32))
+    return out
+
+
+class _StackedWeights:
+    """The k modules' parameters as one (k, P) leaf tensor (one Adam update for all), their
+    buffers stacked (k, ...), and the per-parameter views the forward reads."""
+
+    def __init__(self, torch: Any, modules: Sequence[torch.nn.Module]) -> None:
+        self.k = len(modules)
+        states = [m.state_dict() for m in modules]
+        parameter_names = [name for name, _ in modules[0].named_parameters()]
+        self.shapes = {name: tuple(states[0][name].shape) for name in parameter_names}
+        self.flat = torch.cat([torch.stack([s[name].reshape(-1) for s in states])
+                               for name in parameter_names], dim=1).requires_grad_(True)
+        self.buffers = {name: torch.stack([s[name] for s in states])
+                        for name, _ in modules[0].named_buffers()
+                        if not name.endswith(SKIPPED_TORCH_STATE)}
+
+    def params(self) -> dict[str, torch.Tensor]:
+        # split, not slicing: its backward concatenates the parts' gradients in one tensor, where
+        # each slice's backward fills a zero (k, P) tensor first.
+        sizes = [int(np.prod(shape)) for shape in self.shapes.values()]
+        return {name: part.view(self.k, *shape) for (name, shape), part
+                in zip(self.shapes.items(), self.flat.split(sizes, dim=1))}
+
+    def states(self) -> list[dict[str, np.ndarray]]:
+        tensors = {**{n: v.detach() for n, v in self.params().items()}, **self.buffers}
+        return [{state_name(name): value[i].cpu().numpy().astype(STATE_DTYPE)
+                 for name, value in tensors.items()} for i in range(self.k)]
+
+
+class _MaskedAdam:
+    """torch.optim.Adam's update (no weight decay, no amsgrad) on the rows of a (k, P) tensor,
+    with a step count per row; rows not active at a step are left untouched."""
+
+    def __init__(self, torch: Any, flat: torch.Tensor, learning_rate: float) -> None:
+        self.torch, self.flat, self.learning_rate = torch, flat, learning_rate
+        self.first = torch.zeros_like(flat, requires_grad=False)
+        self.second = torch.zeros_like(flat, requires_grad=False)
+        self.steps = np.zeros(flat.shape[0], dtype=np.int64)
+
+    def step(self, active: np.ndarray) -> None:
+        """One update of the rows where `active` (k,) is True, from flat.grad."""
+        torch = self.torch
+        beta1, beta2 = ADAM_BETAS
+        self.steps += active
+        with torch.no_grad():
+            if active.all():
+                rows, steps = None, self.steps
+                param, first, second, grad = self.flat, self.first, self.second, self.flat.grad
+            else:
+                rows = torch.from_numpy(np.flatnonzero(active))
+                steps = self.steps[active]
+                param, first, second = self.flat[rows], self.first[rows], self.second[rows]
+                grad = self.flat.grad[rows]
+            first.lerp_(grad, 1 - beta1)
+            second.mul_(beta2).addcmul_(grad, grad, value=1 - beta2)
+            # Bias corrections in float64, then float32, as Adam's python-float scalars are.
+            step_size = torch.from_numpy(self.learning_rate / (1 - beta1 ** steps)).float()
+            correction2 = torch.from_numpy(np.sqrt(1 - beta2 ** steps)).float()
+            denominator = (second.sqrt() / correction2[:, None]).add_(ADAM_EPS)
+            param.sub_(step_size[:, None] * (first / denominator))
+            if rows is not None:
+                self.flat.index_copy_(0, rows, param)
+                self.first.index_copy_(0, rows, first)
+                self.second.index_copy_(0, rows, second)

@@ -1,0 +1,137 @@
+"""Several M4 / M5 networks trained as one (torch_batched) equal the same networks trained one at
+a time with torch's own modules and Adam, to float32 rounding: same seeds, same shuffles, the
+short last batch of each epoch, datasets of different sizes, BatchNorm statistics included."""
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from tacforce_ros.estimation.cross_validation import cross_validate
+from tacforce_ros.estimation.m4_mlp import MLPModel
+from tacforce_ros.estimation.m5_cnn import CNNModel, conv_as_matrix_index
+from tacforce_ros.estimation.torch_batched import fit_stacked
+from tacforce_ros.estimation.torch_training import TorchTraining
+from tacforce_ros.hand.description import load_hand
+
+HAND = load_hand()
+TIP, PHALANX = HAND.array('index_tip'), HAND.array('index_middle')
+# Sizes chosen so the networks' epochs end at different steps, one inside its first batch.
+SIZES = (300, 157, 40)
+# float32 rounding of reordered sums, grown over a few hundred Adam steps (measured ~1e-6).
+WEIGHT_RTOL = 1e-4
+# Larger than the paper's 2.5e-4 so a few epochs move the weights. At 1e-2, after 5 steps of an
+# M5 on a phalanx, 16 weights differed by ~lr while at 3e-3 and below every weight agreed to
+# <= 5e-6: a jump, not growth, so (inferred) a unit near its ReLU threshold whose branch the
+# rounding decided at the larger step.
+LEARNING_RATE = 3e-3
+
+
+def datasets(array, sizes, seed=0):
+    rng = np.random.default_rng(seed)
+    data = []
+    for size in sizes:
+        X = rng.standard_normal((size, array.n_taxels, 3))
+        F = np.tanh(X.reshape(size, -1)[:, :3] + 0.5 * X.reshape(size, -1)[:, 3:6] ** 2)
+        data.append((X, F, np.zeros(size, dtype=int)))
+    return data
+
+
+def assert_same_training(one, together):
+    for a, b in zip(one, together):
+        sa, sb = a.state_arrays(), b.state_arrays()
+        assert sa.keys() == sb.keys()
+        for name in sa:
+            scale = max(float(np.abs(sa[name]).max()), 1e-3)
+            np.testing.assert_allclose(sb[name], sa[name], rtol=0, atol=WEIGHT_RTOL * scale,
+                                       err_msg=f'{a.kind} {name}')
+
+
+def fit_both(cls, arrays, data, **hyper):
+    one = [cls(array, seed=i, **hyper) for i, array in enumerate(arrays)]
+    for model, (X, F, _) in zip(one, data):
+        model.fit(X, F)
+    together = [cls(array, seed=i, **hyper) for i, array in enumerate(arrays)]
+    cls.fit_many(together, data)
+    return one, together
+
+
+@pytest.mark.parametrize('cls, array', [(MLPModel, TIP), (CNNModel, TIP), (CNNModel, PHALANX)])
+def test_networks_trained_together_equal_one_at_a_time(cls, array):
+    data = datasets(array, SIZES)
+    one, together = fit_both(cls, [array] * len(SIZES), data, epochs=3, batch_size=64,
+                             learning_rate=LEARNING_RATE)
+    assert_same_training(one, together)
+    if cls is CNNModel:     # the BatchNorm running statistics moved, and moved alike
+        assert not np.allclose(together[0].state_arrays()['norm_running_var_'], 1.0)
+
+
+def test_models_of_different_architectures_form_separate_groups():
+    """Tip (30 taxels) and phalanx (16) CNNs, and a lone M5 of other settings, in one call."""
+    arrays = [TIP, PHALANX, TIP, PHALANX]
+    data = [datasets(a, (120,), seed=i)[0] for i, a in enumerate(arrays)]
+    hyper = dict(batch_size=32, learning_rate=LEARNING_RATE)
+    epochs = [2, 2, 2, 3]                       # the last is alone in its group
+    together = [CNNModel(a, seed=i, epochs=e, **hyper) for i, (a, e) in enumerate(zip(arrays,
+                                                                                         epochs))]
+    CNNModel.fit_many(together, data)
+    one = [CNNModel(a, seed=i, epochs=e, **hyper) for i, (a, e) in enumerate(zip(arrays, epochs))]
+    for model, (X, F, _) in zip(one, data):
+        model.fit(X, F)
+    assert_same_training(one, together)
+
+
+@settings(max_examples=12, deadline=None)
+@given(sizes=st.lists(st.integers(1, 90), min_size=2, max_size=4),
+       batch_size=st.integers(1, 40), seed=st.integers(0, 2 ** 16))
+def test_any_sizes_and_batch_size_train_alike(sizes, batch_size, seed):
+    data = datasets(PHALANX, sizes, seed)
+    one, together = fit_both(MLPModel, [PHALANX] * len(sizes), data, epochs=2,
+                             batch_size=batch_size, learning_rate=LEARNING_RATE, hidden=4)
+    assert_same_training(one, together)
+
+
+def test_training_together_is_deterministic():
+    data = datasets(TIP, SIZES)
+    runs = []
+    for _ in range(2):
+        models = [CNNModel(TIP, seed=i, epochs=1, batch_size=64) for i in range(len(SIZES))]
+        CNNModel.fit_many(models, data)
+        runs.append([m.state_arrays() for m in models])
+    for a, b in zip(*runs):
+        for name in a:
+            np.testing.assert_array_equal(a[name], b[name])
+
+
+def test_cross_validation_folds_together_match_folds_one_at_a_time(tip_data):
+    data, X, F, _ = tip_data
+    hyper = dict(epochs=2, batch_size=128, learning_rate=LEARNING_RATE)
+    together = cross_validate(TIP, 'M4', hyper, X, F, data.plates, together=True)
+    alone = cross_validate(TIP, 'M4', hyper, X, F, data.plates, together=False)
+    assert [f.test_plate for f in together.folds] == [f.test_plate for f in alone.folds]
+    for a, b in zip(alone.folds, together.folds):
+        assert b.stats.e_hat_mean == pytest.approx(a.stats.e_hat_mean, rel=1e-4)
+        assert b.train_seconds > 0
+
+
+def test_networks_trained_together_must_share_their_optimiser_settings():
+    build = MLPModel(TIP)._build
+    X, F = np.zeros((4, 90)), np.zeros((4, 3))
+    with pytest.raises(ValueError, match='must share epochs'):
+        fit_stacked([build, build], lambda *a: None, [X, X], [F, F],
+                    [TorchTraining(epochs=1), TorchTraining(epochs=2)])
+
+
+def test_the_dense_form_of_a_valid_convolution_is_the_convolution():
+    """conv_as_matrix_index against a direct loop over output cells (hand-computed case)."""
+    rng = np.random.default_rng(3)
+    H, W, C, O, k = 5, 4, 2, 3, 2
+    weight = rng.standard_normal((O, C, k, k))
+    image = rng.standard_normal((H, W, C))
+    index = conv_as_matrix_index((H, W, C), O, k)
+    matrix = np.append(weight.ravel(), 0.0)[index]
+    expected = np.empty((H - k + 1, W - k + 1, O))
+    for i in range(H - k + 1):
+        for j in range(W - k + 1):
+            patch = image[i:i + k, j:j + k].transpose(2, 0, 1)        # (C, k, k)
+            expected[i, j] = (weight * patch).sum(axis=(1, 2, 3))
+    np.testing.assert_allclose(image.reshape(-1) @ matrix, expected.reshape(-1), rtol=1e-12)

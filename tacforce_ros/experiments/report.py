@@ -214,8 +214,9 @@ def markdown(doc: dict) -> str:
              f"per plate and array (paper: 4 x 100 s), plates {', '.join(doc['plates'])}; "
              f"online test {s['online_seconds']:g} s on the held-out spherical plate "
              f"(paper: 200 s)",
-             f"* M4/M5: {s['epochs']} epochs (paper: 40; fewer so the default run fits its "
-             f"20-minute budget on 2 shared cores), batch 256, lr 2.5e-4",
+             f"* M4/M5: {s['epochs']} epochs (paper: 40), batch 256, lr 2.5e-4; the five "
+             f"folds of each cross-validation train together as one stacked network "
+             f"(estimation/torch_batched.py)",
              f"* closed loop: {len(s['objects'])} object(s) x {len(doc['controllers'])} "
              f"controllers (open loop on the spherical plate only, as in the paper) x "
              f"{s['repeats']} run(s) x the {s['sequence']} sequence "

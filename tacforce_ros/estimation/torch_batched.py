@@ -175,7 +175,12 @@ class _StackedWeights:
 
 class _MaskedAdam:
     """torch.optim.Adam's update (no weight decay, no amsgrad) on the rows of a (k, P) tensor,
-    with a step count per row; rows not active at a step are left untouched."""
+    with a step count per row; rows not active at a step are left untouched.
+
+    Why not torch.optim.Adam: it keeps one step count per parameter tensor, and the k networks in
+    one tensor end their epochs at different steps, so each needs its own count and its own
+    skipped steps. test_estimation_batched_training checks the result against torch's Adam.
+    """
 
     def __init__(self, torch: Any, flat: torch.Tensor, learning_rate: float) -> None:
         self.torch, self.flat, self.learning_rate = torch, flat, learning_rate

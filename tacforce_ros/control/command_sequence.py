@@ -48,6 +48,17 @@ class ForceSequence:
         alpha = min(max((t - self.starts[k]) / self.durations[k], 0.0), 1.0)
         return self.begin[k] + alpha * (self.end[k] - self.begin[k])
 
+    def until(self, seconds: float) -> ForceSequence:
+        """The same commands cut off at `seconds` (the whole sequence if it is shorter)."""
+        if not seconds > 0.0:
+            raise SequenceError(f'cannot cut a sequence at {seconds} s')
+        keep = self.starts < seconds
+        durations = np.minimum(self.durations[keep], seconds - self.starts[keep])
+        begin, end = self.begin[keep], self.end[keep].copy()
+        end[-1] = begin[-1] + durations[-1] / self.durations[keep][-1] * (end[-1] - begin[-1])
+        return ForceSequence(self.frame_id, self.starts[keep], durations, begin, end,
+                             f'{self.source} until {seconds:g} s')
+
     @classmethod
     def from_mapping(cls, doc: object, source: str = '<mapping>') -> ForceSequence:
         if not isinstance(doc, dict):

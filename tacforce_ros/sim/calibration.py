@@ -16,7 +16,7 @@ from tacforce_ros.sim.effects import Pipeline
 from tacforce_ros.sim.operator import OperatorParams, Schedule, draw_schedule
 from tacforce_ros.sim.sample import SimSample, StepState
 from tacforce_ros.sim.scene import Scene
-from tacforce_ros.sim.sensors import TactileSensor, ft_counts
+from tacforce_ros.sim.sensors import TactileSensor
 
 
 class PoseRotation:
@@ -98,7 +98,7 @@ class CalibrationSimulator:
         self.pipeline.run('delivery', state)
         self.step_index += 1
         return SimSample(t=t, taxel_counts=state.counts_out, temperatures=state.temperatures,
-                         ft_counts=ft_counts(state.wrench), ft_wrench=state.wrench, ft_status=0,
+                         ft_wrench=state.wrench, ft_status=0,
                          q=state.q, qdot=state.qdot, true_force=force,
                          contact_point=s.point[k], in_contact=active,
                          delivered=state.delivered)

@@ -11,6 +11,8 @@ A tactile frame is produced every 1/tactile_rate s (SimSample.tactile_fresh).
 """
 from __future__ import annotations
 
+import math
+
 import mujoco
 import numpy as np
 
@@ -20,7 +22,7 @@ from tacforce_ros.sim.effects import Pipeline
 from tacforce_ros.sim.operator import FINGER_JOINTS
 from tacforce_ros.sim.sample import SimSample, StepState
 from tacforce_ros.sim.scene import Scene
-from tacforce_ros.sim.sensors import TactileSensor, ft_counts
+from tacforce_ros.sim.sensors import TactileSensor
 
 FRICTION = 1.0   # silicone skin on PLA / YCB surfaces: grippy; our estimate
 # Rotor inertia reflected through the Allegro gearbox, per joint (our estimate); it also keeps
@@ -148,42 +150,38 @@ class ClosedLoopSimulator:
         return centre - self.radius * self._normal(centre)
 
     def _normal(self, centre: np.ndarray) -> np.ndarray:
-        if self.obj is None:
-            d = centre - self.plate_centre
-            return d / np.sqrt(d @ d)
-        return self.up
+        return self._surface(centre)[0]
 
-    def _penetration(self, centre: np.ndarray, normal: np.ndarray) -> float:
+    def _surface(self, centre: np.ndarray) -> tuple[np.ndarray, float]:
+        """(contact normal, penetration depth) of the tip sphere centred at `centre`."""
         if self.obj is None:
             d = centre - self.plate_centre
-            gap = np.sqrt(d @ d) - self.scene.plate.radius
-        else:
-            gap = (centre - self.surface) @ self.up + self.obj_x
-        return self.radius - gap
+            distance = math.sqrt(d @ d)
+            return d / distance, self.radius - (distance - self.scene.plate.radius)
+        return self.up, self.radius - ((centre - self.surface) @ self.up + self.obj_x)
 
     def _contact_force(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
         """(force on the finger, contact point, normal, active), base frame."""
         rot = self.data.xmat[self.tip].reshape(3, 3)
         centre = self.data.xpos[self.tip] + rot @ self.offset
-        normal = self._normal(centre)
+        normal, depth = self._surface(centre)
         point = centre - self.radius * normal
-        depth = self._penetration(centre, normal)
         if depth <= 0.0:
             self.anchor = None
             return np.zeros(3), point, normal, False
         mujoco.mj_jac(self.model, self.data, self._jac, None, point, self.tip)
         velocity = self._jac @ self.data.qvel
-        surface_speed = -self.obj_v * self.up if self.obj is not None else 0.0
-        relative = velocity - surface_speed
-        normal_force = max(self.skin_k * depth - self.skin_c * (relative @ normal), 0.0)
+        relative = velocity + self.obj_v * self.up if self.obj is not None else velocity
+        approach = relative @ normal
+        normal_force = max(self.skin_k * depth - self.skin_c * approach, 0.0)
         if self.anchor is None:
             self.anchor = point.copy()
         slip = point - self.anchor
         slip -= (slip @ normal) * normal
-        tangential_velocity = relative - (relative @ normal) * normal
+        tangential_velocity = relative - approach * normal
         tangential = -self.skin_k * slip - self.skin_c * tangential_velocity
         limit = FRICTION * normal_force
-        size = np.sqrt(tangential @ tangential)
+        size = math.sqrt(tangential @ tangential)
         if size > limit:   # sliding: the stick point follows so the spring sits on the cone
             tangential *= limit / size
             self.anchor = point + tangential / self.skin_k
@@ -194,7 +192,7 @@ class ClosedLoopSimulator:
     def step(self, joint_torques: np.ndarray | None = None) -> SimSample:
         data = self.data
         command = np.zeros(16) if joint_torques is None else np.asarray(joint_torques, np.float64)
-        if command.shape != (16,) or not np.all(np.isfinite(command)):
+        if command.shape != (16,) or not np.isfinite(command).all():
             raise ValueError('joint_torques must be 16 finite values (N m), Allegro order')
         t = self.step_index * self.dt
         torque = command.copy()
@@ -209,21 +207,20 @@ class ClosedLoopSimulator:
         mujoco.mj_step(self.model, data)
         # Ground truth and tactile frame in {S0}: the force the array applies (= -force on it).
         rot_s0 = data.xmat[self.s0].reshape(3, 3)
-        origin = data.xpos[self.s0]
         true_force = rot_s0.T @ -force
-        # The dynamics' tip sphere only approximates the skin: the sensor sees the contact where
-        # the skin is, with the skin's own normal; the force's tilt from it is shear there.
-        point_s0, skin_normal = skin_surface(self._taxel_positions, self._taxel_normals,
-                                             rot_s0.T @ (point - origin))
-        state.contact = Contact(true_force, point_s0, skin_normal,
-                                self.sensor.array.rotations[0][:, 0], active)
         state.q, state.qdot = data.qpos.copy(), data.qvel.copy()
         fresh = self.step_index % self.frame_every == 0
         if fresh:
+            # The dynamics' tip sphere only approximates the skin: the sensor sees the contact
+            # where the skin is, with the skin's own normal; the force's tilt from it is shear.
+            point_s0, skin_normal = skin_surface(self._taxel_positions, self._taxel_normals,
+                                                 rot_s0.T @ (point - data.xpos[self.s0]))
+            state.contact = Contact(true_force, point_s0, skin_normal,
+                                    self.sensor.array.rotations[0][:, 0], active)
             self.sensor.measure(state)
-            self._last_frame = (state.counts_out, state.temperatures)
+            self._last_frame = (state.counts_out, state.temperatures, point_s0)
         else:
-            state.counts_out, state.temperatures = self._last_frame
+            state.counts_out, state.temperatures, point_s0 = self._last_frame
         torque_at_sensor = np.empty(3)
         mujoco.mju_cross(torque_at_sensor, point - self.sensor_origin, on_sensor)
         state.wrench = np.concatenate([self.r_base_f.T @ on_sensor,
@@ -232,8 +229,7 @@ class ClosedLoopSimulator:
         self.pipeline.run('delivery', state)
         self.step_index += 1
         return SimSample(t=t + self.dt, taxel_counts=state.counts_out,
-                         temperatures=state.temperatures, ft_counts=ft_counts(state.wrench),
-                         ft_wrench=state.wrench, ft_status=0, q=state.q, qdot=state.qdot,
+                         temperatures=state.temperatures, ft_wrench=state.wrench, ft_status=0, q=state.q, qdot=state.qdot,
                          true_force=true_force, contact_point=point_s0, in_contact=active,
                          delivered=state.delivered, tactile_fresh=fresh)
 

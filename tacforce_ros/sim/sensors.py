@@ -16,9 +16,6 @@ from tacforce_ros.sim.taxel_response import (ResponseParams, counts_from_loads, 
 # Temperature the readings settle at after the paper's 30 min warm-up (section IV-A): our
 # estimate of a powered hand's skin temperature.
 WARM_TEMPERATURE = 305.15   # K
-# Net F/T defaults (PROTOCOLS.md section 3): counts per N and per N m.
-COUNTS_PER_FORCE = 1e6
-COUNTS_PER_TORQUE = 1e6
 
 
 @dataclass
@@ -79,10 +76,3 @@ class TactileSensor:
         state.temperatures = self._warm
         run('counts', state)
         state.counts_out = to_uint16(state.counts)
-
-
-def ft_counts(wrench: np.ndarray) -> np.ndarray:
-    """(6,) N, N m -> RDT int32 counts at the Net F/T default resolution."""
-    scale = np.array([COUNTS_PER_FORCE] * 3 + [COUNTS_PER_TORQUE] * 3)
-    limit = np.iinfo(np.int32)
-    return np.clip(np.rint(np.asarray(wrench) * scale), limit.min, limit.max).astype(np.int32)

@@ -1,9 +1,14 @@
 """bench_sim: simulator speed per scene (simulated s per wall s) and the cost of each effect.
 
 Each scene runs for --seconds of simulated time (closed-loop scenes with a constant torque
-command, the open-loop load of a force controller), best of --repeats. Each effect is timed
-alone on a reference scene of its kind against that scene with no effects, the two runs
-interleaved, so the ratio holds even when other work slows the machine. Targets: calibration >= 50x real time, closed loop >= 10x.
+command: the physics alone), best of --repeats. Each closed-loop scene then runs as the main job
+runs it, with the estimator (the shipped models, config/models/default.yaml) and the force
+controller in the loop at 100 Hz, playing the paper's sequence cut at --loop-seconds after the
+2 s settle; its wall time per physics step is set against a bare MuJoCo step (mj_step) of the
+same compiled model, timed in between: what our layer costs on top of the physics. Each effect
+is timed alone on a reference scene of its kind against that scene with no effects, the two
+runs interleaved, so the ratio holds even when other work slows the machine. Targets:
+calibration >= 50x real time, closed loop >= 10x physics alone and >= 15x with the loop.
 Writes JSON (--out) and prints a table.
 """
 from __future__ import annotations
@@ -11,6 +16,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import os
 import sys
 import time
 import warnings
@@ -22,7 +28,9 @@ from tacforce_ros.paths import output_file
 from tacforce_ros.sim import list_scenes, load_scene, make_simulator
 from tacforce_ros.sim.effects import EFFECTS
 
-TARGETS = {'calibration': 50.0, 'closed_loop': 10.0}
+TARGETS = {'calibration': 50.0, 'closed_loop': 10.0, 'closed_loop_with_control': 15.0}
+LOOP_SEQUENCE = 'paper_70s'
+LOOP_CONTROLLER = 'M3-lambda'       # the closed-loop controller (open loop: K_i = 0)
 REFERENCE = {'calibration': 'calibration_index_tip_spherical',
              'closed_loop': 'closed_loop_spherical'}
 # Effects that act only in closed-loop physics (torques, the MuJoCo model).
@@ -62,6 +70,48 @@ def realtime_factors(scenes, hand, seconds: float, repeats: int) -> list[float]:
     return [1.0 / b for b in best]
 
 
+def loop_factors(scene_name: str, hand, seconds: float, repeats: int) -> dict:
+    """The scene with estimator and controller in the loop (experiments.closed_loop, as the main
+    job runs it) and bare mj_step passes of its model, interleaved; best of `repeats`."""
+    import mujoco
+
+    from tacforce_ros.control.command_sequence import ForceSequence
+    from tacforce_ros.estimation.model_set import load_model_set
+    from tacforce_ros.experiments.closed_loop import run_closed_loop
+    from tacforce_ros.experiments.pipeline import controller_config, tare_frames
+    from tacforce_ros.hand.kinematics import HandKinematics
+    from tacforce_ros.paths import config_dir
+
+    kinematics = HandKinematics.for_hand(hand)
+    models = load_model_set(config_dir() / 'models' / 'default.yaml', hand)
+    sequence = ForceSequence.load(LOOP_SEQUENCE).until(seconds)
+    config = controller_config(LOOP_CONTROLLER)
+    with warnings.catch_warnings():
+        warnings.simplefilter('ignore')
+        sim = make_simulator(load_scene(scene_name), hand)
+    settle = 2.0
+    steps = int(round((settle + sequence.duration) / sim.dt))
+    best_loop = best_bare = np.inf
+    for _ in range(repeats):
+        start = time.perf_counter()
+        run_closed_loop(hand, kinematics, scene_name, 0, config, sequence, models,
+                        tare_frames=tare_frames(), settle_seconds=settle)
+        best_loop = min(best_loop, time.perf_counter() - start)
+        data = mujoco.MjData(sim.model)
+        data.qpos[:] = sim.data.qpos
+        start = time.perf_counter()
+        for _ in range(steps):
+            mujoco.mj_step(sim.model, data)
+        best_bare = min(best_bare, time.perf_counter() - start)
+    simulated = steps * sim.dt
+    return {'simulated_seconds': simulated, 'physics_steps': steps,
+            'realtime_factor': simulated / best_loop,
+            'bare_mujoco_realtime_factor': simulated / best_bare,
+            'us_per_step': 1e6 * best_loop / steps,
+            'bare_mujoco_us_per_step': 1e6 * best_bare / steps,
+            'step_over_bare_mujoco': best_loop / best_bare}
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog='bench_sim', description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -69,10 +119,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--seconds', type=float, default=5.0, help='simulated s per run')
     parser.add_argument('--repeats', type=int, default=2, help='runs per measurement (best)')
     parser.add_argument('--scenes', nargs='*', help='scene names (default: all)')
+    parser.add_argument('--loop-seconds', type=float, default=25.0,
+                        help='seconds of the paper sequence played with the loop closed '
+                        '(default 25: the first 9 s in contact); 0 = skip')
     args = parser.parse_args(argv)
     hand = load_hand()
     scenes = args.scenes or list_scenes()
-    result = {'seconds': args.seconds, 'repeats': args.repeats, 'targets': TARGETS,
+    result = {'seconds': args.seconds, 'loop_seconds': args.loop_seconds,
+              'repeats': args.repeats, 'targets': TARGETS, 'load_before': os.getloadavg(),
               'scenes': {}, 'effects': {}}
     print(f'{"scene":40s} {"kind":12s} {"x real time":>12s} {"target":>7s}')
     for name in scenes:
@@ -83,6 +137,20 @@ def main(argv: list[str] | None = None) -> int:
                                   'target': target, 'meets_target': factor >= target}
         print(f'{name:40s} {scene.kind:12s} {factor:12.1f} {target:7.0f}'
               f'{"" if factor >= target else "  BELOW"}')
+    loop_scenes = [name for name in scenes if result['scenes'][name]['kind'] == 'closed_loop']
+    if args.loop_seconds > 0 and loop_scenes:
+        target = TARGETS['closed_loop_with_control']
+        result['closed_loop_with_control'] = {}
+        print(f'\n{"scene, estimator + controller in the loop":44s} {"x real time":>11s} '
+              f'{"target":>7s} {"us/step":>8s} {"bare mj_step us":>16s} {"ratio":>6s}')
+        for name in loop_scenes:
+            row = loop_factors(name, hand, args.loop_seconds, args.repeats)
+            row.update(target=target, meets_target=row['realtime_factor'] >= target)
+            result['closed_loop_with_control'][name] = row
+            print(f"{name:44s} {row['realtime_factor']:11.1f} {target:7.0f} "
+                  f"{row['us_per_step']:8.1f} {row['bare_mujoco_us_per_step']:16.1f} "
+                  f"{row['step_over_bare_mujoco']:6.1f}"
+                  f"{'' if row['meets_target'] else '  BELOW'}")
     print(f'\n{"effect (alone)":22s} {"reference scene":32s} {"x real time":>12s} '
           f'{"none":>8s} {"cost per sim s":>15s}')
     bare = {kind: load_scene(ref) for kind, ref in REFERENCE.items()}
@@ -99,6 +167,7 @@ def main(argv: list[str] | None = None) -> int:
                                      'extra_ms_per_sim_s': cost_ms}
         print(f'{effect:22s} {REFERENCE[kind]:32s} {factor:12.1f} {none:8.1f} '
               f'{cost_ms:12.2f} ms')
+    result['load_after'] = os.getloadavg()
     if args.out:
         args.out.write_text(json.dumps(result, indent=2))
         print(f'\nwrote {args.out}')

@@ -133,7 +133,7 @@ def test_finger_starts_clear_and_the_rig_touches_the_simulated_tip_at_the_contac
 
     def depth():
         centre = sim.data.xpos[sim.tip] + sim.data.xmat[sim.tip].reshape(3, 3) @ sim.offset
-        return sim._penetration(centre, sim._normal(centre))
+        return sim._surface(centre)[1]
 
     assert depth() < -0.003                        # a gap of millimetres at the start pose
     assert not sim.step().in_contact

@@ -3,7 +3,7 @@
 The folds of a cross-validation, the arrays of a campaign and the repeats of a search are tiny
 networks on same-shaped data; trained one at a time, each step is dominated by per-operation
 overhead, not arithmetic. Here one step runs all k: a batched forward over weights stacked on a
-leading model axis (batched matmul, grouped convolution), one backward, one Adam update.
+leading model axis (batched matmuls), one backward, one Adam update.
 
 Each network keeps what one-at-a-time training (torch_training.fit_torch_regressor) gives it: its
 initial weights (built under its own seed), its shuffling generator, its minibatches (the short
@@ -106,10 +106,14 @@ def fit_stacked(builds: Sequence[Callable[[Any], torch.nn.Module]], forward: Sta
         shuffles = [torch.Generator().manual_seed(t.seed) for t in trainings]
         sizes = np.array([len(x) for x in inputs])
         feature_shape, width = np.shape(inputs[0])[1:], int(np.prod(np.shape(inputs[0])[1:]))
+        outputs = np.shape(targets[0])[1]
         # Inputs and targets side by side, network i's sample j in row i * N_max + j, so one
         # index_select per step fetches every network's batch.
-        samples = _padded(torch, [np.concatenate([np.reshape(x, (len(x), width)), y], axis=1)
-                                  for x, y in zip(inputs, targets)])
+        samples = torch.zeros((k, int(sizes.max()), width + outputs), dtype=torch.float32)
+        for i, (x, y) in enumerate(zip(inputs, targets)):
+            samples[i, :len(x), :width] = torch.as_tensor(np.reshape(x, (len(x), width)),
+                                                          dtype=torch.float32)
+            samples[i, :len(y), width:] = torch.as_tensor(y, dtype=torch.float32)
         first_rows, samples = torch.arange(k)[:, None] * samples.shape[1], samples.flatten(0, 1)
         steps = -(-int(sizes.max()) // batch_size)
         real = torch.arange(steps * batch_size)[None] < torch.as_tensor(sizes)[:, None]
@@ -122,27 +126,18 @@ def fit_stacked(builds: Sequence[Callable[[Any], torch.nn.Module]], forward: Sta
                 counts = np.clip(sizes - start, 0, batch_size)
                 mask = real[:, start:start + batch_size]
                 batch = samples.index_select(0, order[:, start:start + batch_size].reshape(-1))
-                batch = batch.view(k, batch_size, width + 3)
+                batch = batch.view(k, batch_size, width + outputs)
                 prediction = forward(torch, weights.params(), weights.buffers,
                                      batch[..., :width].view(k, batch_size, *feature_shape), mask)
                 squared = (prediction - batch[..., width:]).square().sum(dim=2)
                 if counts.min() < batch_size:
                     squared = squared * mask
-                denominator = torch.from_numpy(3.0 * np.maximum(counts, 1)).float()
+                denominator = torch.from_numpy(outputs * np.maximum(counts, 1.0)).float()
                 loss = (squared.sum(dim=1) / denominator).sum()
                 weights.flat.grad = None
                 loss.backward()
                 adam.step(counts > 0)
         return weights.states()
-
-
-def _padded(torch: Any, arrays: Sequence[np.ndarray]) -> torch.Tensor:
-    """(k, N_max, ...) float32 tensor holding each array from row 0, zeros after."""
-    out = torch.zeros((len(arrays), max(len(a) for a in arrays), *np.shape(arrays[0])[1:]),
-                      dtype=torch.float32)
-    for i, a in enumerate(arrays):
-        out[i, :len(a)] = torch.as_tensor(np.asarray(a, dtype=np.float32))
-    return out
 
 
 class _StackedWeights:

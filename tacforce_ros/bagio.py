@@ -19,14 +19,16 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from rosbags.interfaces import (Qos, QosDurability, QosHistory, QosLiveliness, QosReliability,
+                                QosTime)
 from rosbags.rosbag2 import Reader, ReaderError, StoragePlugin, Writer
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from ruamel.yaml import YAML
 from ruamel.yaml.error import YAMLError
 
 from tacforce_ros.paths import share_dir
-from tacforce_ros.topics import (TOPIC_JOINTS, TOPIC_SAMPLE, TOPIC_SESSION, TOPIC_SIM_CONTACT,
-                                 TOPIC_TACTILE, TOPIC_WRENCH)
+from tacforce_ros.topics import (PUBLISHER_DEPTH, TOPIC_JOINTS, TOPIC_SAMPLE, TOPIC_SESSION,
+                                 TOPIC_SIM_CONTACT, TOPIC_TACTILE, TOPIC_WRENCH, qos_kind)
 
 TOPIC_TYPES = {
     TOPIC_TACTILE: 'tacforce_msgs/msg/TactileHand',
@@ -44,6 +46,27 @@ _SPLIT_SUFFIX = '.partial'
 # An MCAP file starts and ends with these 8 bytes (MCAP specification, "Magic"); a file cut off
 # while being written lacks the trailing copy.
 MCAP_MAGIC = b'\x89MCAP0\r\n'
+
+
+# The ROS 2 distribution the bags are written for: the one whose message definitions the
+# typestore holds (rosbags would write its own name into the metadata).
+ROS_DISTRO = 'kilted'
+_INFINITE = QosTime(sec=9223372036, nsec=854775807)    # rmw's "infinite" duration
+# What the graph's publishers offer (topics.PUBLISHER_DEPTH), in a bag's metadata.
+OFFERED_QOS = Qos(history=QosHistory.KEEP_LAST, depth=PUBLISHER_DEPTH,
+                  reliability=QosReliability.RELIABLE, durability=QosDurability.VOLATILE,
+                  deadline=_INFINITE, lifespan=_INFINITE, liveliness=QosLiveliness.AUTOMATIC,
+                  liveliness_lease_duration=_INFINITE, avoid_ros_namespace_conventions=False)
+
+
+def offered_qos(topic: str) -> list[Qos]:
+    """The offered QoS profiles of a recorded topic: its publishers' (none for the session
+    metadata, which the recorder writes itself)."""
+    try:
+        qos_kind(topic)
+    except KeyError:
+        return []
+    return [OFFERED_QOS]
 
 
 class BagError(RuntimeError):
@@ -188,7 +211,8 @@ class CalibrationBagWriter:
             writer.set_custom_data(CUSTOM_DATA_PREFIX + key, str(value))
         writer.open()
         store = typestore()
-        self._connections = {topic: writer.add_connection(topic, msgtype, typestore=store)
+        self._connections = {topic: writer.add_connection(topic, msgtype, typestore=store,
+                                                          offered_qos_profiles=offered_qos(topic))
                              for topic, msgtype in self.topics.items()}
         self._writer = writer
         self._split_started = time.monotonic()
@@ -214,7 +238,7 @@ class CalibrationBagWriter:
     def _write_merged_metadata(self) -> None:
         if not self._splits:
             return
-        merged = _merge_metadata(self._splits)
+        merged = {**_merge_metadata(self._splits), 'ros_distro': ROS_DISTRO}
         tmp = self.path / 'metadata.yaml.tmp'
         yaml = YAML(typ='safe')
         yaml.default_flow_style = False

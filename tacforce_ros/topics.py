@@ -36,6 +36,12 @@ TOPIC_QOS = {
 }
 
 
+# What every publisher of the graph offers, whatever the topic's kind: keep-last, this deep,
+# reliable, volatile (nodes/common.py builds the rclpy profiles; bagio writes it into a bag's
+# metadata as each recorded topic's offered QoS, as `ros2 bag record` does).
+PUBLISHER_DEPTH = 10
+
+
 def array_wrench_topic(array: str) -> str:
     """The estimated wrench of one array (geometry_msgs/WrenchStamped)."""
     return f'/tactile/{array}/wrench'

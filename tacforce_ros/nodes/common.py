@@ -57,17 +57,17 @@ from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityP
                        qos_profile_sensor_data)
 
 from tacforce_ros.hand.description import HandConfigError, HandDescription, load_hand
-from tacforce_ros.topics import SENSOR, qos_kind
+from tacforce_ros.topics import PUBLISHER_DEPTH, SENSOR, qos_kind
 
 EXIT_OK = 0
 EXIT_FAILURE = 1          # an unexpected exception while running
 EXIT_BAD_PARAMETERS = 2   # refused at start-up: the log names each bad parameter
 
-SENSOR_PUBLISHER_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
+SENSOR_PUBLISHER_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=PUBLISHER_DEPTH,
                                   reliability=ReliabilityPolicy.RELIABLE,
                                   durability=DurabilityPolicy.VOLATILE)
 SENSOR_SUBSCRIBER_QOS = qos_profile_sensor_data
-RELIABLE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
+RELIABLE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=PUBLISHER_DEPTH,
                           reliability=ReliabilityPolicy.RELIABLE,
                           durability=DurabilityPolicy.VOLATILE)
 

@@ -28,6 +28,28 @@ def test_sim_record_writes_one_bag_per_session_in_the_lab_layout(tmp_path, hand)
     assert max(abs(m.wrench.force.z) for m in truth) > 0.1
 
 
+def test_bag_metadata_names_the_distribution_and_each_topic_s_offered_qos(tmp_path):
+    """As `ros2 bag record` writes it: the real ROS distribution, and per recorded topic the
+    QoS its publishers offer (the recorder's own session metadata has none)."""
+    import yaml
+
+    from tacforce_ros.nodes.common import publisher_qos
+    assert sim_record.main(['--out', str(tmp_path), '--arrays', 'index_tip', '--plates', 'flat',
+                            '--sessions', '1', '--seconds', '0.5']) == 0
+    (bag,) = tmp_path.iterdir()
+    info = yaml.safe_load((bag / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
+    assert info['ros_distro'] == 'kilted'
+    offered = {t['topic_metadata']['name']: t['topic_metadata']['offered_qos_profiles']
+               for t in info['topics_with_message_count']}
+    assert offered.pop(topics.TOPIC_SESSION) == []
+    for topic, profiles in offered.items():
+        rclpy_profile = publisher_qos(topic)          # what the node publishing it offers
+        (profile,) = profiles
+        assert profile['history'] == 'keep_last' and profile['depth'] == rclpy_profile.depth
+        assert profile['reliability'] == rclpy_profile.reliability.name.lower()
+        assert profile['durability'] == rclpy_profile.durability.name.lower()
+
+
 def test_sim_record_refuses_to_overwrite_a_bag(tmp_path):
     args = ['--out', str(tmp_path), '--arrays', 'index_tip', '--plates', 'flat',
             '--sessions', '1', '--seconds', '0.1']

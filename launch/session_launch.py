@@ -8,14 +8,17 @@ for RViz; our nodes compute frames from the URDF in-process and do not need /tf.
 from pathlib import Path
 
 from launch import LaunchDescription
-from launch.actions import DeclareLaunchArgument, OpaqueFunction, RegisterEventHandler, Shutdown
-from launch.event_handlers import OnProcessExit, OnProcessIO
+from launch.actions import (DeclareLaunchArgument, OpaqueFunction, RegisterEventHandler,
+                            Shutdown, TimerAction)
+from launch.event_handlers import OnProcessIO
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
 from tacforce_ros.nodes.session_plan import (CAN_PORT, NETFT_PORT, SCENE_DONE_MARKER, XELA_PORT,
                                              SessionArgs, hand_config, launch_bool, plan)
 from tacforce_ros.paths import config_dir
+
+READY_DELAY_S = 3.0
 ARGUMENTS = {
     'sim': ('true', 'true: sim_world and its device emulators; false: the hardware'),
     'hand_side': ('right', 'hand description config/hand/allegro_<side>_uskin.yaml'),
@@ -49,51 +52,27 @@ def _nodes(context, mode: str):
                        sim_duration=float(value['sim_duration']),
                        seed=int(value['seed']), compose=launch_bool('compose', value['compose']),
                        xela_port=XELA_PORT, netft_port=NETFT_PORT, can_port=CAN_PORT)
-    # Nodes after one with a ready_marker start when it logs that line (sim_world: its device
-    # emulators listen); every node that exits with an error ends the launch, naming itself.
-    actions, waiting_for = [], None
+    actions, delay = [], 0.0
     for node in plan(args):
         action = (Node(package='tacforce_ros', executable=node.executable, output='screen',
                        arguments=node.command_args()) if node.parts else
                   Node(package='tacforce_ros', executable=node.executable, output='screen',
                        parameters=[str(p) for p in node.param_files] + [node.overrides]))
-        (waiting_for[1] if waiting_for else actions).append(action)
-        actions.append(RegisterEventHandler(OnProcessExit(
-            target_action=action, on_exit=_shutdown_on_failure(node.executable))))
+        actions.append(TimerAction(period=delay, actions=[action]) if delay else action)
         if node.executable == 'sim_world':
             # The end of the scene (sim_duration): shut down, the drivers before the emulators.
             actions.append(RegisterEventHandler(OnProcessIO(
                 target_action=action, on_stdout=_shutdown_when_done,
                 on_stderr=_shutdown_when_done)))
-        if node.ready_marker is not None and waiting_for is None:
-            waiting_for = (node.ready_marker, [])
-            actions.append(RegisterEventHandler(OnProcessIO(
-                target_action=action, on_stdout=_start_when_ready(*waiting_for),
-                on_stderr=_start_when_ready(*waiting_for))))
+        if node.ready_port is not None:
+            # launch cannot wait for a port like `session` does: give the emulators time.
+            delay = READY_DELAY_S
     urdf = Path(config_dir() / 'urdf' / f'allegro_{args.hand_side}_uskin.urdf')
     if hand_config(args.hand_side).is_file() and urdf.is_file():
         actions.append(Node(package='robot_state_publisher', executable='robot_state_publisher',
                             parameters=[{'robot_description': urdf.read_text(),
                                          'use_sim_time': args.sim}]))
     return actions
-
-
-def _start_when_ready(marker: str, pending: list):
-    """OnProcessIO callback: the pending actions, once, when the marker is in the output."""
-    def handler(event):
-        if pending and marker.encode() in event.text:
-            started, pending[:] = list(pending), []
-            return started
-        return None
-    return handler
-
-
-def _shutdown_on_failure(name: str):
-    def handler(event, context):
-        if event.returncode not in (0, None):
-            return [Shutdown(reason=f'{name} exited with code {event.returncode}')]
-        return None
-    return handler
 
 
 def _shutdown_when_done(event):

@@ -36,9 +36,6 @@ SIM_SILENT_TIMEOUT_S = 10.0
 # still with the devices still served, and whoever runs the session (the `session` tool, launch's
 # OnProcessIO handler) stops the nodes, the drivers before their devices go.
 SCENE_DONE_MARKER = 'scene done:'
-# sim_world's log line once its three device emulators listen: the readiness signal the drivers
-# wait for (the `session` tool reads the log, the launch files an OnProcessIO handler).
-DEVICES_READY_MARKER = 'devices ready:'
 SESSION_SCENE_ENDED = 'session: the scene ended'     # the `session` tool's word for it
 
 
@@ -54,7 +51,7 @@ class NodeLaunch:
     executable: str
     param_files: tuple[Path, ...] = ()
     overrides: dict[str, Any] = field(default_factory=dict)
-    ready_marker: str | None = None   # a line the node logs once the next nodes may start
+    ready_port: int | None = None     # a TCP port on 127.0.0.1 that accepts once it is ready
     parts: tuple[NodeLaunch, ...] = ()
 
     def ros_args(self) -> list[str]:
@@ -185,7 +182,7 @@ def plan(args: SessionArgs) -> list[NodeLaunch]:
             'stop_after': float(args.sim_duration),
             'xela_port': args.xela_port, 'netft_port': args.netft_port,
             'can_port': args.can_port, **hand_param},
-            ready_marker=DEVICES_READY_MARKER))
+            ready_port=args.can_port))    # the emulators bind before the CAN one
     sim_devices = ({'xela': {'url': f'ws://127.0.0.1:{args.xela_port}'},
                     'netft': {'host': '127.0.0.1', 'port': args.netft_port},
                     'allegro': {'interface': 'socketcand', 'channel': 'can0',

@@ -61,7 +61,7 @@ from tacforce_ros.nodes.common import (HAND_CONFIG, RELIABLE_QOS, ParamSpec, Par
                                        subscriber_qos)
 from tacforce_ros.nodes.messages import stamp, wrench_stamped
 from tacforce_ros.nodes.serialized import header_stamp_ns
-from tacforce_ros.nodes.session_plan import DEVICES_READY_MARKER, SCENE_DONE_MARKER
+from tacforce_ros.nodes.session_plan import SCENE_DONE_MARKER
 from tacforce_ros.sim import SceneError, make_simulator
 from tacforce_ros.sim.emulators.allegro import AllegroEmulator
 from tacforce_ros.sim.emulators.base import Pacer
@@ -179,8 +179,7 @@ class SimWorld(TacforceNode):
         self._thread = threading.Thread(target=self._run, name='sim_world_step', daemon=True)
         self._thread.start()
         self.get_logger().info(
-            f'{DEVICES_READY_MARKER} scene {scene.name} ({scene.kind}, array {scene.array}, '
-            f'plate {scene.plate.name}) '
+            f'scene {scene.name} ({scene.kind}, array {scene.array}, plate {scene.plate.name}) '
             f'at up to {rtf:g}x real time, '
             + (f'lockstep with {", ".join(self.gate.streams)}' if self.gate else 'free-running')
             + f'; xela {self.xela.url}, Net F/T udp 127.0.0.1:'

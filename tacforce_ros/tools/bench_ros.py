@@ -37,7 +37,7 @@ from tacforce_ros.estimation.model_set import write_synthetic_model_set
 from tacforce_ros.hand.description import load_hand
 from tacforce_ros.nodes.common import use_realtime_scheduling
 from tacforce_ros.nodes.latency_probe import Probe, bench_controller, bench_estimator
-from tacforce_ros.nodes.session_plan import DEVICES_READY_MARKER, NodeLaunch, params_file
+from tacforce_ros.nodes.session_plan import NodeLaunch, params_file
 from tacforce_ros.paths import output_file
 from tacforce_ros.tools.session import start_nodes, stop_nodes
 
@@ -131,7 +131,7 @@ def run_controller(probe: Probe, args: argparse.Namespace, env: dict, tmp: Path)
         procs = start_nodes([
             NodeLaunch('sim_world', (params_file('sim_world'),), {
                 'publish_clock': False, 'lockstep': False, 'xela_port': xela,
-                'netft_port': netft, 'can_port': can}, ready_marker=DEVICES_READY_MARKER),
+                'netft_port': netft, 'can_port': can}, ready_port=can),
             NodeLaunch('allegro_driver', (params_file('allegro_driver'),), {
                 'interface': 'socketcand', 'channel': 'can0', 'host': '127.0.0.1',
                 'port': can, 'rtr_requests': False}),
@@ -141,8 +141,7 @@ def run_controller(probe: Probe, args: argparse.Namespace, env: dict, tmp: Path)
         try:
             if len(procs) < 3:
                 log = (tmp / 'logs' / 'sim_world.log').read_text().strip().splitlines()
-                raise RuntimeError(f'sim_world was not ready (no {DEVICES_READY_MARKER!r} line) '
-                                   f'within 30 s'
+                raise RuntimeError(f'sim_world was not ready on port {can} within 30 s'
                                    + (f': {log[-1]}' if log else ''))
             out.append(bench_controller(probe, rate, args.seconds))
         finally:

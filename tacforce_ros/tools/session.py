@@ -28,6 +28,7 @@ from __future__ import annotations
 import argparse
 import os
 import signal
+import socket
 import subprocess
 import sys
 import time
@@ -52,28 +53,36 @@ def executable(name: str) -> Path:
     return path
 
 
+def wait_for_port(port: int, proc: subprocess.Popen, timeout: float) -> bool:
+    """True once 127.0.0.1:port accepts a TCP connection; False on timeout or if proc exits."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline and proc.poll() is None:
+        try:
+            with socket.create_connection(('127.0.0.1', port), timeout=POLL_S):
+                return True
+        except OSError:
+            time.sleep(POLL_S)
+    return False
+
+
 def start_nodes(nodes: list[NodeLaunch], log_dir: Path, ready_timeout: float,
                 env: dict[str, str] | None = None, log_mode: str = 'w'
                 ) -> list[tuple[str, subprocess.Popen]]:
-    """Start the nodes in plan order; a node with a ready_marker is waited for (the line in its
-    log) before the next: the drivers expect their devices to answer at start-up. `log_mode`
-    'a': a restarted node goes on in its log."""
+    """Start the nodes in plan order; a node with a ready_port is waited for before the next
+    (the drivers expect their devices to answer at start-up). `log_mode` 'a': a restarted node
+    goes on in its log."""
     log_dir.mkdir(parents=True, exist_ok=True)
     procs = []
     for node in nodes:
-        path = log_dir / f'{node.executable}.log'
-        with open(path, log_mode) as log:   # the child keeps its own copy of the file
-            watch = LogWatch(path, offset=log.tell())
+        with open(log_dir / f'{node.executable}.log', log_mode) as log:   # the child keeps one
             proc = subprocess.Popen([str(executable(node.executable)), *node.command_args()],
                                     stdout=log, stderr=subprocess.STDOUT, start_new_session=True,
                                     env=env)
         procs.append((node.executable, proc))
-        if node.ready_marker is not None and not watch.wait(node.ready_marker, proc,
-                                                            ready_timeout):
-            print(f'session: {node.executable} did not log {node.ready_marker!r} within '
-                  f'{ready_timeout:g} s' + ('' if proc.poll() is None else
-                                            f' (it exited with {proc.returncode})'),
-                  file=sys.stderr)
+        if node.ready_port is not None and not wait_for_port(node.ready_port, proc,
+                                                             ready_timeout):
+            print(f'session: {node.executable} not ready on port {node.ready_port} within '
+                  f'{ready_timeout:g} s', file=sys.stderr)
             break
     return procs
 
@@ -108,16 +117,15 @@ def stop_nodes(procs: list[tuple[str, subprocess.Popen]], grace: float) -> dict[
     return {name: proc.returncode for name, proc in procs}
 
 
-class LogWatch:
-    """Watches a node's log for a marker, as launch's OnProcessIO would: the text from `offset`
-    on (a restarted node's log goes on where the last run's ended)."""
+class SceneLog:
+    """Watches sim_world's log for the end of its scene, as launch's OnProcessIO would."""
 
-    def __init__(self, path: Path, offset: int = 0) -> None:
+    def __init__(self, path: Path) -> None:
         self.path = path
-        self._read = offset
+        self._read = 0
         self._tail = b''
 
-    def saw(self, marker: str) -> bool:
+    def done(self) -> bool:
         try:
             with open(self.path, 'rb') as log:
                 log.seek(self._read)
@@ -127,18 +135,7 @@ class LogWatch:
         self._read += len(text)
         # The marker may straddle two reads: keep the end of the previous one.
         self._tail = (self._tail + text)[-4096:]
-        return marker.encode() in self._tail
-
-    def wait(self, marker: str, proc: subprocess.Popen, timeout: float) -> bool:
-        """True once the marker is in the log; False on timeout or if proc exits first."""
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            if self.saw(marker):
-                return True
-            if proc.poll() is not None:
-                return self.saw(marker)
-            time.sleep(POLL_S)
-        return False
+        return SCENE_DONE_MARKER.encode() in self._tail
 
 
 @dataclass(frozen=True)
@@ -206,13 +203,13 @@ def run(args: SessionArgs, duration: float | None, grace: float,
           f'(logs in {log_dir})', flush=True)
     started = time.monotonic()
     exited_early = None if len(procs) == len(nodes) else 'start-up'
-    scene_log = (LogWatch(log_dir / 'sim_world.log') if args.sim and args.sim_duration > 0
+    scene_log = (SceneLog(log_dir / 'sim_world.log') if args.sim and args.sim_duration > 0
                  else None)
     try:
         while not stop['requested'] and exited_early is None:
             if duration is not None and time.monotonic() - started >= duration:
                 break
-            if scene_log is not None and scene_log.saw(SCENE_DONE_MARKER):
+            if scene_log is not None and scene_log.done():
                 print(f'{SESSION_SCENE_ENDED} after {args.sim_duration:g} s simulated',
                       flush=True)
                 break

@@ -118,37 +118,17 @@ def test_lockstep_and_scene_length_reach_the_simulator():
 
 def test_session_sees_the_end_of_the_scene_in_the_log_of_sim_world(tmp_path):
     from tacforce_ros.nodes.session_plan import SCENE_DONE_MARKER
-    from tacforce_ros.tools.session import LogWatch
-    log = LogWatch(tmp_path / 'sim_world.log')
-    assert not log.saw(SCENE_DONE_MARKER)                  # no log yet
+    from tacforce_ros.tools.session import SceneLog
+    log = SceneLog(tmp_path / 'sim_world.log')
+    assert not log.done()                                  # no log yet
     head, tail = SCENE_DONE_MARKER[:4], SCENE_DONE_MARKER[4:]
     with open(tmp_path / 'sim_world.log', 'w') as out:
         out.write('[INFO] [sim_world]: servos on\n[INFO] [sim_world]: ' + head)
         out.flush()
-        assert not log.saw(SCENE_DONE_MARKER)
+        assert not log.done()
         out.write(tail + ' 80.0 s simulated\n')             # the marker across two reads
         out.flush()
-        assert log.saw(SCENE_DONE_MARKER)
-
-
-def test_a_restarted_node_is_ready_only_when_its_new_run_says_so(tmp_path):
-    """The readiness line of a node's previous run (its log goes on) does not count."""
-    import subprocess
-
-    from tacforce_ros.nodes.session_plan import DEVICES_READY_MARKER
-    from tacforce_ros.tools.session import LogWatch
-    path = tmp_path / 'sim_world.log'
-    path.write_text(f'[INFO] [sim_world]: {DEVICES_READY_MARKER} scene ...\n')
-    proc = subprocess.Popen(['sleep', '5'])
-    try:
-        watch = LogWatch(path, offset=path.stat().st_size)
-        assert not watch.wait(DEVICES_READY_MARKER, proc, timeout=0.3)
-        with open(path, 'a') as log:
-            log.write(f'[INFO] [sim_world]: {DEVICES_READY_MARKER} scene ...\n')
-        assert watch.wait(DEVICES_READY_MARKER, proc, timeout=5.0)
-    finally:
-        proc.kill()
-        proc.wait()
+        assert log.done()
 
 
 def test_each_session_tares_into_a_file_of_its_own_outside_the_bags(tmp_path, monkeypatch):

@@ -10,7 +10,7 @@ from pathlib import Path
 from launch import LaunchDescription
 from launch.actions import (DeclareLaunchArgument, OpaqueFunction, RegisterEventHandler,
                             Shutdown, TimerAction)
-from launch.event_handlers import OnProcessIO
+from launch.event_handlers import OnProcessExit, OnProcessIO
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
@@ -59,6 +59,9 @@ def _nodes(context, mode: str):
                   Node(package='tacforce_ros', executable=node.executable, output='screen',
                        parameters=[str(p) for p in node.param_files] + [node.overrides]))
         actions.append(TimerAction(period=delay, actions=[action]) if delay else action)
+        # A node that exits with an error ends the launch, naming itself (as `session` does).
+        actions.append(RegisterEventHandler(OnProcessExit(
+            target_action=action, on_exit=_shutdown_on_failure(node.executable))))
         if node.executable == 'sim_world':
             # The end of the scene (sim_duration): shut down, the drivers before the emulators.
             actions.append(RegisterEventHandler(OnProcessIO(
@@ -73,6 +76,14 @@ def _nodes(context, mode: str):
                             parameters=[{'robot_description': urdf.read_text(),
                                          'use_sim_time': args.sim}]))
     return actions
+
+
+def _shutdown_on_failure(name: str):
+    def handler(event, context):
+        if event.returncode not in (0, None):
+            return [Shutdown(reason=f'{name} exited with code {event.returncode}')]
+        return None
+    return handler
 
 
 def _shutdown_when_done(event):

@@ -81,8 +81,9 @@ def start_nodes(nodes: list[NodeLaunch], log_dir: Path, ready_timeout: float,
         procs.append((node.executable, proc))
         if node.ready_port is not None and not wait_for_port(node.ready_port, proc,
                                                              ready_timeout):
-            print(f'session: {node.executable} not ready on port {node.ready_port} within '
-                  f'{ready_timeout:g} s', file=sys.stderr)
+            print(f'session: {node.executable} not ready on port {node.ready_port} '
+                  + (f'within {ready_timeout:g} s' if proc.poll() is None else
+                     f'(it exited with {proc.returncode})'), file=sys.stderr)
             break
     return procs
 

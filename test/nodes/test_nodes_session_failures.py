@@ -1,0 +1,30 @@
+"""The `session` tool, run as a user runs it, when sim_world cannot start: the session ends at
+once with an error naming the node, and no driver is started against devices that are not
+there."""
+import socket
+import subprocess
+import sys
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from ros_processes import ros_env, unique_domain_id  # noqa: E402
+
+DOMAIN = unique_domain_id(offset=31)
+
+
+def test_a_simulator_that_cannot_listen_ends_the_session_naming_it(tmp_path):
+    with socket.socket() as taken:          # the hand emulator's port is held by another socket
+        taken.bind(('127.0.0.1', 0))
+        can_port = taken.getsockname()[1]
+        done = subprocess.run(
+            [sys.executable, '-m', 'tacforce_ros.tools.session', 'calibration',
+             '--out', str(tmp_path / 'out'), '--duration', '60',
+             '--ports', str(can_port - 2), str(can_port - 1), str(can_port)],
+            capture_output=True, text=True, timeout=120, env=ros_env(DOMAIN))
+    assert done.returncode == 1, done.stdout[-2000:] + done.stderr[-2000:]
+    assert f'session: sim_world not ready on port {can_port} (it exited with 1)' in done.stderr, \
+        done.stderr[-2000:]
+    assert 'started sim_world (logs' in done.stdout, done.stdout[-2000:]   # and nothing else
+    log = (tmp_path / 'out' / 'logs' / 'sim_world.log').read_text()
+    assert 'Address already in use' in log
+    assert not (tmp_path / 'out' / 'logs' / 'xela_driver.log').exists()

@@ -27,6 +27,7 @@ if TYPE_CHECKING:
     from tacforce_ros.hand.kinematics import HandKinematics
 
 METRIC_WINDOW = (16.0, 70.0)   # s; paper Sec. V-C: after the initial f_d = 0 phase
+SETTLE_SECONDS = 2.0           # start-pose hold before the sequence (tare and F/T zero)
 
 
 @dataclass
@@ -47,7 +48,7 @@ class ClosedLoopTrace:
 def run_closed_loop(hand: HandDescription, kinematics: HandKinematics, scene: str | Path,
                     seed: int, config: ForceControllerConfig, sequence: ForceSequence,
                     models: ModelSet | None, control_rate: float = 100.0,
-                    tare_frames: int = 50, settle_seconds: float = 2.0,
+                    tare_frames: int = 50, settle_seconds: float = SETTLE_SECONDS,
                     estimator_outage: tuple[float, float] | None = None) -> ClosedLoopTrace:
     """Play `sequence` once. `models` None runs without an estimator (open loop only).
     `estimator_outage` (start, end), seconds of the sequence: no estimate in between, as when

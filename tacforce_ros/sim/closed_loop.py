@@ -147,10 +147,7 @@ class ClosedLoopSimulator:
     def contact_point(self) -> np.ndarray:
         """Current contact point on the fingertip sphere, base frame."""
         centre = self.data.xpos[self.tip] + self.data.xmat[self.tip].reshape(3, 3) @ self.offset
-        return centre - self.radius * self._normal(centre)
-
-    def _normal(self, centre: np.ndarray) -> np.ndarray:
-        return self._surface(centre)[0]
+        return centre - self.radius * self._surface(centre)[0]
 
     def _surface(self, centre: np.ndarray) -> tuple[np.ndarray, float]:
         """(contact normal, penetration depth) of the tip sphere centred at `centre`."""
@@ -229,7 +226,8 @@ class ClosedLoopSimulator:
         self.pipeline.run('delivery', state)
         self.step_index += 1
         return SimSample(t=t + self.dt, taxel_counts=state.counts_out,
-                         temperatures=state.temperatures, ft_wrench=state.wrench, ft_status=0, q=state.q, qdot=state.qdot,
+                         temperatures=state.temperatures, ft_wrench=state.wrench, ft_status=0,
+                         q=state.q, qdot=state.qdot,
                          true_force=true_force, contact_point=point_s0, in_contact=active,
                          delivered=state.delivered, tactile_fresh=fresh)
 

@@ -77,7 +77,7 @@ def loop_factors(scene_name: str, hand, seconds: float, repeats: int) -> dict:
 
     from tacforce_ros.control.command_sequence import ForceSequence
     from tacforce_ros.estimation.model_set import load_model_set
-    from tacforce_ros.experiments.closed_loop import run_closed_loop
+    from tacforce_ros.experiments.closed_loop import SETTLE_SECONDS, run_closed_loop
     from tacforce_ros.experiments.pipeline import controller_config, tare_frames
     from tacforce_ros.hand.kinematics import HandKinematics
     from tacforce_ros.paths import config_dir
@@ -89,13 +89,12 @@ def loop_factors(scene_name: str, hand, seconds: float, repeats: int) -> dict:
     with warnings.catch_warnings():
         warnings.simplefilter('ignore')
         sim = make_simulator(load_scene(scene_name), hand)
-    settle = 2.0
-    steps = int(round((settle + sequence.duration) / sim.dt))
+    steps = int(round((SETTLE_SECONDS + sequence.duration) / sim.dt))
     best_loop = best_bare = np.inf
     for _ in range(repeats):
         start = time.perf_counter()
         run_closed_loop(hand, kinematics, scene_name, 0, config, sequence, models,
-                        tare_frames=tare_frames(), settle_seconds=settle)
+                        tare_frames=tare_frames())
         best_loop = min(best_loop, time.perf_counter() - start)
         data = mujoco.MjData(sim.model)
         data.qpos[:] = sim.data.qpos

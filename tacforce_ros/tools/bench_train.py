@@ -90,7 +90,8 @@ def main(argv: list[str] | None = None) -> int:
     configs = paper_configurations(args.seed, args.epochs)
     result = {'array': array.name, 'n_taxels': array.n_taxels, 'source': dataset.source,
               'samples': int(X.shape[0]), 'folds': args.folds, 'epochs': args.epochs,
-              'python': platform.python_version(), 'torch': version('torch'), 'cpus': os.cpu_count(),
+              'python': platform.python_version(), 'torch': version('torch'),
+              'cpus': os.cpu_count(),
               'load_before': os.getloadavg(), 'models': {}}
     warm_up = np.isin(np.arange(len(X)) % (len(X) // args.folds), np.arange(200))
     for label in args.models:

@@ -3,6 +3,7 @@ import json
 from collections import Counter
 
 import numpy as np
+import pytest
 
 from tacforce_ros import bagio, topics
 from tacforce_ros.tools import bench_sim, sim_record
@@ -66,3 +67,17 @@ def test_bench_sim_writes_json(tmp_path, monkeypatch):
     assert result['scenes']['calibration_index_tip_flat']['realtime_factor'] > 0
     assert set(result['effects']) == {'taxel_noise', 'joint_friction'}
     assert np.isfinite(result['effects']['taxel_noise']['extra_ms_per_sim_s'])
+
+
+def test_bench_sim_times_the_closed_loop_against_a_bare_mujoco_step(tmp_path, monkeypatch):
+    monkeypatch.setattr(bench_sim, 'EFFECTS', {'taxel_noise': None})
+    out = tmp_path / 'bench.json'
+    assert bench_sim.main(['--out', str(out), '--seconds', '0.2', '--repeats', '1',
+                           '--loop-seconds', '1', '--scenes', 'closed_loop_spherical']) == 0
+    row = json.loads(out.read_text())['closed_loop_with_control']['closed_loop_spherical']
+    assert row['simulated_seconds'] == pytest.approx(3.0)       # 2 s settle + 1 s of sequence
+    assert row['realtime_factor'] > 0 and row['bare_mujoco_us_per_step'] > 0
+    # Our layer (sensors, estimator, controller) runs on top of the physics step.
+    assert row['step_over_bare_mujoco'] > 1.0
+    assert row['us_per_step'] == pytest.approx(
+        row['step_over_bare_mujoco'] * row['bare_mujoco_us_per_step'])

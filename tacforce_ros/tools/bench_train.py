@@ -93,7 +93,8 @@ def main(argv: list[str] | None = None) -> int:
               'python': platform.python_version(), 'torch': version('torch'),
               'cpus': os.cpu_count(),
               'load_before': os.getloadavg(), 'models': {}}
-    warm_up = np.isin(np.arange(len(X)) % (len(X) // args.folds), np.arange(200))
+    warm_up = np.concatenate([np.flatnonzero(dataset.plates == plate)[:200]
+                              for plate in dataset.plate_names()])     # 200 samples per plate
     for label in args.models:
         kind, hyper = configs[label]
         # Torch's import and first calls cost seconds; pay them before the clock runs.

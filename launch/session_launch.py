@@ -37,6 +37,9 @@ ARGUMENTS = {
                      'until stopped'),
     'seed': ('-1', 'simulator seed (sim only); -1: the scene\'s own'),
     'compose': ('false', 'true: every node but the simulator in one tacforce_container process'),
+    'autostart': ('true', 'the lifecycle drivers (xela_driver, ft_bridge, allegro_driver) '
+                  'configure and activate themselves; false: they start unconfigured, for '
+                  'ros2 lifecycle set or a lifecycle manager'),
 }
 
 
@@ -51,6 +54,7 @@ def _nodes(context, mode: str):
                        lockstep=launch_bool('lockstep', value['lockstep']),
                        sim_duration=float(value['sim_duration']),
                        seed=int(value['seed']), compose=launch_bool('compose', value['compose']),
+                       autostart=launch_bool('autostart', value['autostart']),
                        xela_port=XELA_PORT, netft_port=NETFT_PORT, can_port=CAN_PORT)
     actions, delay = [], 0.0
     for node in plan(args):

@@ -211,13 +211,15 @@ class JointSample:
 
 
 class AllegroV4Driver(PollingDriver[JointSample]):
-    """Torque driver: start-up in the constructor, pose stream via poll()/start(), torques via
+    """Torque driver: start-up in the constructor (``servos_on`` False: identified only, until
+    :meth:`servos_on`), pose stream via poll()/start(), torques via
     :meth:`set_torques`. ``close()`` (and any fatal error, a lost link included) stops the
     stream, sends zero torques and switches the servos off. Torques are clamped on the host to
     ``torque_limits``. ``safe_stop`` says why the driver made the hand safe by itself (a silent
     hand), '' while it has not."""
 
-    def __init__(self, config: AllegroConfig, bus: can.BusABC | None = None) -> None:
+    def __init__(self, config: AllegroConfig, bus: can.BusABC | None = None, *,
+                 servos_on: bool = True) -> None:
         super().__init__(config.stale_after, poll_timeout=0.01)
         self.config = config
         self.torque_limits = np.asarray(config.torque_limits, dtype=np.float64)
@@ -243,7 +245,9 @@ class AllegroV4Driver(PollingDriver[JointSample]):
         self._counts = np.zeros(N_JOINTS, dtype=np.int16)
         self._fingers_seen = 0
         try:
-            self._start_up()
+            self._identify()
+            if servos_on:
+                self.servos_on()
         except BaseException:
             self.close()
             raise
@@ -262,7 +266,7 @@ class AllegroV4Driver(PollingDriver[JointSample]):
         else:
             self._send(command)
 
-    def _start_up(self) -> None:
+    def _identify(self) -> None:
         self._send(CMD_SYSTEM_OFF)
         self._request(CMD_HAND_INFO)
         self._request(CMD_SERIAL)
@@ -275,9 +279,27 @@ class AllegroV4Driver(PollingDriver[JointSample]):
             raise AllegroError(f'hand did not answer {" and ".join(missing)} within '
                                f'{self.config.reply_timeout} s (rtr_requests='
                                f'{self.config.rtr_requests})')
+
+    def servos_on(self) -> None:
+        """Start the joint stream and switch the servos on (the end of the hand's start-up; a
+        managed driver's activate). A hand the silence policy made safe starts afresh."""
+        self._last_cycle = self._last_watch = None
+        self._silent = False
+        self._judge_after = 0.0
+        self.safe_stop = ''
         self._send(CMD_SET_PERIOD, encode_period(self.config.position_period_ms))
         self._send(CMD_SYSTEM_ON)
         self._streaming = True
+
+    def servos_off(self) -> None:
+        """Stop the joint stream, zero torque, servos off, the link kept open (a managed
+        driver's deactivate); best effort, failures in ``diagnostics.last_error``."""
+        self._streaming = False
+        try:
+            self._send(CMD_SET_PERIOD, encode_period(0))
+        except LinkLost as error:
+            self.diagnostics.last_error = f'stop stream failed: {error}'
+        self._make_safe()
 
     def set_torques(self, tau: np.ndarray) -> np.ndarray:
         """Command 16 joint torques [Nm] (Allegro order); returns the PWM values sent.
@@ -407,9 +429,5 @@ class AllegroV4Driver(PollingDriver[JointSample]):
         self._make_safe()
 
     def _shutdown(self) -> None:
-        try:
-            self._send(CMD_SET_PERIOD, encode_period(0))
-        except LinkLost as error:
-            self.diagnostics.last_error = f'stop stream failed: {error}'
-        self._make_safe()
+        self.servos_off()
         self.bus.shutdown()

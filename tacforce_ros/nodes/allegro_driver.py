@@ -18,7 +18,11 @@ the joint stream goes on, and the joint takes commands again as soon as they ret
 and the return are logged once each. A command naming an unknown joint, or with a non-finite
 torque or mismatched lengths, is refused whole, counted and logged (throttled).
 `control` = off (calibration sessions) only publishes joint states and never commands torque.
-On shutdown the driver stops the stream, sends zero torque and switches the servos off.
+A managed (lifecycle) node (nodes/managed_driver.py): configure opens the bus and identifies the
+hand (servos off), activate starts the joint stream and switches the servos on (joints nobody
+commands hold the pose of that moment), deactivate stops the stream, sends zero torque and
+switches the servos off (torque commands are ignored while inactive), cleanup closes the bus.
+Shutdown, and the end of the process, do whatever of these is due.
 
 Faults (README, fault table): a lost link (socketcand connection closed, CAN error) is logged at
 ERROR, the hand made safe as far as the bus still allows, and the node exits with code 1 in
@@ -40,10 +44,10 @@ from tacforce_ros.devices.allegro import (MAX_JOINT_RATE_HZ, N_JOINTS, AllegroCo
                                           AllegroV4Driver, JointSample)
 from tacforce_ros.devices.polling import LinkLost
 from tacforce_ros.nodes.common import (GRAVITY, HAND_CONFIG, REALTIME_PRIORITY, ParamSpec,
-                                       ParameterError, TacforceNode, hand_parameter,
-                                       kinematics_parameter, publisher_qos, run_node,
-                                       subscriber_qos)
-from tacforce_ros.nodes.link_status import STATUS_PARAMETERS, LinkStatusReporter
+                                       ParameterError, hand_parameter, kinematics_parameter,
+                                       publisher_qos, run_node, subscriber_qos)
+from tacforce_ros.nodes.link_status import STATUS_PARAMETERS
+from tacforce_ros.nodes.managed_driver import AUTOSTART, ManagedDriver
 from tacforce_ros.nodes.messages import stamp
 from tacforce_ros.topics import TOPIC_JOINTS, TOPIC_TORQUE_COMMAND
 
@@ -73,7 +77,7 @@ class JointVelocity:
         return self.qdot
 
 
-class AllegroDriver(TacforceNode):
+class AllegroDriver(ManagedDriver):
     """Allegro V4 joint states, and joint torques from /allegro_driver/torque_command."""
 
     NODE_NAME = 'allegro_driver'
@@ -108,7 +112,7 @@ class AllegroDriver(TacforceNode):
                   'warn and ask for the stream again (s, wall)', range=(0.01, 10.0)),
         ParamSpec('silent_timeout', 2.0, 'no joint data for this long: zero torque and servos '
                   'off (s, wall; above silent_warn_after)', range=(0.02, 60.0)),
-    ) + STATUS_PARAMETERS + (REALTIME_PRIORITY,)
+    ) + STATUS_PARAMETERS + (REALTIME_PRIORITY, AUTOSTART)
 
     def __init__(self, **node_options) -> None:
         super().__init__(**node_options)
@@ -120,9 +124,20 @@ class AllegroDriver(TacforceNode):
                                  f'silent_warn_after ({p["silent_warn_after"]})')
         self.controlled = p['control'] == 'torque'
         self._joint_index = {name: k for k, name in enumerate(self.kin.joint_names)}
-        self.joint_publisher = self.create_publisher(JointState, TOPIC_JOINTS,
-                                                     publisher_qos(TOPIC_JOINTS))
-        self.velocity = JointVelocity(p['velocity_cutoff_hz'])
+        self.joint_publisher = self.create_lifecycle_publisher(JointState, TOPIC_JOINTS,
+                                                               publisher_qos(TOPIC_JOINTS))
+        self.refused_commands = 0
+        self._reset_control()
+        if self.controlled:
+            self.create_subscription(JointState, TOPIC_TORQUE_COMMAND, self._on_command,
+                                     subscriber_qos(TOPIC_TORQUE_COMMAND))
+        self.driver: AllegroV4Driver | None = None
+        self._hand_timers = []
+
+    def _reset_control(self) -> None:
+        """What activating starts from: no joint state yet, no command ever, the hold pose
+        taken from the first joint state."""
+        self.velocity = JointVelocity(self.params['velocity_cutoff_hz'])
         self._joints: tuple[np.ndarray, np.ndarray, int] | None = None   # q, qdot, node ns
         self._q_hold: np.ndarray | None = None
         self._tau = np.zeros(N_JOINTS)
@@ -130,32 +145,36 @@ class AllegroDriver(TacforceNode):
         self._command_ns = np.full(N_JOINTS, -1, np.int64)   # its time; -1: never commanded
         self._timed_out = np.zeros(N_JOINTS, bool)
         self._commanded_since_tick = False
-        self.refused_commands = 0
-        if self.controlled:
-            self.create_subscription(JointState, TOPIC_TORQUE_COMMAND, self._on_command,
-                                     subscriber_qos(TOPIC_TORQUE_COMMAND))
-        # Servos on (the end of the hand's start-up) only once this node can stamp and time, and
-        # as its last step, with every topic in place: in simulation that is when simulated time
-        # starts, so control acts from its first step (on a loaded 2-core host the ROS entities
-        # above took up to a second, which simulated time ran through without joint states).
-        self.wait_for_clock(p['clock_timeout'])
+
+    # --- the lifecycle (nodes/managed_driver.py) ----------------------------------------------
+
+    def open_device(self) -> None:
+        """Open the bus and identify the hand (HAND_INFO, SERIAL), servos off."""
+        p = self.params
+        # Only once this node can stamp and time: in simulation, simulated time starts with
+        # the hand's stream, and a transition asked for over a service cannot wait for /clock
+        # (this node's own executor delivers it).
+        if self.autostarting:
+            self.wait_for_clock(p['clock_timeout'])
+        elif self.get_parameter('use_sim_time').value and self.now_ns() <= 0:
+            raise RuntimeError('no /clock yet (use_sim_time is true: is the simulator running?)')
         try:
-            self.driver = AllegroV4Driver(self._driver_config())
+            self.driver = AllegroV4Driver(self._driver_config(), servos_on=False)
         except (AllegroError, can.CanError, OSError, ValueError) as exc:
             raise ParameterError(f'interface/channel/host/port: hand not reachable: {exc}'
                                  ) from None
         self.driver.add_callback(self._on_joints)
-        self.status = LinkStatusReporter(
-            self, self.driver, f'Allegro {self.driver.serial}',
-            lambda: {'refused_commands': self.refused_commands},
+        self.report_link(
+            self.driver, f'Allegro {self.driver.serial}',
+            node_counters=lambda: {'refused_commands': self.refused_commands},
             # Without control a hand made safe still streams what calibration needs.
             failure=lambda: (f'hand made safe: {self.driver.safe_stop}'
                              if self.driver.safe_stop and self.controlled else ''))
         self.driver.start()
-        self.create_timer(LINK_CHECK_PERIOD_S, self._check_hand,
-                          clock=Clock(clock_type=ClockType.STEADY_TIME))
+        self._hand_timers = [self.create_timer(LINK_CHECK_PERIOD_S, self._check_hand,
+                                          clock=Clock(clock_type=ClockType.STEADY_TIME))]
         if self.controlled:
-            self.create_timer(1.0 / p['control_rate_hz'], self._tick)
+            self._hand_timers.append(self.create_timer(1.0 / p['control_rate_hz'], self._tick))
         info = self.driver.hand_info
         self.get_logger().info(
             f'Allegro {self.driver.serial} ({info.side}, fw 0x{info.firmware_version:04x}) on '
@@ -163,6 +182,22 @@ class AllegroDriver(TacforceNode):
             + (f'joint torques from {TOPIC_TORQUE_COMMAND} (zero after '
                f'{p["command_timeout"]:g} s without)' if self.controlled
                else 'control off (joint states only)'))
+
+    def start_device(self) -> None:
+        """Servos on and the joint stream started, as the last step (every topic in place)."""
+        self._reset_control()
+        self.driver.servos_on()
+
+    def stop_device(self) -> None:
+        self.driver.servos_off()      # stream off, zero torque, servos off
+        self._tau = np.zeros(N_JOINTS)
+
+    def close_device(self) -> None:
+        for timer in self._hand_timers:
+            self.destroy_timer(timer)
+        self._hand_timers = []
+        if self.driver is not None:
+            self.driver.close()
 
     def _driver_config(self) -> AllegroConfig:
         p = self.params
@@ -191,6 +226,8 @@ class AllegroDriver(TacforceNode):
     # --- inputs (joint callback runs in the driver's thread) --------------------------------
 
     def _on_joints(self, sample: JointSample) -> None:
+        if not self.active:
+            return
         now = self.new_stamp_ns(TOPIC_JOINTS)
         if now is None:
             return      # no valid stamp yet, or the same instant as the previous cycle
@@ -205,6 +242,10 @@ class AllegroDriver(TacforceNode):
         self.joint_publisher.publish(msg)
 
     def _on_command(self, msg: JointState) -> None:
+        if not self.active:
+            self.get_logger().warning('torque command ignored: the driver is not active',
+                                      throttle_duration_sec=5.0)
+            return
         joints = [self._joint_index.get(name) for name in msg.name]
         effort = np.asarray(msg.effort, dtype=np.float64)
         if (None in joints or len(joints) != len(effort) or len(set(joints)) != len(joints)
@@ -225,7 +266,7 @@ class AllegroDriver(TacforceNode):
 
     def _tick(self) -> None:
         """The driver's own loop: sends holds and command timeouts when no command did."""
-        if not self._commanded_since_tick:
+        if self.active and not self._commanded_since_tick:
             self._send(self.now_ns())
         self._commanded_since_tick = False
 
@@ -262,10 +303,6 @@ class AllegroDriver(TacforceNode):
             self.get_logger().info(
                 f'torque commands back on {[names[k] for k in np.flatnonzero(resumed)]}')
         self._timed_out = timed_out
-
-    def on_shutdown(self) -> None:
-        self.driver.close()          # stream off, zero torque, servos off
-        self.status.final_report()
 
 
 def main(args: list[str] | None = None) -> None:

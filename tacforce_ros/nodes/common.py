@@ -209,7 +209,8 @@ def use_realtime_scheduling(priority: int) -> None:
 
 
 class TacforceNode(Node):
-    """Node base: declares and checks `PARAMETERS`, offers `now_ns()` and `on_shutdown()`.
+    """Node base: declares and checks `PARAMETERS`, offers `now_ns()`, `on_built()` and
+    `leave_safe()`.
 
     Subclasses set NODE_NAME and PARAMETERS; after `super().__init__()`, `self.params[name]`
     holds each checked value.
@@ -323,8 +324,13 @@ class TacforceNode(Node):
             executor.remove_node(self)
             executor.shutdown()
 
-    def on_shutdown(self) -> None:
-        """Leave hardware and files safe; called once by run_node before the node is destroyed."""
+    def on_built(self) -> None:
+        """Called once by run_node right after building the node, before spinning (a managed
+        driver's autostart)."""
+
+    def leave_safe(self) -> None:
+        """Leave hardware and files safe; called once by run_node before the node is destroyed.
+        (Not named on_shutdown: that is the lifecycle's shutdown transition.)"""
 
 
 def params_files(args: Sequence[str]) -> list[Path]:
@@ -381,7 +387,7 @@ def unmatched_params_files(node: Node, args: Sequence[str]) -> list[str]:
 
 
 def _init_without_rclpy_signal_handlers(args: Sequence[str] | None) -> None:
-    try:    # Humble+: let run_node own SIGINT/SIGTERM so on_shutdown always runs first
+    try:    # Humble+: let run_node own SIGINT/SIGTERM so leave_safe always runs first
         from rclpy.signals import SignalHandlerOptions
         rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     except (ImportError, TypeError):
@@ -414,9 +420,9 @@ def events_executor() -> Executor:
 
 def run_node(node_cls: type[TacforceNode], args: Sequence[str] | None = None, *,
              threads: int = 1, executor: Callable[[], Executor] | None = None) -> int:
-    """main() of a node: --help, rclpy init, build the node, spin until SIGINT/SIGTERM or
-    rclpy shutdown, then `on_shutdown()`, destroy and shut down. Returns the exit code
-    (EXIT_*; `sys.exit(run_node(MyNode))`).
+    """main() of a node: --help, rclpy init, build the node, `on_built()`, spin until
+    SIGINT/SIGTERM or rclpy shutdown, then `leave_safe()`, destroy and shut down. Returns the
+    exit code (EXIT_*; `sys.exit(run_node(MyNode))`).
 
     threads > 1 spins a MultiThreadedExecutor (needed when a callback waits on another one,
     e.g. a service handler that waits for a subscription); `executor`, if given, makes the
@@ -433,7 +439,7 @@ def run_nodes(parts: Sequence[tuple[type[TacforceNode], Sequence[str] | None]],
               executor: Callable[[], Executor] | None = None) -> int:
     """run_node for one or several nodes in this process, on one executor: each part is a node
     class and its own ROS arguments (None: the process's, `args`, which rclpy is initialised
-    with). Built in order; any node's error ends them all; on_shutdown() in reverse order."""
+    with). Built in order; any node's error ends them all; leave_safe() in reverse order."""
     _init_without_rclpy_signal_handlers(args)
     stop = threading.Event()
     previous = {sig: signal.signal(sig, lambda *_: stop.set())
@@ -449,11 +455,12 @@ def run_nodes(parts: Sequence[tuple[type[TacforceNode], Sequence[str] | None]],
                 try:
                     node = (node_cls() if node_args is None else
                             node_cls(cli_args=list(node_args), use_global_arguments=False))
+                    nodes.append(node)
+                    node.on_built()
                 except ParameterError as exc:
                     logger.fatal(f'refusing to start: {exc}')
                     code = EXIT_BAD_PARAMETERS
                     return code
-                nodes.append(node)
                 for message in unmatched_params_files(node, args if node_args is None
                                                       else node_args):
                     node.get_logger().warning(message)
@@ -472,7 +479,7 @@ def run_nodes(parts: Sequence[tuple[type[TacforceNode], Sequence[str] | None]],
         try:
             for node in reversed(nodes):
                 try:
-                    node.on_shutdown()
+                    node.leave_safe()
                 except Exception as exc:    # noqa: BLE001 - the others must still be left safe
                     node.get_logger().fatal(f'shutdown failed: {type(exc).__name__}: {exc}')
                     code = EXIT_FAILURE

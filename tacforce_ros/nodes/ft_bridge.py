@@ -9,6 +9,9 @@ but 0 or the monitor warning 0x80010000): they are withheld from the topic, and 
 recorded or paired, with an ERROR line when they start and an INFO line when the status clears.
 ~/bias (std_srvs/Trigger) zeroes the reading on the host with the mean of the last `bias_window`
 records (the paper biases with nothing on the plate).
+A managed (lifecycle) node (nodes/managed_driver.py): configure opens the UDP link and asks the
+box to stream, activate publishes, deactivate stops publishing (the box streams on, so the bias
+window stays current), cleanup asks the box to stop and closes the link.
 """
 from __future__ import annotations
 
@@ -20,14 +23,14 @@ from std_srvs.srv import Trigger
 
 from tacforce_ros.devices.netft import (FORCE_UNITS_SI, TORQUE_UNITS_SI, NetFtClient, NetFtConfig,
                                         WrenchSample)
-from tacforce_ros.nodes.common import (ParameterError, ParamSpec, TacforceNode, publisher_qos,
-                                       run_node)
-from tacforce_ros.nodes.link_status import STATUS_PARAMETERS, LinkStatusReporter
+from tacforce_ros.nodes.common import ParameterError, ParamSpec, publisher_qos, run_node
+from tacforce_ros.nodes.link_status import STATUS_PARAMETERS
+from tacforce_ros.nodes.managed_driver import AUTOSTART, ManagedDriver
 from tacforce_ros.nodes.messages import wrench_stamped
 from tacforce_ros.topics import TOPIC_WRENCH
 
 
-class FtBridge(TacforceNode):
+class FtBridge(ManagedDriver):
     """Publishes the Net F/T wrench in the sensor frame; ~/bias zeroes it."""
 
     NODE_NAME = 'ft_bridge'
@@ -44,28 +47,40 @@ class FtBridge(TacforceNode):
                   range=(0.001, 10.0)),
         ParamSpec('restart_after', 1.0, 'ask the box for a new stream after this long without '
                   'records (s, wall time)', range=(0.1, 60.0)),
-    ) + STATUS_PARAMETERS
+    ) + STATUS_PARAMETERS + (AUTOSTART,)
 
     def __init__(self, **node_options) -> None:
         super().__init__(**node_options)
         p = self.params
-        self.publisher = self.create_publisher(WrenchStamped, TOPIC_WRENCH,
-                                               publisher_qos(TOPIC_WRENCH))
+        self.publisher = self.create_lifecycle_publisher(WrenchStamped, TOPIC_WRENCH,
+                                                         publisher_qos(TOPIC_WRENCH))
         self.config = NetFtConfig(
             host=p['host'], port=p['port'], counts_per_force=p['counts_per_force'],
             counts_per_torque=p['counts_per_torque'], force_unit=p['force_unit'],
             torque_unit=p['torque_unit'], stale_after=p['stale_after'],
             bias_window=p['bias_window'])
-        self.client = self._connect()
-        self.status = LinkStatusReporter(self, self.client, f'Net F/T {p["host"]}:{p["port"]}')
-        self.client.start()
+        self.client: NetFtClient | None = None
+        self.restart_timer = None
         self.create_service(Trigger, '~/bias', self._on_bias)
+
+    def open_device(self) -> None:
+        p = self.params
+        self.client = self._connect()
+        self.report_link(self.client, f'Net F/T {p["host"]}:{p["port"]}')
+        self.client.start()
         # RDT is request-driven: a box that rebooted (or came up after us) streams only when
         # asked again, so a silent link is re-requested (wall time: a device matter).
-        self.create_timer(p['restart_after'], self._restart_if_silent,
-                          clock=Clock(clock_type=ClockType.STEADY_TIME))
+        self.restart_timer = self.create_timer(p['restart_after'], self._restart_if_silent,
+                                               clock=Clock(clock_type=ClockType.STEADY_TIME))
         self.get_logger().info(f'reading udp {p["host"]}:{p["port"]} -> {TOPIC_WRENCH} '
-                               f'in {p["frame_id"]}')
+                               f'in {p["frame_id"]} while active')
+
+    def close_device(self) -> None:
+        if self.restart_timer is not None:
+            self.destroy_timer(self.restart_timer)
+            self.restart_timer = None
+        if self.client is not None:
+            self.client.close()
 
     def _connect(self) -> NetFtClient:
         try:
@@ -87,6 +102,8 @@ class FtBridge(TacforceNode):
         self.client.start()
 
     def _publish(self, sample: WrenchSample) -> None:
+        if not self.active:
+            return
         now = self.new_stamp_ns(TOPIC_WRENCH)
         if now is None:
             return      # no valid stamp yet, or the same instant as the previous record
@@ -95,6 +112,9 @@ class FtBridge(TacforceNode):
 
     def _on_bias(self, request: Trigger.Request, response: Trigger.Response
                  ) -> Trigger.Response:
+        if self.client is None or not self.configured:
+            response.success, response.message = False, 'not configured: no link to the box'
+            return response
         try:
             bias = self.client.set_host_bias()
         except RuntimeError as exc:
@@ -104,10 +124,6 @@ class FtBridge(TacforceNode):
             response.message = 'bias [N, N m]: ' + ' '.join(f'{v:+.4f}' for v in bias)
         self.get_logger().info(f'bias: {response.message}')
         return response
-
-    def on_shutdown(self) -> None:
-        self.client.close()
-        self.status.final_report()
 
 
 def main(args: list[str] | None = None) -> None:

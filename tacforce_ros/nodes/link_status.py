@@ -1,6 +1,7 @@
 """Link health of the driver nodes on /diagnostics (diagnostic_msgs/DiagnosticArray), as
 diagnostic_updater publishes it: one DiagnosticStatus per driver every `diagnostics_period`
-wall seconds, named '<node>: device link', with the device as hardware_id, a level
+wall seconds while the driver is active (a managed driver that is deactivated says so once,
+STALE, and reports again when activated), named '<node>: device link', with the device as hardware_id, a level
 (devices/diagnostics.link_health: OK, WARN, ERROR, STALE), and the link's counters as values
 (never reset: a driver that replaces its client carries the old one's counts), the delivery rate
 over the period, and the last error while the link is not OK. rqt_robot_monitor and Foxglove's
@@ -62,10 +63,14 @@ class LinkStatusReporter:
         self.publisher = node.create_publisher(DiagnosticArray, TOPIC_DIAGNOSTICS,
                                                publisher_qos(TOPIC_DIAGNOSTICS))
         period = node.params['diagnostics_period']
-        if period > 0:
-            node.create_timer(period, self.report, clock=Clock(clock_type=ClockType.STEADY_TIME))
+        self.timer = (node.create_timer(period, self.report,
+                                        clock=Clock(clock_type=ClockType.STEADY_TIME))
+                      if period > 0 else None)
+        if self.timer is not None:
+            self.timer.cancel()     # reports start with resume() (create_timer's autostart
+            #                         argument is not in Humble)
 
-    def watch(self, driver: PollingDriver) -> None:
+    def watch(self, driver: PollingDriver, hardware_id: str | None = None) -> None:
         """Report on `driver` from now on (a node that replaced its driver calls this again);
         the counts of the one before are carried on."""
         if self.driver is not None:
@@ -73,7 +78,23 @@ class LinkStatusReporter:
             self._carried = {name: getattr(old, name) for name in _COUNTERS}
             self._carried_seen = old.last_seen
         self.driver = driver
+        self.hardware_id = hardware_id or self.hardware_id
         driver.add_event_callback(self._log_event)
+
+    def resume(self) -> None:
+        """Report every period from now on (the driver was activated)."""
+        self._before, self._before_time, self.level = None, time.monotonic(), None
+        if self.timer is not None:
+            self.timer.reset()
+            self.report()
+
+    def pause(self, message: str) -> None:
+        """Stop reporting (the driver was deactivated), saying why once, at level STALE."""
+        if self.timer is not None:
+            self.timer.cancel()
+        self._publish(STALE, message, {name: getattr(self.counters(), name)
+                                       for name in _COUNTERS})
+        self.level = STALE
 
     def counters(self) -> LinkDiagnostics:
         """The link's counters since the node started, over every client it had."""
@@ -113,21 +134,22 @@ class LinkStatusReporter:
         if level != OK and snap.last_error:
             values['last_error'] = snap.last_error
         self._before, self._before_time = snap, now
+        self._publish(level, message, values)
+        if level != self.level:
+            self.level = level
+            self._log_event(_LOG_LEVEL[level], f'link {LEVEL_NAMES[level]}: {message}; ' + ' '.join(
+                f'{k}={v}' for k, v in values.items() if v not in ('', 0)))
+
+    def _publish(self, level: int, message: str, values: dict[str, object]) -> None:
         status = DiagnosticStatus(level=bytes([level]), name=self.name, message=message,
                                   hardware_id=self.hardware_id,
                                   values=[KeyValue(key=k, value=str(v)) for k, v in values.items()])
         array = DiagnosticArray(status=[status])
         array.header.stamp = self.node.get_clock().now().to_msg()
         self.publisher.publish(array)
-        if level != self.level:
-            self.level = level
-            self._log_event(_LOG_LEVEL[level], f'link {LEVEL_NAMES[level]}: {message}; ' + ' '.join(
-                f'{k}={v}' for k, v in values.items() if v not in ('', 0)))
 
-    def final_report(self) -> None:
-        """At shutdown: the last health report, and the counters to the log whatever the
-        level."""
-        self.report()
+    def log_counters(self) -> None:
+        """When the link closes: the counters to the log whatever the level."""
         snap = self.counters()
-        self.node.get_logger().info('link counters at shutdown: ' + ' '.join(
+        self.node.get_logger().info('link counters at close: ' + ' '.join(
             f'{name}={getattr(snap, name)}' for name in _COUNTERS if getattr(snap, name)))

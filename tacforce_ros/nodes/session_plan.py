@@ -99,6 +99,7 @@ class SessionArgs:
     lockstep: bool = True              # sim: simulated time waits for the loop's consumers
     sim_duration: float = 0.0          # sim: simulated seconds the scene runs; 0 = until stopped
     compose: bool = False              # the nodes (not the simulator) in one process
+    autostart: bool = True             # the managed drivers configure and activate themselves
     seed: int = -1                     # simulator seed; -1: the scene's own
     xela_port: int = XELA_PORT
     netft_port: int = NETFT_PORT
@@ -174,6 +175,7 @@ def plan(args: SessionArgs) -> list[NodeLaunch]:
             raise PlanError(f'sequence: {exc}') from exc
     common: dict[str, Any] = {'use_sim_time': True} if args.sim else {}
     hand_param = {'hand_config': str(hand)}
+    managed = {'autostart': args.autostart}     # the lifecycle drivers
     nodes: list[NodeLaunch] = []
     if args.sim:
         nodes.append(NodeLaunch('sim_world', (params_file('sim_world'),), {
@@ -191,14 +193,14 @@ def plan(args: SessionArgs) -> list[NodeLaunch]:
                                 'silent_timeout': SIM_SILENT_TIMEOUT_S}}
                    if args.sim else {'xela': {}, 'netft': {}, 'allegro': {}})
     nodes.append(NodeLaunch('xela_driver', (params_file('xela_driver'),),
-                            {**common, **hand_param, **sim_devices['xela']}))
+                            {**common, **managed, **hand_param, **sim_devices['xela']}))
     nodes.append(NodeLaunch('ft_bridge', (params_file('ft_bridge'),),
-                            {**common, **sim_devices['netft']}))
+                            {**common, **managed, **sim_devices['netft']}))
     if args.mode == 'calibration':
         # The operator moves the hand: joint states only, no torque commands.
         nodes.append(NodeLaunch('allegro_driver', (params_file('allegro_driver'),),
-                                {**common, **hand_param, **sim_devices['allegro'],
-                                 'control': 'off'}))
+                                {**common, **managed, **hand_param,
+                                 **sim_devices['allegro'], 'control': 'off'}))
     else:
         nodes.append(NodeLaunch('estimator', (params_file('estimator'),), {
             **common, **hand_param,
@@ -206,8 +208,8 @@ def plan(args: SessionArgs) -> list[NodeLaunch]:
             **({'model_config': args.model_config} if args.model_config else {})}))
         # The hand, then the controller that sends it the finger's torques.
         nodes.append(NodeLaunch('allegro_driver', (params_file('allegro_driver'),),
-                                {**common, **hand_param, **sim_devices['allegro'],
-                                 'control': 'torque'}))
+                                {**common, **managed, **hand_param,
+                                 **sim_devices['allegro'], 'control': 'torque'}))
         nodes.append(NodeLaunch('force_controller', (params_file('force_controller'),),
                                 {**common, **hand_param, 'estimate_array': args.array}))
         # The sequence starts once the controller and the recorder both listen.

@@ -322,7 +322,7 @@ class SimWorld(TacforceNode):
         self.get_logger().info(response.message)
         return response
 
-    def on_shutdown(self) -> None:
+    def leave_safe(self) -> None:
         if self.meter.started is not None and not self._scene_done:
             self.get_logger().info(f'stopped: {self._summary()}')
         self._stop.set()

@@ -184,7 +184,7 @@ class SyncRecorder(TacforceNode):
         response.success, response.message = self.stop()
         return response
 
-    def on_shutdown(self) -> None:
+    def leave_safe(self) -> None:
         self.stop()
 
     def _flush_if_due(self) -> None:

@@ -11,6 +11,8 @@ in the link report); under use_sim_time, frames that arrive before the first /cl
 and counted. Each TactileArray carries its array frame {S0} as frame_id.
 The client reconnects on its own; malformed frames are counted and dropped. The link's health
 goes to /diagnostics every `diagnostics_period` s (wall time; nodes/link_status.py).
+A managed (lifecycle) node (nodes/managed_driver.py): configure connects to xela_server, activate
+publishes, deactivate stops publishing (the connection stays), cleanup disconnects.
 """
 from __future__ import annotations
 
@@ -20,9 +22,10 @@ from tacforce_msgs.msg import TactileHand
 
 from tacforce_ros.devices.device_clock import DEFAULT_MAX_SKEW, DeviceClock
 from tacforce_ros.devices.xela import XelaClient, XelaConfig, XelaFrame
-from tacforce_ros.nodes.common import (HAND_CONFIG, ParamSpec, ParameterError, TacforceNode,
-                                       hand_parameter, publisher_qos, run_node)
-from tacforce_ros.nodes.link_status import STATUS_PARAMETERS, LinkStatusReporter
+from tacforce_ros.nodes.common import (HAND_CONFIG, ParamSpec, ParameterError, hand_parameter,
+                                       publisher_qos, run_node)
+from tacforce_ros.nodes.link_status import STATUS_PARAMETERS
+from tacforce_ros.nodes.managed_driver import AUTOSTART, ManagedDriver
 from tacforce_ros.nodes.messages import tactile_hand
 from tacforce_ros.topics import TOPIC_TACTILE
 
@@ -30,7 +33,7 @@ from tacforce_ros.topics import TOPIC_TACTILE
 CLOCK_MISMATCH_NS = 1_000_000_000
 
 
-class XelaDriver(TacforceNode):
+class XelaDriver(ManagedDriver):
     """Publishes XELA uSkin whole-hand frames from xela_server on /tactile/raw."""
 
     NODE_NAME = 'xela_driver'
@@ -48,7 +51,7 @@ class XelaDriver(TacforceNode):
         ParamSpec('max_clock_skew', DEFAULT_MAX_SKEW, 'server_clock own: largest rate '
                   'difference between the server\'s clock and the node clock (s/s)',
                   range=(0.0, 0.009)),
-    ) + STATUS_PARAMETERS
+    ) + STATUS_PARAMETERS + (AUTOSTART,)
 
     def __init__(self, **node_options) -> None:
         super().__init__(**node_options)
@@ -56,24 +59,33 @@ class XelaDriver(TacforceNode):
         if not p['url'].startswith(('ws://', 'wss://')):
             raise ParameterError(f'url: {p["url"]!r} is not a ws:// or wss:// URL')
         self.hand = hand_parameter(p)
-        self.publisher = self.create_publisher(TactileHand, TOPIC_TACTILE,
-                                               publisher_qos(TOPIC_TACTILE))
+        self.publisher = self.create_lifecycle_publisher(TactileHand, TOPIC_TACTILE,
+                                                         publisher_qos(TOPIC_TACTILE))
+        self.device_clock = DeviceClock(p['server_clock'] == 'node', p['max_clock_skew'])
+        self.client: XelaClient | None = None
+
+    def open_device(self) -> None:
+        p = self.params
         self.client = XelaClient(XelaConfig(url=p['url'], sensor_key=p['sensor_key'],
                                             n_taxels=self.hand.n_taxels,
                                             stale_after=p['stale_after'],
                                             reconnect_max=p['reconnect_max']))
-        self.device_clock = DeviceClock(p['server_clock'] == 'node', p['max_clock_skew'])
         self.client.add_callback(self._publish)
-        self.status = LinkStatusReporter(
-            self, self.client, f'xela_server {p["url"]}',
-            lambda: {'clock_resets': self.device_clock.counts.resets,
-                     'stamps_moved': self.device_clock.counts.moved})
-        self.client.start()
+        self.report_link(self.client, f'xela_server {p["url"]}', node_counters=lambda: {
+            'clock_resets': self.device_clock.counts.resets,
+            'stamps_moved': self.device_clock.counts.moved})
+        self.client.start()     # connects, and reconnects on its own
         self.get_logger().info(f'reading {p["url"]} ({self.hand.n_taxels} taxels, '
-                               f'{len(self.hand.arrays)} arrays) -> {TOPIC_TACTILE}')
+                               f'{len(self.hand.arrays)} arrays) -> {TOPIC_TACTILE} while active')
+
+    def close_device(self) -> None:
+        if self.client is not None:
+            self.client.close()
 
     def _publish(self, frame: XelaFrame) -> None:
         # Called from the client's thread; rclpy publishers are thread-safe.
+        if not self.active:
+            return
         now = self.stamp_ns()
         if now is None:
             return      # before the first /clock under use_sim_time: no valid stamp yet
@@ -93,10 +105,6 @@ class XelaDriver(TacforceNode):
                 throttle_duration_sec=10.0)
         self.publisher.publish(tactile_hand(stamp, self.hand, frame.counts, frame.temperatures,
                                             frame.server_time, frame.sequence))
-
-    def on_shutdown(self) -> None:
-        self.client.close()
-        self.status.final_report()
 
 
 def main(args: list[str] | None = None) -> None:

@@ -1,0 +1,148 @@
+"""Managed (lifecycle) driver nodes: xela_driver, ft_bridge and allegro_driver follow the ROS 2
+node lifecycle (design.ros2.org/articles/node_lifecycle.html), so `ros2 lifecycle set` and
+lifecycle managers drive them:
+
+* configure (unconfigured -> inactive): open the device link and check the device;
+* activate (inactive -> active): publish; the hand's servos on and its joint stream started;
+* deactivate (active -> inactive): publish nothing; the hand made safe (zero torque, servos
+  off, stream stopped). The XELA and F/T links stay open, so activating again is immediate;
+* cleanup (inactive -> unconfigured): close the link;
+* shutdown (from any state) does whatever of deactivate and cleanup is due; so does the end of
+  the process (SIGINT/SIGTERM), through `leave_safe`.
+
+`autostart` (default true, as the launch files and `session` pass it) configures and activates
+at start-up, so the node behaves as a plain driver; a device that cannot be opened then ends the
+process with the reason (exit code 2), as a bad parameter does. With autostart false the node
+starts unconfigured and waits for its transitions. A transition that fails logs why and leaves
+the node where it was (configure: unconfigured), as the lifecycle design asks.
+The link's health is on /diagnostics while the node is active (nodes/link_status.py).
+"""
+from __future__ import annotations
+
+from collections.abc import Callable
+
+from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
+
+from tacforce_ros.devices.polling import PollingDriver
+from tacforce_ros.nodes.common import ParameterError, ParamSpec, TacforceNode
+from tacforce_ros.nodes.link_status import LinkStatusReporter
+
+AUTOSTART = ParamSpec('autostart', True, 'configure and activate at start-up; false: start '
+                      'unconfigured, for `ros2 lifecycle set` or a lifecycle manager')
+SUCCESS, FAILURE = TransitionCallbackReturn.SUCCESS, TransitionCallbackReturn.FAILURE
+
+
+class ManagedDriver(TacforceNode, LifecycleNode):
+    """A TacforceNode with the ROS 2 lifecycle. Subclasses implement the four device steps;
+    each may raise (ParameterError for what the user must change), which fails the
+    transition with its message. Publishers made with create_lifecycle_publisher publish only
+    while active; `status` (see report_link) reports the link on /diagnostics while active."""
+
+    def __init__(self, **node_options) -> None:
+        super().__init__(**node_options)
+        self.configured = False
+        self.active = False
+        self.autostarting = False            # the device steps may block only while True
+        self.transition_error: Exception | None = None
+        self.status: LinkStatusReporter | None = None
+
+    # --- the device steps ------------------------------------------------------------------
+
+    def open_device(self) -> None:
+        """configure: open the link, check the device."""
+
+    def start_device(self) -> None:
+        """activate: what the device must do before its data is published."""
+
+    def stop_device(self) -> None:
+        """deactivate: leave the device safe; the link stays open."""
+
+    def close_device(self) -> None:
+        """cleanup: close the link."""
+
+    def report_link(self, link: PollingDriver, hardware_id: str, **reporter_options) -> None:
+        """open_device's call for its new link: `status` reports on it (made on the first
+        configure with `reporter_options`; counters carry on over later ones)."""
+        if self.status is None:
+            self.status = LinkStatusReporter(self, link, hardware_id, **reporter_options)
+        else:
+            self.status.watch(link, hardware_id)
+
+    # --- the lifecycle ---------------------------------------------------------------------
+
+    def _step(self, transition: str, step: Callable[[], None]) -> TransitionCallbackReturn:
+        try:
+            step()
+        except Exception as exc:     # noqa: BLE001 - a failed transition says why, in the log
+            self.transition_error = exc
+            self.get_logger().error(f'{transition} failed: {type(exc).__name__}: {exc}')
+            return FAILURE
+        return SUCCESS
+
+    def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
+        if self._step('configure', self.open_device) != SUCCESS:
+            self._step('configure (closing what it opened)', self.close_device)
+            return FAILURE
+        self.configured = True
+        return super().on_configure(state)
+
+    def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        if self._step('activate', self.start_device) != SUCCESS:
+            self._step('activate (making the device safe again)', self.stop_device)
+            return FAILURE
+        self.active = True
+        if self.status is not None:
+            self.status.resume()
+        return super().on_activate(state)      # enables the lifecycle publishers
+
+    def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        super().on_deactivate(state)
+        self.active = False
+        result = self._step('deactivate', self.stop_device)
+        if self.status is not None:
+            self.status.pause('inactive (lifecycle): nothing published')
+        return result
+
+    def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self.configured = False
+        super().on_cleanup(state)
+        result = self._step('cleanup', self.close_device)
+        if self.status is not None:
+            self.status.log_counters()
+        return result
+
+    def on_shutdown(self, state: LifecycleState) -> TransitionCallbackReturn:
+        result = SUCCESS
+        if self.active:
+            result = self.on_deactivate(state)
+        if self.configured:
+            cleaned = self.on_cleanup(state)
+            result = result if result != SUCCESS else cleaned
+        return result
+
+    def on_error(self, state: LifecycleState) -> TransitionCallbackReturn:
+        # A callback raised past _step (a bug): make safe, back to unconfigured.
+        self.on_shutdown(state)
+        return SUCCESS
+
+    # --- start and end of the process -------------------------------------------------------
+
+    def on_built(self) -> None:
+        if not self.params[AUTOSTART.name]:
+            self.get_logger().info('unconfigured: waiting for lifecycle transitions '
+                                   f'(ros2 lifecycle set {self.get_fully_qualified_name()} '
+                                   'configure)')
+            return
+        self.autostarting = True
+        try:
+            for transition in (self.trigger_configure, self.trigger_activate):
+                if transition() != SUCCESS:
+                    error = self.transition_error
+                    raise (error if isinstance(error, ParameterError)
+                           else RuntimeError(f'autostart: {error}'))
+        finally:
+            self.autostarting = False
+
+    def leave_safe(self) -> None:
+        if self.configured and self.trigger_shutdown() != SUCCESS:
+            raise RuntimeError(f'shutdown: {self.transition_error}')

@@ -1,0 +1,159 @@
+"""The drivers as managed (lifecycle) nodes, driven the way `ros2 lifecycle set` drives them
+(lifecycle_msgs services of a real process, on loopback): with autostart false a driver starts
+unconfigured and publishes nothing; configure opens the device, activate starts the stream (the
+hand's servos on), deactivate stops it (servos off), activate starts it again, cleanup closes
+the device, shutdown finalizes; a configure that cannot reach the device fails, says why, and
+leaves the node unconfigured."""
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from lifecycle_msgs.msg import Transition
+from lifecycle_msgs.srv import ChangeState, GetState
+from sensor_msgs.msg import JointState
+from tacforce_msgs.msg import TactileHand
+
+from tacforce_ros.hand.description import load_hand
+from tacforce_ros.nodes.common import subscriber_qos
+from tacforce_ros.nodes.session_plan import params_file
+from tacforce_ros.sim.emulators.allegro import AllegroEmulator
+from tacforce_ros.sim.emulators.xela_server import XelaServerEmulator
+from tacforce_ros.topics import TOPIC_JOINTS, TOPIC_TACTILE
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from ros_processes import (OutputLines, call_service, executable, rclpy_node,  # noqa: E402
+                           spin_until, start, unique_domain_id)
+
+pytestmark = pytest.mark.ros
+QUIET_S = 1.0       # a stopped stream: nothing arrives for this long
+
+
+class Lifecycle:
+    """The lifecycle services of one node, called from the test's node."""
+
+    def __init__(self, node, name: str) -> None:
+        self.node, self.name = node, name
+
+    def state(self) -> str:
+        return call_service(self.node, GetState, f'/{self.name}/get_state', GetState.Request(),
+                            resend_after=2.0).current_state.label
+
+    def change(self, transition: int) -> bool:
+        request = ChangeState.Request(transition=Transition(id=transition))
+        return call_service(self.node, ChangeState, f'/{self.name}/change_state', request,
+                            timeout=30.0).success
+
+
+def _arrives(node, received: list, timeout: float = 10.0) -> bool:
+    """A message arrives within `timeout`."""
+    before = len(received)
+    return spin_until(node, lambda: len(received) > before, timeout)
+
+
+def _quiet(node, received: list) -> bool:
+    """Nothing arrives over QUIET_S (after what was in flight)."""
+    spin_until(node, lambda: False, 0.3)
+    before = len(received)
+    spin_until(node, lambda: False, QUIET_S)
+    return len(received) == before
+
+
+def test_allegro_driver_through_its_lifecycle_switches_servos_and_stream():
+    domain = unique_domain_id(offset=61)
+    with AllegroEmulator(lambda: np.linspace(0.0, 0.6, 16), lambda tau: None) as hand, \
+            rclpy_node('lifecycle_test', domain) as node:
+        host, port = hand.address
+        received: list = []
+        node.create_subscription(JointState, TOPIC_JOINTS, received.append,
+                                 subscriber_qos(TOPIC_JOINTS))
+        params = ['interface:=socketcand', 'channel:=can0', f'host:={host}', f'port:={port}',
+                  'rtr_requests:=false', 'control:=off', 'autostart:=false']
+        out = OutputLines(start([executable('allegro_driver'), '--ros-args', '--params-file',
+                                 params_file('allegro_driver'),
+                                 *[a for p in params for a in ('-p', p)]], domain))
+        life = Lifecycle(node, 'allegro_driver')
+        try:
+            assert life.state() == 'unconfigured', out.text()
+            assert _quiet(node, received) and not hand.servo_on and hand.period_ms == 0
+
+            assert life.change(Transition.TRANSITION_CONFIGURE), out.text()
+            assert life.state() == 'inactive'
+            assert _quiet(node, received) and not hand.servo_on and hand.period_ms == 0
+
+            for round_ in range(2):        # activate, deactivate, and once more
+                assert life.change(Transition.TRANSITION_ACTIVATE), out.text()
+                assert life.state() == 'active'
+                assert _arrives(node, received), (round_, out.text())
+                assert hand.servo_on and hand.period_ms > 0
+                assert life.change(Transition.TRANSITION_DEACTIVATE), out.text()
+                assert life.state() == 'inactive'
+                assert _quiet(node, received), f'joint states while inactive (round {round_})'
+                assert not hand.servo_on and hand.period_ms == 0
+
+            assert life.change(Transition.TRANSITION_CLEANUP), out.text()
+            assert life.state() == 'unconfigured'
+            assert life.change(Transition.TRANSITION_UNCONFIGURED_SHUTDOWN), out.text()
+            assert life.state() == 'finalized'
+        finally:
+            text = out.stop()
+    assert out.proc.returncode == 0, text
+    assert 'link counters at close' in text, text
+
+
+def test_xela_driver_publishes_only_while_active():
+    domain = unique_domain_id(offset=62)
+    hand = load_hand()
+    counts = np.full((hand.n_taxels, 3), 30000, np.uint16)
+    temperatures = np.full(hand.n_taxels, 300.0)
+    server = XelaServerEmulator(lambda: (counts, temperatures, time.time()))
+    try:
+        with rclpy_node('lifecycle_test', domain) as node:
+            received: list = []
+            node.create_subscription(TactileHand, TOPIC_TACTILE, received.append,
+                                     subscriber_qos(TOPIC_TACTILE))
+            out = OutputLines(start([
+                executable('xela_driver'), '--ros-args', '--params-file',
+                params_file('xela_driver'), '-p', f'url:=ws://127.0.0.1:{server.address[1]}',
+                '-p', 'autostart:=false'], domain))
+            life = Lifecycle(node, 'xela_driver')
+            try:
+                assert life.state() == 'unconfigured', out.text()
+                assert life.change(Transition.TRANSITION_CONFIGURE), out.text()
+                assert _quiet(node, received), 'frames while inactive'
+                assert life.change(Transition.TRANSITION_ACTIVATE), out.text()
+                assert _arrives(node, received), out.text()
+                assert life.change(Transition.TRANSITION_DEACTIVATE), out.text()
+                assert _quiet(node, received), 'frames after deactivate'
+                assert life.change(Transition.TRANSITION_ACTIVATE), out.text()
+                assert _arrives(node, received), out.text()
+                assert life.change(Transition.TRANSITION_ACTIVE_SHUTDOWN), out.text()
+                assert life.state() == 'finalized'
+                assert _quiet(node, received), 'frames after shutdown'
+            finally:
+                text = out.stop()
+    finally:
+        server.close()
+    assert out.proc.returncode == 0, text
+
+
+def test_a_configure_that_cannot_reach_the_hand_fails_and_says_why():
+    domain = unique_domain_id(offset=63)
+    with AllegroEmulator(lambda: np.zeros(16), lambda tau: None) as hand:
+        host, port = hand.address          # a port that was served, and is closed now
+    with rclpy_node('lifecycle_test', domain) as node:
+        params = ['interface:=socketcand', 'channel:=can0', f'host:={host}', f'port:={port}',
+                  'rtr_requests:=false', 'control:=off', 'autostart:=false']
+        out = OutputLines(start([executable('allegro_driver'), '--ros-args', '--params-file',
+                                 params_file('allegro_driver'),
+                                 *[a for p in params for a in ('-p', p)]], domain))
+        life = Lifecycle(node, 'allegro_driver')
+        try:
+            assert not life.change(Transition.TRANSITION_CONFIGURE)
+            assert life.state() == 'unconfigured'
+            assert out.wait_for('configure failed', 5.0) is not None, out.text()
+        finally:
+            text = out.stop()
+    assert 'hand not reachable' in text, text
+    assert out.proc.returncode == 0, text

@@ -4,24 +4,32 @@ a crash-tolerant writer.
 Layout (docs/CONTRACTS.md): the same topics whether the sync_recorder node or the simulator's
 sim_record tool wrote the bag, so training cannot tell lab data from simulated data.
 
-The writer splits the bag into files (standard rosbag2 multi-file bag) and rewrites
-metadata.yaml atomically each time a split closes, so a recorder killed with SIGKILL leaves a bag
-that rosbags and `ros2 bag` read up to the last closed split.
+The writer writes what `ros2 bag record -s mcap` would: MCAP files (one, unless split by size
+or duration) with the ROS 2 profile and metadata.yaml; it ends an MCAP chunk at every flush, so a
+recorder killed with SIGKILL leaves every message up to the last flush in complete chunks, which
+`bag_repair` (recording/bag_repair.py) keeps.
 """
 from __future__ import annotations
 
+import io
 import json
-import shutil
 import time
+from collections import Counter
 from collections.abc import Iterator, Sequence
+from dataclasses import dataclass, field
 from functools import lru_cache
+from importlib.metadata import version
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 from rosbags.interfaces import (Qos, QosDurability, QosHistory, QosLiveliness, QosReliability,
                                 QosTime)
-from rosbags.rosbag2 import Reader, ReaderError, StoragePlugin, Writer
+from mcap.reader import make_reader
+from mcap.writer import CompressionType
+from mcap.writer import Writer as McapWriter
+from rosbags.rosbag2 import Reader, ReaderError
+from rosbags.rosbag2.metadata import dump_qos_v9
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from ruamel.yaml import YAML
 from ruamel.yaml.error import YAMLError
@@ -42,7 +50,6 @@ TOPIC_TYPES = {
 METADATA_KEYS = ('array', 'plate', 'hand_side', 'operator_notes', 'source', 'scene', 'seed',
                  'started')
 CUSTOM_DATA_PREFIX = 'tacforce.'
-_SPLIT_SUFFIX = '.partial'
 # An MCAP file starts and ends with these 8 bytes (MCAP specification, "Magic"); a file cut off
 # while being written lacks the trailing copy.
 MCAP_MAGIC = b'\x89MCAP0\r\n'
@@ -173,110 +180,221 @@ def session_metadata(**fields: Any) -> dict[str, Any]:
 
 # --- writer ------------------------------------------------------------------------------------
 
-class CalibrationBagWriter:
-    """rosbag2 (mcap) writer that closes a split every `split_seconds` of wall time.
+# mcap's default chunk size (rosbag2's MCAP plugin uses 768 KiB); a chunk also ends at every flush.
+CHUNK_BYTES = 1 << 20
 
-    Each split is written by rosbags into a hidden folder, then moved into the bag and listed in
-    a merged metadata.yaml (atomic rename). Use as a context manager; `close()` ends the bag.
+
+@dataclass
+class FileRecord:
+    """What a bag's metadata.yaml says of one of its files."""
+
+    path: str
+    counts: dict[str, int] = field(default_factory=dict)
+    start_ns: int | None = None
+    end_ns: int | None = None
+
+    def add(self, topic: str, stamp_ns: int) -> None:
+        self.counts[topic] = self.counts.get(topic, 0) + 1
+        self.start_ns = stamp_ns if self.start_ns is None else min(self.start_ns, stamp_ns)
+        self.end_ns = stamp_ns if self.end_ns is None else max(self.end_ns, stamp_ns)
+
+    @property
+    def message_count(self) -> int:
+        return sum(self.counts.values())
+
+
+@dataclass(frozen=True)
+class TopicRecord:
+    """A recorded topic: its type and its publishers' offered QoS (metadata version 9 form)."""
+
+    msgtype: str
+    offered_qos: list[dict[str, Any]]
+
+
+def topic_records(topics: dict[str, str]) -> dict[str, TopicRecord]:
+    return {topic: TopicRecord(msgtype, dump_qos_v9(offered_qos(topic)))
+            for topic, msgtype in topics.items()}
+
+
+def _span(start_ns: int | None, end_ns: int | None) -> dict[str, Any]:
+    start = start_ns or 0
+    return {'starting_time': {'nanoseconds_since_epoch': start},
+            'duration': {'nanoseconds': (end_ns or start) - start}}
+
+
+def bag_metadata(files: Sequence[FileRecord], topics: dict[str, TopicRecord],
+                 custom_data: dict[str, str]) -> dict[str, Any]:
+    """rosbag2 metadata (version 9) of a bag of MCAP files, the fields `ros2 bag record -s mcap`
+    writes."""
+    store = typestore()
+    starts = [f.start_ns for f in files if f.start_ns is not None]
+    ends = [f.end_ns for f in files if f.end_ns is not None]
+    return {
+        'version': 9, 'storage_identifier': 'mcap',
+        'relative_file_paths': [f.path for f in files],
+        **_span(min(starts, default=None), max(ends, default=None)),
+        'message_count': sum(f.message_count for f in files),
+        'topics_with_message_count': [
+            {'topic_metadata': {'name': topic, 'type': record.msgtype,
+                                'serialization_format': 'cdr',
+                                'offered_qos_profiles': record.offered_qos,
+                                'type_description_hash': store.hash_rihs01(record.msgtype)},
+             'message_count': sum(f.counts.get(topic, 0) for f in files)}
+            for topic, record in topics.items()],
+        'compression_format': '', 'compression_mode': '',
+        'files': [{'path': f.path, **_span(f.start_ns, f.end_ns),
+                   'message_count': f.message_count} for f in files],
+        'custom_data': custom_data or None,
+        'ros_distro': ROS_DISTRO,
+    }
+
+
+def write_metadata(bag_dir: Path, info: dict[str, Any]) -> None:
+    """metadata.yaml, replaced atomically (a reader sees the old or the new, never half)."""
+    tmp = bag_dir / 'metadata.yaml.tmp'
+    yaml = YAML(typ='safe')
+    yaml.default_flow_style = False
+    with tmp.open('w', encoding='utf8') as stream:
+        yaml.dump({'rosbag2_bagfile_information': info}, stream)
+    tmp.replace(bag_dir / 'metadata.yaml')
+
+
+def _yaml_text(value: Any) -> str:
+    stream = io.StringIO()
+    yaml = YAML(typ='safe')
+    yaml.default_flow_style = False
+    yaml.dump(value, stream)
+    return stream.getvalue().strip()
+
+
+def start_mcap(stream, topics: dict[str, TopicRecord], mcap_header: tuple[str, str] | None = None
+               ) -> tuple[McapWriter, dict[str, int]]:
+    """An MCAP writer on `stream` with the ROS 2 profile, a ros2msg schema per type (the full
+    definition, as rosbag2 embeds it, so Foxglove and rosbags decode without ROS) and a cdr
+    channel per topic with its offered QoS; returns it and the channel id of each topic."""
+    store = typestore()
+    writer = McapWriter(stream, chunk_size=CHUNK_BYTES, compression=CompressionType.NONE)
+    profile, library = mcap_header or ('ros2', f'tacforce_ros, mcap {version("mcap")}')
+    writer.start(profile=profile, library=library)
+    schemas: dict[str, int] = {}
+    channels = {}
+    for topic, record in topics.items():
+        if record.msgtype not in schemas:
+            msgdef, _ = store.generate_msgdef(record.msgtype, ros_version=2)
+            schemas[record.msgtype] = writer.register_schema(record.msgtype, 'ros2msg',
+                                                             msgdef.encode())
+        channels[topic] = writer.register_channel(
+            topic, 'cdr', schemas[record.msgtype],
+            {'offered_qos_profiles': _yaml_text(record.offered_qos),
+             'topic_type_hash': store.hash_rihs01(record.msgtype)})
+    return writer, channels
+
+
+class CalibrationBagWriter:
+    """A rosbag2 bag of MCAP files, as `ros2 bag record -s mcap` writes one: one file unless
+    `max_bag_size` (bytes, checked as chunks reach the file) or `max_bag_duration` (s of log
+    time) splits it, metadata.yaml rewritten whenever a file opens or closes.
+
+    Crash safety is MCAP's own: messages are written in chunks, and a chunk ends (it and all
+    before it are on disk, readable after a SIGKILL) at every `flush()`: every `flush_seconds`
+    of wall time through `flush_if_due()`, which a recorder also calls from a timer so a quiet
+    stream still reaches the disk. A bag cut off by a crash is made whole by `bag_repair`. No
+    compression: the recorder shares the loop's cores. Use as a context manager; `close()` ends
+    the bag.
     """
 
     def __init__(self, path: str | Path, metadata: dict[str, Any], *,
-                 split_seconds: float = 2.0, topics: dict[str, str] | None = None,
-                 storage: StoragePlugin = StoragePlugin.MCAP,
+                 topics: dict[str, str] | None = None, flush_seconds: float = 1.0,
+                 max_bag_size: int = 0, max_bag_duration: float = 0.0,
                  started_ns: int | None = None) -> None:
+        if flush_seconds <= 0 or max_bag_size < 0 or max_bag_duration < 0:
+            raise ValueError('flush_seconds must be > 0, max_bag_size and max_bag_duration >= 0 '
+                             f'(0: no split); got {flush_seconds}, {max_bag_size}, '
+                             f'{max_bag_duration}')
         self.path = Path(path)
         if self.path.exists():
             raise BagError(f'{self.path} exists already; refusing to overwrite a bag')
         self.path.mkdir(parents=True)
         self.metadata = dict(metadata)
-        self.split_seconds = float(split_seconds)
-        self.topics = dict(TOPIC_TYPES if topics is None else topics)
-        self.storage = storage
-        self._splits: list[dict[str, Any]] = []
-        self._writer: Writer | None = None
-        self._connections: dict[str, Any] = {}
-        self._split_started = 0.0
-        self._open_split()
+        self.custom_data = {CUSTOM_DATA_PREFIX + key: str(value)
+                            for key, value in self.metadata.items()}
+        self.topics = topic_records(TOPIC_TYPES if topics is None else topics)
+        self.flush_seconds = float(flush_seconds)
+        self.max_bag_size = int(max_bag_size)
+        self.max_bag_duration_ns = round(max_bag_duration * 1e9)
+        self.files: list[FileRecord] = []
+        self._writer: McapWriter | None = None
+        self._open_file()
         # started_ns: the recorder's clock (sim time under use_sim_time), else wall time.
         self.write(TOPIC_SESSION, time.time_ns() if started_ns is None else started_ns,
                    session_message(self.metadata))
+        self.flush()        # the schemas, channels and session metadata on disk at once
 
-    def _split_dir(self, index: int) -> Path:
-        return self.path / f'.{self.path.name}_{index}{_SPLIT_SUFFIX}'
+    def _open_file(self) -> None:
+        name = f'{self.path.name}_{len(self.files)}.mcap'
+        self._stream = (self.path / name).open('xb')
+        self._writer, self._channels = start_mcap(self._stream, self.topics)
+        self.files.append(FileRecord(name))
+        self._flushed = time.monotonic()
+        self._write_metadata()
 
-    def _open_split(self) -> None:
-        writer = Writer(self._split_dir(len(self._splits)), version=9,
-                        storage_plugin=self.storage)
-        for key, value in self.metadata.items():
-            writer.set_custom_data(CUSTOM_DATA_PREFIX + key, str(value))
-        writer.open()
-        store = typestore()
-        self._connections = {topic: writer.add_connection(topic, msgtype, typestore=store,
-                                                          offered_qos_profiles=offered_qos(topic))
-                             for topic, msgtype in self.topics.items()}
-        self._writer = writer
-        self._split_started = time.monotonic()
-
-    def _close_split(self) -> None:
+    def _close_file(self) -> None:
         writer, self._writer = self._writer, None
         if writer is None:
             return
-        writer.close()
-        index = len(self._splits)
-        split_dir = self._split_dir(index)
-        info = _load_metadata(split_dir)
-        if info['message_count']:
-            (source,) = info['relative_file_paths']
-            name = f'{self.path.name}_{index}{Path(source).suffix}'
-            (split_dir / source).replace(self.path / name)
-            info['relative_file_paths'] = [name]
-            info['files'][0]['path'] = name
-            self._splits.append(info)
-            self._write_merged_metadata()
-        shutil.rmtree(split_dir)
+        writer.finish()
+        self._stream.close()
+        self._write_metadata()
 
-    def _write_merged_metadata(self) -> None:
-        if not self._splits:
-            return
-        merged = {**_merge_metadata(self._splits), 'ros_distro': ROS_DISTRO}
-        tmp = self.path / 'metadata.yaml.tmp'
-        yaml = YAML(typ='safe')
-        yaml.default_flow_style = False
-        with tmp.open('w', encoding='utf8') as stream:
-            yaml.dump({'rosbag2_bagfile_information': merged}, stream)
-        tmp.replace(self.path / 'metadata.yaml')
+    def _write_metadata(self) -> None:
+        write_metadata(self.path, bag_metadata(self.files, self.topics, self.custom_data))
 
     def write(self, topic: str, stamp_ns: int, msg) -> None:
         """Serialise one rosbags message and write it."""
         self.write_serialized(topic, stamp_ns,
-                              typestore().serialize_cdr(msg, self._connection(topic).msgtype))
+                              typestore().serialize_cdr(msg, self._topic(topic).msgtype))
 
     def write_serialized(self, topic: str, stamp_ns: int, data: bytes | memoryview) -> None:
         """Write one CDR-serialised message (e.g. as an rclpy raw subscription receives it)."""
         if self._writer is None:
             raise BagError(f'bag {self.path} is closed')
-        self._writer.write(self._connection(topic), int(stamp_ns), data)
+        self._topic(topic)
+        stamp_ns = int(stamp_ns)
+        if self._split_due(stamp_ns):
+            self._close_file()
+            self._open_file()
+        self._writer.add_message(self._channels[topic], stamp_ns, bytes(data), stamp_ns)
+        self.files[-1].add(topic, stamp_ns)
         self.flush_if_due()
 
-    def _connection(self, topic: str):
-        connection = self._connections.get(topic)
-        if connection is None:
+    def _topic(self, topic: str) -> TopicRecord:
+        record = self.topics.get(topic)
+        if record is None:
             raise BagError(f'topic {topic} is not part of this bag ({sorted(self.topics)})')
-        return connection
+        return record
+
+    def _split_due(self, stamp_ns: int) -> bool:
+        current = self.files[-1]
+        if not current.message_count:
+            return False
+        return ((self.max_bag_duration_ns > 0
+                 and stamp_ns - current.start_ns >= self.max_bag_duration_ns)
+                or (self.max_bag_size > 0 and self._stream.tell() >= self.max_bag_size))
 
     def flush_if_due(self) -> None:
-        """Close the split once it is `split_seconds` old; call it from a timer too, so a quiet
-        stream still reaches the disk."""
-        if self._writer is not None and time.monotonic() - self._split_started >= self.split_seconds:
+        """flush() once `flush_seconds` have passed since the last."""
+        if self._writer is not None and time.monotonic() - self._flushed >= self.flush_seconds:
             self.flush()
 
     def flush(self) -> None:
-        """Close the current split (it becomes readable) and open the next one."""
-        self._close_split()
-        self._open_split()
+        """End the current chunk and hand it to the file: what was written so far survives a
+        crash of this process."""
+        if self._writer is not None:
+            self._writer.flush()
+            self._flushed = time.monotonic()
 
     def close(self) -> None:
-        self._close_split()
+        self._close_file()
 
     def __enter__(self) -> CalibrationBagWriter:
         return self
@@ -298,43 +416,23 @@ def _load_metadata(bag_dir: Path) -> dict[str, Any]:
         raise BagError(f'{path}: no rosbag2_bagfile_information; not rosbag2 metadata') from None
 
 
+def mcap_complete(file: Path) -> bool:
+    """An MCAP file ends with the magic; one cut off while being written does not."""
+    with file.open('rb') as stream:
+        stream.seek(max(file.stat().st_size - len(MCAP_MAGIC), 0))
+        return stream.read() == MCAP_MAGIC
+
+
 def _check_files(bag_dir: Path, info: dict[str, Any]) -> None:
     """Every file the metadata lists is there, and an MCAP file is complete: names the file."""
     for name in info.get('relative_file_paths') or []:
         file = bag_dir / name
         if not file.is_file():
             raise BagError(f'{file}: listed in {bag_dir / "metadata.yaml"} but missing')
-        if file.suffix == '.mcap':
-            with file.open('rb') as stream:
-                stream.seek(max(file.stat().st_size - len(MCAP_MAGIC), 0))
-                if stream.read() != MCAP_MAGIC:
-                    raise BagError(f'{file}: incomplete MCAP file (it does not end with the MCAP '
-                                   'magic: cut off while being written, or truncated)')
-
-
-def _merge_metadata(splits: list[dict[str, Any]]) -> dict[str, Any]:
-    """One rosbag2 metadata record for several single-file splits of the same topics."""
-    starts = [s['starting_time']['nanoseconds_since_epoch'] for s in splits]
-    ends = [st + s['duration']['nanoseconds'] for st, s in zip(starts, splits)]
-    counts: dict[str, int] = {}
-    topic_meta: dict[str, Any] = {}
-    for split in splits:
-        for entry in split['topics_with_message_count']:
-            name = entry['topic_metadata']['name']
-            topic_meta.setdefault(name, entry['topic_metadata'])
-            counts[name] = counts.get(name, 0) + entry['message_count']
-    merged = dict(splits[0])
-    merged.update({
-        'relative_file_paths': [p for s in splits for p in s['relative_file_paths']],
-        'files': [f for s in splits for f in s['files']],
-        'starting_time': {'nanoseconds_since_epoch': min(starts)},
-        'duration': {'nanoseconds': max(ends) - min(starts)},
-        'message_count': sum(s['message_count'] for s in splits),
-        'topics_with_message_count': [
-            {'topic_metadata': topic_meta[name], 'message_count': counts[name]}
-            for name in topic_meta],
-    })
-    return merged
+        if file.suffix == '.mcap' and not mcap_complete(file):
+            raise BagError(f'{file}: incomplete MCAP file (it does not end with the MCAP magic: '
+                           'cut off while being written, or truncated); `bag_repair '
+                           f'{bag_dir}` keeps every complete chunk and rewrites the metadata')
 
 
 # --- reader ------------------------------------------------------------------------------------
@@ -367,3 +465,32 @@ def read_messages(path: str | Path, topics: Sequence[str] | None = None
                 yield connection.topic, stamp, store.deserialize_cdr(raw, connection.msgtype)
     except ReaderError as exc:
         raise BagError(f'{path}: unreadable bag ({exc})') from None
+
+
+def bag_files(path: str | Path) -> list[str]:
+    """The files of a bag, as its metadata.yaml lists them."""
+    return list(_load_metadata(Path(path)).get('relative_file_paths') or [])
+
+
+def reader_counts(path: str | Path) -> dict[str, dict[str, int]]:
+    """Messages per topic of a bag as three readers count them: its metadata.yaml, rosbags
+    (the reader training uses) and Foxglove's `mcap` reader, file by file. Equal counts say the
+    bag is what ROS tools expect; BagError for an unreadable bag."""
+    path = Path(path)
+    info = _load_metadata(path)
+    _check_files(path, info)
+    metadata = {entry['topic_metadata']['name']: entry['message_count']
+                for entry in info['topics_with_message_count'] if entry['message_count']}
+    by_rosbags: Counter = Counter()
+    try:
+        with Reader(path) as reader:
+            for connection, _, _ in reader.messages():
+                by_rosbags[connection.topic] += 1
+    except ReaderError as exc:
+        raise BagError(f'{path}: unreadable bag ({exc})') from None
+    by_mcap: Counter = Counter()
+    for name in info['relative_file_paths']:
+        with (path / name).open('rb') as stream:
+            for _, channel, _ in make_reader(stream).iter_messages():
+                by_mcap[channel.topic] += 1
+    return {'metadata': metadata, 'rosbags': dict(by_rosbags), 'mcap': dict(by_mcap)}

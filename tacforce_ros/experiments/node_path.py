@@ -143,6 +143,16 @@ def closed_loop_against_direct(hand: HandDescription, kinematics: HandKinematics
     return compare_closed_loop(trace, direct, offset), trace, direct, bag
 
 
+def bag_check(bag: Path) -> dict:
+    """What ROS tools see of a node run's bag: its files, and its messages per topic as its
+    metadata, rosbags and Foxglove's mcap reader count them (they must agree)."""
+    from tacforce_ros import bagio
+    counts = bagio.reader_counts(bag)
+    return {'files': len(bagio.bag_files(bag)), 'messages': sum(counts['rosbags'].values()),
+            'counts': counts,
+            'agree': counts['metadata'] == counts['rosbags'] == counts['mcap']}
+
+
 def closed_loop_session_seconds(sequence_seconds: float) -> float:
     """Simulated seconds a closed-loop session runs to play a sequence of this length."""
     return sequence_seconds + SEQUENCE_START_MARGIN_S

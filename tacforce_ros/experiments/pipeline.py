@@ -587,7 +587,8 @@ def node_path_stage(ctx: Context, models: dict) -> dict:
     key = digest({'scenes': [scene_digest(calibration_scene), scene_digest(loop_scene)],
                   'model': Path(model).stem,
                   'code': source_digest(node_path.run_session, node_path.SESSION_MODULE,
-                                        node_path.closed_loop_against_direct, run_closed_loop,
+                                        node_path.closed_loop_against_direct,
+                                        node_path.bag_check, run_closed_loop,
                                         *node_modules()),
                   'inputs': file_digest(*sorted((config_dir() / 'params').glob('*.yaml')),
                                         config_dir() / 'commands' / f'{s.sequence}.yaml')})
@@ -609,10 +610,11 @@ def node_path_stage(ctx: Context, models: dict) -> dict:
         sequence = ForceSequence.load(s.sequence)
         ctx.log(f'stage node path: closed-loop run ({sequence.duration:g} s + start-up, '
                 'simulated)')
-        result['closed_loop'], trace, direct, _ = node_path.closed_loop_against_direct(
+        result['closed_loop'], trace, direct, bag = node_path.closed_loop_against_direct(
             hand, kinematics, loop_scene, HELD_OUT_PLATE, load_scene(loop_scene).seed,
             model_config_file(ctx, 'M3-lambda', models), sequence, work / 'closed_loop',
             controller_config('M3-lambda'), tare_frames(), control_rate=s.control_rate)
+        result['closed_loop_bag'] = node_path.bag_check(bag)
         np.savez(work / 'closed_loop_traces.npz',
                  **{f'node_{k}': v for k, v in trace.arrays().items()},
                  **{f'direct_{k}': v for k, v in direct.arrays().items()})

@@ -328,6 +328,12 @@ def markdown(doc: dict) -> str:
                       f"{cell(track, digits=3)} | {cell(track_tolerance, digits=3)} | "
                       f"{'yes' if track <= track_tolerance else 'NO'} |"]
         lines += ['', f"Tolerance: {doc['node_tolerance_reason']}", '']
+        bag = node.get('closed_loop_bag')
+        if bag is not None:
+            lines += [f"The closed-loop run's bag: {bag['files']} MCAP file(s), "
+                      f"{bag['messages']} messages; messages per topic by its metadata.yaml, "
+                      "rosbags and Foxglove's mcap reader agree: "
+                      f"{'yes' if bag['agree'] else 'NO: ' + str(bag['counts'])}", '']
 
     lines += ['## Figures', ''] + [f'* [{name}]({name})' for name in doc['figures']] + ['']
     lines += ['## Stage wall times [s]', '', '| stage | s |', '|---|---|']

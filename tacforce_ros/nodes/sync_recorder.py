@@ -6,9 +6,10 @@ the three raw streams and the synchronised /calibration/sample stream (approxima
 publishes. It also writes, as they arrive, the closed-loop streams when a graph publishes them:
 /force_controller/desired (f_d), /force_controller/state (the controller's every tick) and the
 simulator's ground truth /sim/contact_force, so a closed-loop bag carries command, estimate and
-truth on the one clock. Bag layout and session metadata: docs/CONTRACTS.md. The bag is split every
-`split_seconds` (wall time), so a recorder killed with SIGKILL leaves a bag readable up to the
-last split. Services: ~/start (tacforce_msgs/srv/StartRecording; empty fields take the
+truth on the one clock. Bag layout and session metadata: docs/CONTRACTS.md. The bag is what
+`ros2 bag record -s mcap` writes (one MCAP file unless `max_bag_size` or `max_bag_duration`
+splits it); an MCAP chunk ends every `flush_seconds` (wall time), so a recorder killed with
+SIGKILL leaves every message up to then on disk, and `bag_repair BAG` makes the bag whole. Services: ~/start (tacforce_msgs/srv/StartRecording; empty fields take the
 parameters) and ~/stop (std_srvs/Trigger).
 
 Log times are the node clock's. Under use_sim_time the clock reads 0 until the first /clock, so
@@ -58,8 +59,13 @@ class SyncRecorder(TacforceNode):
     NODE_NAME = 'sync_recorder'
     PARAMETERS = (
         ParamSpec('output_dir', 'bags', 'folder that receives one bag folder per session'),
-        ParamSpec('split_seconds', 2.0, 'close a bag split this often (s, wall time): the most '
-                  'a killed recorder can lose', range=(0.1, 3600.0)),
+        ParamSpec('flush_seconds', 1.0, 'end an MCAP chunk and hand it to the file this often '
+                  '(s, wall time): the most a killed recorder can lose', range=(0.05, 3600.0)),
+        ParamSpec('max_bag_size', 0, 'start a new file of the bag at this size (bytes, as '
+                  '`ros2 bag record --max-bag-size`); 0: no split', range=(0, 2**62)),
+        ParamSpec('max_bag_duration', 0.0, 'start a new file of the bag after this many seconds '
+                  'of log time (as `ros2 bag record --max-bag-duration`); 0: no split',
+                  range=(0.0, 1e9)),
         ParamSpec('queue_size', 100, 'approximate-time queue per input (messages)',
                   range=(1, 10000)),
         ParamSpec('slop', 0.005, 'largest stamp spread inside one sample (s)',
@@ -99,7 +105,7 @@ class SyncRecorder(TacforceNode):
         self.create_service(StartRecording, '~/start', self._on_start)
         self.create_service(Trigger, '~/stop', self._on_stop)
         # Flushing is about wall time (what a crash can lose), not sim time: a steady timer.
-        self.create_timer(min(0.5, self.params['split_seconds']), self._flush_if_due,
+        self.create_timer(min(0.5, self.params['flush_seconds']), self._flush_if_due,
                           clock=Clock(clock_type=ClockType.STEADY_TIME))
         self._autostart_timer = None
         if self.params['autostart']:
@@ -146,7 +152,9 @@ class SyncRecorder(TacforceNode):
         try:
             folder.mkdir(parents=True, exist_ok=True)
             self.writer = CalibrationBagWriter(path, meta, started_ns=started_ns,
-                                               split_seconds=self.params['split_seconds'],
+                                               flush_seconds=self.params['flush_seconds'],
+                                               max_bag_size=self.params['max_bag_size'],
+                                               max_bag_duration=self.params['max_bag_duration'],
                                                topics=BAG_TOPICS)
         except (OSError, BagError) as exc:
             return False, f'cannot create bag {path}: {exc}'

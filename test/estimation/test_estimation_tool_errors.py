@@ -16,7 +16,7 @@ from tacforce_ros.tools import reproduce, train
 def good_bag(tmp_path_factory):
     path = tmp_path_factory.mktemp('bags') / 'good'
     meta = bagio.session_metadata(array='index_tip', plate='flat', source='sim', seed=0)
-    with bagio.CalibrationBagWriter(path, meta, split_seconds=60.0) as writer:
+    with bagio.CalibrationBagWriter(path, meta) as writer:
         for i in range(50):
             stamp = 10**18 + i * 10**7
             writer.write(topics.TOPIC_WRENCH, stamp,

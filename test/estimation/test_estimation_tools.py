@@ -54,7 +54,7 @@ def write_bag(path, hand, array, data, rows, q, kinematics, plate):
     others = hand.merge([np.full((a.n_taxels, 3), 20000.0) for a in hand.arrays])
     meta = bagio.session_metadata(array=array.name, plate=plate, source='sim', seed=0)
     t0 = 1_700_000_000 * 10**9
-    with bagio.CalibrationBagWriter(path, meta, split_seconds=60.0) as writer:
+    with bagio.CalibrationBagWriter(path, meta) as writer:
         for i, row in enumerate(rows):
             stamp = t0 + i * 10_000_000
             counts = others.copy()

@@ -20,6 +20,7 @@ import rclpy
 import yaml
 from tacforce_msgs.msg import ControllerState
 
+from tacforce_ros import bagio
 from tacforce_ros.control.command_sequence import ForceSequence
 from tacforce_ros.experiments.closed_loop import trace_metrics
 from tacforce_ros.experiments.node_path import node_trace
@@ -29,6 +30,8 @@ from tacforce_ros.nodes.messages import stamp_ns
 from tacforce_ros.topics import TOPIC_CONTROLLER_STATE as TOPIC_STATE
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from bag_readers import readers_agree  # noqa: E402
 from graph_support import (Graph, graph_nodes, session_args, unique_domain_id,  # noqa: E402
                            wait_while_progressing, with_overrides)
 
@@ -86,6 +89,10 @@ def test_node_graph_holds_a_2_n_press_within_0_2_n(tmp_path):
     assert all(c == 0 for c in codes.values()), (codes, running.logs())
 
     (bag,) = (tmp_path / 'bags').iterdir()
+    # The session's bag is one MCAP file that rosbags, Foxglove's mcap reader and its metadata
+    # read alike (per-topic counts).
+    assert len(bagio.bag_files(bag)) == 1
+    readers_agree(bag)
     trace, _ = node_trace(bag, ForceSequence.load(sequence), tare_frames())
     hold_end = ZERO_S + RAMP_S + HOLD_S
     window = (hold_end - WINDOW_S, hold_end - 0.1)

@@ -1,8 +1,10 @@
 """sync_recorder as a real process over DDS: services, bag contents and metadata, SIGKILL."""
 import json
 import signal
+import subprocess
 import sys
 import time
+from collections import Counter
 from pathlib import Path
 
 import numpy as np
@@ -22,6 +24,7 @@ from tacforce_ros.nodes.common import EXIT_OK, publisher_qos, subscriber_qos
 from tacforce_ros.paths import config_dir
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from bag_readers import readers_agree  # noqa: E402
 from ros_processes import (call_service, executable, rclpy_node, spin_until, start,  # noqa: E402
                            stop, unique_domain_id)
 
@@ -29,6 +32,7 @@ pytestmark = pytest.mark.ros
 DOMAIN = unique_domain_id(offset=53)
 PARAMS = config_dir() / 'params' / 'sync_recorder.yaml'
 SLOP = 0.004
+FLUSH_S = 0.5
 MS = 1_000_000
 HAND = load_hand()
 
@@ -133,14 +137,14 @@ def streams(ros_node):
 def recorder(tmp_path, *extra):
     return start([executable('sync_recorder'), '--ros-args', '--params-file', PARAMS,
                   '-p', f'output_dir:={tmp_path}', '-p', f'slop:={SLOP}',
-                  '-p', 'split_seconds:=0.5', *extra], DOMAIN)
+                  '-p', f'flush_seconds:={FLUSH_S}', *extra], DOMAIN)
 
 
 def test_session_started_and_stopped_by_services_records_everything(ros_node, streams, tmp_path):
     live = []
     sub = ros_node.create_subscription(CalibrationSample, topics.TOPIC_SAMPLE, live.append,
                                        subscriber_qos(topics.TOPIC_SAMPLE))
-    proc = recorder(tmp_path, '-p', 'plate:=button')
+    proc = recorder(tmp_path, '-p', 'plate:=button', '-p', 'max_bag_duration:=0.5')
     try:
         assert streams.wait_for_recorder(), 'recorder never subscribed'
         # Refused requests first (idempotent, so sent again if unanswered): they prove each
@@ -169,7 +173,11 @@ def test_session_started_and_stopped_by_services_records_everything(ros_node, st
     # The samples are also published live, as the same CDR bytes the bag holds.
     assert live and all(m.tactile.name == 'index_middle' for m in live)
     bag = Path(reply.bag_path)
-    assert bag.parent == tmp_path and len(list(bag.glob('*.mcap'))) >= 2, 'expected splits'
+    # 1.5 s of streams split by max_bag_duration 0.5 s; each file complete and listed, and the
+    # bag read alike by rosbags (below), Foxglove's mcap reader and its metadata.
+    files = bagio._load_metadata(bag)['relative_file_paths']
+    assert bag.parent == tmp_path and len(files) >= 3, files
+    readers_agree(bag)
 
     meta = bagio.read_session_metadata(bag)
     assert (meta['array'], meta['plate'], meta['operator_notes'], meta['hand_side'],
@@ -236,7 +244,7 @@ def test_sigterm_closes_the_bag_completely(ros_node, streams, tmp_path):
     live = []
     sub = ros_node.create_subscription(CalibrationSample, topics.TOPIC_SAMPLE, live.append,
                                        subscriber_qos(topics.TOPIC_SAMPLE))
-    proc = recorder(tmp_path, '-p', 'autostart:=true', '-p', 'split_seconds:=60.0')
+    proc = recorder(tmp_path, '-p', 'autostart:=true', '-p', 'flush_seconds:=60.0')
     try:
         assert streams.wait_for_recorder(), 'recorder never subscribed'
         streams.run(1.0)
@@ -248,8 +256,9 @@ def test_sigterm_closes_the_bag_completely(ros_node, streams, tmp_path):
         ros_node.destroy_subscription(sub)
     assert proc.returncode == EXIT_OK, output
     (bag,) = tmp_path.iterdir()
-    # One long split, closed by on_shutdown: everything is listed, nothing left half-written.
-    assert not any(p.name.endswith('.partial') for p in bag.iterdir())
+    # Nothing flushed before SIGTERM (flush_seconds 60): closing wrote it all, one whole file.
+    assert sorted(p.name for p in bag.iterdir()) == sorted(['metadata.yaml', f'{bag.name}_0.mcap'])
+    assert bagio.mcap_complete(bag / f'{bag.name}_0.mcap')
     recorded = [topic for topic, _, _ in bagio.read_messages(bag)]
     sent = streams.published[topics.TOPIC_TACTILE]
     assert recorded.count(topics.TOPIC_TACTILE) >= 0.8 * len(sent)
@@ -350,22 +359,16 @@ def test_under_sim_time_nothing_is_recorded_before_the_first_clock(ros_node, str
 
 
 # Last in the module: the killed process's DDS endpoints linger until their lease expires.
-def test_killed_recorder_leaves_a_bag_readable_up_to_the_last_split(ros_node, streams, tmp_path):
+def test_killed_recorder_leaves_every_flushed_message_and_bag_repair_makes_the_bag_whole(
+        ros_node, streams, tmp_path):
     proc = recorder(tmp_path, '-p', 'autostart:=true', '-p', 'plate:=edge')
-
-    def closed_tactile_frames() -> int:
-        bags = list(tmp_path.iterdir())
-        if not bags or not (bags[0] / 'metadata.yaml').exists():
-            return 0
-        return sum(1 for _ in bagio.read_messages(bags[0], [topics.TOPIC_TACTILE]))
     try:
         assert streams.wait_for_recorder(), 'recorder never subscribed'
         streams.run(1.5)
         before = len(streams.published[topics.TOPIC_TACTILE])
-        # Until the splits closed so far (every 0.5 s) hold most of those frames (bounded) ...
-        assert spin_until(ros_node, lambda: closed_tactile_frames() >= 0.8 * before, 30.0), \
-            'the frames never reached a closed split'
-        # ... then more, into the split open at the kill.
+        # Quiet for three flush periods: what the recorder got is in complete chunks ...
+        spin_until(ros_node, lambda: False, 3 * FLUSH_S)
+        # ... then more frames, into the chunk open at the kill.
         streams.run(0.3)
         proc.send_signal(signal.SIGKILL)
         proc.wait(timeout=10.0)
@@ -373,10 +376,17 @@ def test_killed_recorder_leaves_a_bag_readable_up_to_the_last_split(ros_node, st
         output = stop(proc)
     assert proc.returncode == -signal.SIGKILL, output
     (bag,) = tmp_path.iterdir()
+    with pytest.raises(bagio.BagError, match='incomplete MCAP file.*bag_repair'):
+        list(bagio.read_messages(bag))
+    repair = subprocess.run([executable('bag_repair'), str(bag)], capture_output=True,
+                            text=True, timeout=60)
+    assert repair.returncode == 0, repair.stderr
+    assert 'cut off; kept' in repair.stdout, repair.stdout
+    # Nothing unreadable left: every file listed, complete, and read alike by both readers.
+    counts = readers_agree(bag)
     assert bagio.read_session_metadata(bag)['plate'] == 'edge'
     recorded = [topic for topic, _, _ in bagio.read_messages(bag)]
+    assert counts == Counter(recorded)
     sent = len(streams.published[topics.TOPIC_TACTILE])
     assert 0.8 * before <= recorded.count(topics.TOPIC_TACTILE) <= sent
     assert recorded.count(topics.TOPIC_SAMPLE) > 0.5 * recorded.count(topics.TOPIC_TACTILE)
-    assert any(p.name.endswith('.partial') for p in bag.iterdir()), \
-        'the split open at the kill should be left behind unlisted'

@@ -37,6 +37,11 @@ ARGUMENTS = {
                      'until stopped'),
     'seed': ('-1', 'simulator seed (sim only); -1: the scene\'s own'),
     'compose': ('false', 'true: every node but the simulator in one tacforce_container process'),
+    'namespace': ('', 'every node in this namespace (e.g. /left; in simulation its /clock too); '
+                  'empty: the root namespace'),
+    'xela_port': (str(XELA_PORT), 'sim only: the simulated xela_server\'s port (another per hand)'),
+    'netft_port': (str(NETFT_PORT), 'sim only: the simulated Net F/T box\'s UDP port'),
+    'can_port': (str(CAN_PORT), 'sim only: the simulated hand\'s socketcand port'),
     'autostart': ('true', 'the lifecycle drivers (xela_driver, ft_bridge, allegro_driver) '
                   'configure and activate themselves; false: they start unconfigured, for '
                   'ros2 lifecycle set or a lifecycle manager'),
@@ -55,12 +60,15 @@ def _nodes(context, mode: str):
                        sim_duration=float(value['sim_duration']),
                        seed=int(value['seed']), compose=launch_bool('compose', value['compose']),
                        autostart=launch_bool('autostart', value['autostart']),
-                       xela_port=XELA_PORT, netft_port=NETFT_PORT, can_port=CAN_PORT)
+                       namespace=value['namespace'],
+                       xela_port=int(value['xela_port']), netft_port=int(value['netft_port']),
+                       can_port=int(value['can_port']))
     actions, delay = [], 0.0
     for node in plan(args):
         action = (Node(package='tacforce_ros', executable=node.executable, output='screen',
                        arguments=node.command_args()) if node.parts else
                   Node(package='tacforce_ros', executable=node.executable, output='screen',
+                       namespace=node.namespace or None, remappings=list(node.remappings),
                        parameters=[str(p) for p in node.param_files] + [node.overrides]))
         actions.append(TimerAction(period=delay, actions=[action]) if delay else action)
         # A node that exits with an error ends the launch, naming itself (as `session` does).
@@ -77,6 +85,9 @@ def _nodes(context, mode: str):
     urdf = Path(config_dir() / 'urdf' / f'allegro_{args.hand_side}_uskin.urdf')
     if hand_config(args.hand_side).is_file() and urdf.is_file():
         actions.append(Node(package='robot_state_publisher', executable='robot_state_publisher',
+                            namespace=args.namespace or None,
+                            remappings=[('/clock', f'{args.namespace}/clock')]
+                            if args.namespace and args.sim else [],
                             parameters=[{'robot_description': urdf.read_text(),
                                          'use_sim_time': args.sim}]))
     return actions

@@ -1,5 +1,11 @@
 """The node graph's topic names and the QoS kind each is published with: the one place they are
-spelled. ROS-free: the bag layout (bagio), the nodes and the tools all read them here."""
+spelled. ROS-free: the bag layout (bagio), the nodes and the tools all read them here.
+
+Names are written as they resolve in the root namespace (and as a bag names its topics); nodes
+create their publishers and subscriptions with `relative(name)`, so a graph started in a
+namespace (`session --namespace /left`) publishes /left/tactile/raw and two hands share one
+graph. /diagnostics stays absolute: every device's health in one place, as diagnostic_updater
+publishes it."""
 from __future__ import annotations
 
 TOPIC_TACTILE = '/tactile/raw'
@@ -40,6 +46,15 @@ TOPIC_QOS = {
 # reliable, volatile (nodes/common.py builds the rclpy profiles; bagio writes it into a bag's
 # metadata as each recorded topic's offered QoS, as `ros2 bag record` does).
 PUBLISHER_DEPTH = 10
+
+
+def relative(topic: str) -> str:
+    """The name a node uses for `topic`: relative (it resolves in the node's namespace), but for
+    the topics that are absolute by convention."""
+    return topic if topic in ABSOLUTE else topic.lstrip('/')
+
+
+ABSOLUTE = frozenset({TOPIC_DIAGNOSTICS})
 
 
 def array_wrench_topic(array: str) -> str:

@@ -41,6 +41,7 @@ from tacforce_ros.experiments.calibration_data import simulate_calibration
 from tacforce_ros.experiments.closed_loop import ClosedLoopTrace, run_closed_loop
 from tacforce_ros.hand.description import load_hand
 from tacforce_ros.hand.kinematics import HandKinematics
+from tacforce_ros.nodes.session_plan import shipped_parameters
 from tacforce_ros.paths import config_dir
 from tacforce_ros.sim import load_scene
 from tacforce_ros.sim.scene import session_seed
@@ -195,8 +196,7 @@ def controller_config(controller: str):
 
 def estimator_parameter(name: str):
     """A parameter of the estimator node as the project ships it (config/params/estimator.yaml)."""
-    doc = yaml.safe_load((config_dir() / 'params' / 'estimator.yaml').read_text())
-    return doc['estimator']['ros__parameters'][name]
+    return shipped_parameters('estimator')[name]
 
 
 def tare_frames() -> int:

@@ -49,7 +49,7 @@ from tacforce_ros.nodes.common import (GRAVITY, HAND_CONFIG, REALTIME_PRIORITY, 
 from tacforce_ros.nodes.link_status import STATUS_PARAMETERS
 from tacforce_ros.nodes.managed_driver import AUTOSTART, ManagedDriver
 from tacforce_ros.nodes.messages import stamp
-from tacforce_ros.topics import TOPIC_JOINTS, TOPIC_TORQUE_COMMAND
+from tacforce_ros.topics import TOPIC_JOINTS, TOPIC_TORQUE_COMMAND, relative
 
 # Wall-time period of the check that ends the node on a lost link (and, under force control, on
 # a hand the driver made safe): the exit follows the fault within this.
@@ -124,12 +124,12 @@ class AllegroDriver(ManagedDriver):
                                  f'silent_warn_after ({p["silent_warn_after"]})')
         self.controlled = p['control'] == 'torque'
         self._joint_index = {name: k for k, name in enumerate(self.kin.joint_names)}
-        self.joint_publisher = self.create_lifecycle_publisher(JointState, TOPIC_JOINTS,
+        self.joint_publisher = self.create_lifecycle_publisher(JointState, relative(TOPIC_JOINTS),
                                                                publisher_qos(TOPIC_JOINTS))
         self.refused_commands = 0
         self._reset_control()
         if self.controlled:
-            self.create_subscription(JointState, TOPIC_TORQUE_COMMAND, self._on_command,
+            self.create_subscription(JointState, relative(TOPIC_TORQUE_COMMAND), self._on_command,
                                      subscriber_qos(TOPIC_TORQUE_COMMAND))
         self.driver: AllegroV4Driver | None = None
         self._hand_timers = []

@@ -17,7 +17,7 @@ from std_srvs.srv import Trigger
 from tacforce_ros.control.command_sequence import ForceSequence, SequenceError
 from tacforce_ros.nodes.common import (ParameterError, ParamSpec, TacforceNode, publisher_qos,
                                       run_node)
-from tacforce_ros.topics import TOPIC_DESIRED
+from tacforce_ros.topics import TOPIC_DESIRED, relative
 
 
 
@@ -43,7 +43,7 @@ class CommandPlayer(TacforceNode):
         except SequenceError as exc:
             raise ParameterError(f'sequence: {exc}') from None
         self.frame_id = self.params['frame_id'] or self.sequence.frame_id
-        self.publisher = self.create_publisher(Vector3Stamped, TOPIC_DESIRED,
+        self.publisher = self.create_publisher(Vector3Stamped, relative(TOPIC_DESIRED),
                                                publisher_qos(TOPIC_DESIRED))
         self.create_service(Trigger, '~/start', self._on_start)
         self._started_ns: int | None = None

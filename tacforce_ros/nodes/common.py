@@ -363,7 +363,8 @@ def params_file_node_keys(doc: Any, prefix: str = '') -> list[str]:
 def node_key_matches(key: str, fully_qualified_name: str) -> bool:
     """rcl's rule: a node key names the node (``node``, ``/ns/node``), with ``*`` for one name
     token and ``**`` for any number of them."""
-    pattern = re.escape('/' + key.strip('/')).replace(r'\*\*', '.*').replace(r'\*', '[^/]*')
+    pattern = (re.escape('/' + key.strip('/')).replace(r'/\*\*', '(/[^/]+)*')
+               .replace(r'\*', '[^/]+'))
     return re.fullmatch(pattern, fully_qualified_name) is not None
 
 

@@ -61,7 +61,7 @@ from tacforce_ros.nodes.serialized import (SerializedMessages, TactileHandDecode
                                            serialized_estimates, serialized_wrenches)
 from tacforce_ros.paths import config_dir
 from tacforce_ros.topics import (TOPIC_ESTIMATES, TOPIC_MARKERS, TOPIC_TACTILE,
-                                 array_wrench_topic)
+                                 array_wrench_topic, relative)
 
 STATUS_STALE = 'stale'
 # Frames the best-effort subscription keeps: a scheduling stall of a busy machine delays frames
@@ -121,13 +121,13 @@ class Estimator(TacforceNode):
         # topics still report an incompatible QoS on their side.
         quiet = PublisherEventCallbacks(use_default_callbacks=False)
         self.wrench_publishers = [
-            self.create_publisher(WrenchStamped, array_wrench_topic(n),
+            self.create_publisher(WrenchStamped, relative(array_wrench_topic(n)),
                                   publisher_qos(array_wrench_topic(n)), event_callbacks=quiet)
             for n in self.names]
         self.estimates_publisher = self.create_publisher(
             ForceEstimateArray, TOPIC_ESTIMATES, publisher_qos(TOPIC_ESTIMATES),
             event_callbacks=quiet)
-        self.create_subscription(TactileHand, TOPIC_TACTILE, self._on_frame,
+        self.create_subscription(TactileHand, relative(TOPIC_TACTILE), self._on_frame,
                                  subscriber_qos(TOPIC_TACTILE, depth=FRAME_QUEUE_DEPTH),
                                  raw=True)
         self.create_service(Trigger, '~/tare', self._on_tare)
@@ -135,7 +135,7 @@ class Estimator(TacforceNode):
         self._stale_period_ns = int(1e9 / p['stale_check_rate_hz'])
         self._watchdog = self.create_timer(p['stale_timeout'], self._on_stale)
         if p['marker_rate_hz'] > 0:
-            self.marker_publisher = self.create_publisher(MarkerArray, TOPIC_MARKERS,
+            self.marker_publisher = self.create_publisher(MarkerArray, relative(TOPIC_MARKERS),
                                                           RELIABLE_QOS)
             self.create_timer(1.0 / p['marker_rate_hz'], self._publish_markers)
         self._last_force = np.zeros((len(self.names), 3))

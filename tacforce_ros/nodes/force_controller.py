@@ -39,7 +39,7 @@ from tacforce_ros.nodes.common import (GRAVITY, HAND_CONFIG, REALTIME_PRIORITY, 
                                        subscriber_qos)
 from tacforce_ros.nodes.messages import stamp, stamp_ns, vector3
 from tacforce_ros.topics import (TOPIC_CONTROLLER_STATE, TOPIC_DESIRED, TOPIC_ESTIMATES,
-                                 TOPIC_JOINTS, TOPIC_TORQUE_COMMAND)
+                                 TOPIC_JOINTS, TOPIC_TORQUE_COMMAND, relative)
 
 CONTROLLER_GROUP = 'force_controller'
 
@@ -80,15 +80,16 @@ class ForceControllerNode(TacforceNode):
         self._estimate: tuple[np.ndarray, int] | None = None     # f_hat, stamp ns
         self.refused_commands = 0
         self.refused_joint_states = 0
-        self.create_subscription(JointState, TOPIC_JOINTS, self._on_joints,
+        self.create_subscription(JointState, relative(TOPIC_JOINTS), self._on_joints,
                                  subscriber_qos(TOPIC_JOINTS, depth=1))
-        self.create_subscription(Vector3Stamped, TOPIC_DESIRED, self._on_desired,
+        self.create_subscription(Vector3Stamped, relative(TOPIC_DESIRED), self._on_desired,
                                  subscriber_qos(TOPIC_DESIRED))
-        self.create_subscription(ForceEstimateArray, TOPIC_ESTIMATES, self._on_estimates,
+        self.create_subscription(ForceEstimateArray, relative(TOPIC_ESTIMATES),
+                                 self._on_estimates,
                                  subscriber_qos(TOPIC_ESTIMATES, depth=1))
-        self.torque_publisher = self.create_publisher(JointState, TOPIC_TORQUE_COMMAND,
+        self.torque_publisher = self.create_publisher(JointState, relative(TOPIC_TORQUE_COMMAND),
                                                       publisher_qos(TOPIC_TORQUE_COMMAND))
-        self.state_publisher = self.create_publisher(ControllerState, TOPIC_CONTROLLER_STATE,
+        self.state_publisher = self.create_publisher(ControllerState, relative(TOPIC_CONTROLLER_STATE),
                                                      publisher_qos(TOPIC_CONTROLLER_STATE))
         self.create_timer(1.0 / p['control_rate_hz'], self._control)
         self.get_logger().info(

@@ -27,7 +27,7 @@ from tacforce_ros.nodes.common import ParameterError, ParamSpec, publisher_qos, 
 from tacforce_ros.nodes.link_status import STATUS_PARAMETERS
 from tacforce_ros.nodes.managed_driver import AUTOSTART, ManagedDriver
 from tacforce_ros.nodes.messages import wrench_stamped
-from tacforce_ros.topics import TOPIC_WRENCH
+from tacforce_ros.topics import TOPIC_WRENCH, relative
 
 
 class FtBridge(ManagedDriver):
@@ -52,7 +52,7 @@ class FtBridge(ManagedDriver):
     def __init__(self, **node_options) -> None:
         super().__init__(**node_options)
         p = self.params
-        self.publisher = self.create_lifecycle_publisher(WrenchStamped, TOPIC_WRENCH,
+        self.publisher = self.create_lifecycle_publisher(WrenchStamped, relative(TOPIC_WRENCH),
                                                          publisher_qos(TOPIC_WRENCH))
         self.config = NetFtConfig(
             host=p['host'], port=p['port'], counts_per_force=p['counts_per_force'],

@@ -6,7 +6,9 @@ No rclpy here: the plan is data (executable, parameter files under config/params
 """
 from __future__ import annotations
 
+import dataclasses
 import os
+import re
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -17,6 +19,7 @@ from tacforce_ros.paths import config_dir, ros_home
 from tacforce_ros.sim.scene import SceneError, load_scene
 
 MODES = ('calibration', 'closed_loop')
+NAMESPACE = re.compile(r'(/[A-Za-z_][A-Za-z0-9_]*)+')
 HAND_SIDES = ('right', 'left')
 
 # Default device ports of the hardware; in simulation sim_world serves the emulators on these
@@ -53,10 +56,17 @@ class NodeLaunch:
     overrides: dict[str, Any] = field(default_factory=dict)
     ready_port: int | None = None     # a TCP port on 127.0.0.1 that accepts once it is ready
     parts: tuple[NodeLaunch, ...] = ()
+    namespace: str = ''               # '' : the root namespace
+    remappings: tuple[tuple[str, str], ...] = ()
 
     def ros_args(self) -> list[str]:
-        """Command-line arguments giving the node exactly these parameters."""
+        """Command-line arguments giving the node exactly these parameters, namespace and
+        remappings."""
         args = ['--ros-args']
+        if self.namespace:
+            args += ['-r', f'__ns:={self.namespace}']
+        for source, target in self.remappings:
+            args += ['-r', f'{source}:={target}']
         for path in self.param_files:
             args += ['--params-file', str(path)]
         for name, value in self.overrides.items():
@@ -100,6 +110,7 @@ class SessionArgs:
     sim_duration: float = 0.0          # sim: simulated seconds the scene runs; 0 = until stopped
     compose: bool = False              # the nodes (not the simulator) in one process
     autostart: bool = True             # the managed drivers configure and activate themselves
+    namespace: str = ''                # every node in this namespace (e.g. /left); '': the root
     seed: int = -1                     # simulator seed; -1: the scene's own
     xela_port: int = XELA_PORT
     netft_port: int = NETFT_PORT
@@ -135,6 +146,17 @@ def params_file(name: str) -> Path:
     return config_dir() / 'params' / f'{name}.yaml'
 
 
+def params_node_key(name: str) -> str:
+    """The node key of a shipped parameters file: the node in any namespace (rcl's `**`)."""
+    return f'/**/{name}'
+
+
+def shipped_parameters(name: str) -> dict[str, Any]:
+    """The ros__parameters a shipped parameters file gives node `name`."""
+    import yaml
+    return yaml.safe_load(params_file(name).read_text())[params_node_key(name)]['ros__parameters']
+
+
 def hand_config(side: str) -> Path:
     return config_dir() / 'hand' / f'allegro_{side}_uskin.yaml'
 
@@ -156,6 +178,9 @@ def plan(args: SessionArgs) -> list[NodeLaunch]:
         raise PlanError(f'sim_duration: {args.sim_duration} must be >= 0 (0: until stopped)')
     if args.seed < -1:
         raise PlanError(f'seed: {args.seed} must be >= 0, or -1 for the scene\'s own')
+    if args.namespace and not NAMESPACE.fullmatch(args.namespace):
+        raise PlanError(f'namespace: {args.namespace!r} is not a ROS namespace (/name or '
+                        '/name/name, letters, digits and _, not starting with a digit)')
     if args.hand_side not in HAND_SIDES:
         raise PlanError(f'hand_side: {args.hand_side!r} is not one of {list(HAND_SIDES)}')
     hand = hand_config(args.hand_side)
@@ -221,4 +246,9 @@ def plan(args: SessionArgs) -> list[NodeLaunch]:
         **common, **hand_param, 'output_dir': args.out, 'array': args.array,
         'plate': args.plate, 'source': 'sim' if args.sim else 'lab', 'autostart': True,
         **({'scene': args.scene_name(), 'seed': args.seed} if args.sim else {})}))
+    if args.namespace:
+        # Each simulated hand keeps its own simulated time: /clock inside its namespace.
+        clock = ((('/clock', f'{args.namespace}/clock'),) if args.sim else ())
+        nodes = [dataclasses.replace(n, namespace=args.namespace, remappings=clock)
+                 for n in nodes]
     return composed(nodes) if args.compose else nodes

@@ -69,7 +69,7 @@ from tacforce_ros.sim.emulators.netft import NetFtEmulator
 from tacforce_ros.sim.emulators.xela_server import XelaServerEmulator
 from tacforce_ros.sim.lockstep import RealTimeMeter, TimeGate
 from tacforce_ros.topics import (TOPIC_CONTROLLER_STATE, TOPIC_JOINTS, TOPIC_SAMPLE,
-                                 TOPIC_SIM_CONTACT, array_wrench_topic)
+                                 TOPIC_SIM_CONTACT, array_wrench_topic, relative)
 
 # /clock as rosgraph's own publishers offer it: best effort, keep-last 1 (only the newest matters).
 CLOCK_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT,
@@ -156,7 +156,7 @@ class SimWorld(TacforceNode):
         self._stop = threading.Event()
         self.clock_publisher = (self.create_publisher(Clock, '/clock', CLOCK_QOS)
                                 if p['publish_clock'] else None)
-        self.truth_publisher = self.create_publisher(WrenchStamped, TOPIC_SIM_CONTACT,
+        self.truth_publisher = self.create_publisher(WrenchStamped, relative(TOPIC_SIM_CONTACT),
                                                      publisher_qos(TOPIC_SIM_CONTACT))
         # The emulator may poll at twice the frame rate: _tactile_frame waits for the next fresh
         # simulated frame, so the simulator (not the wall clock) sets the tactile rate.
@@ -222,7 +222,7 @@ class SimWorld(TacforceNode):
                         self.params['lockstep_silence'], ongoing=list(ongoing),
                         periods=periods, on_event=self._gate_event)
         for topic, message_type in {**periodic, **ongoing}.items():
-            self.create_subscription(message_type, topic,
+            self.create_subscription(message_type, relative(topic),
                                      lambda raw, topic=topic: gate.heard(topic,
                                                                          header_stamp_ns(raw)),
                                      subscriber_qos(topic), raw=True)

@@ -40,7 +40,8 @@ from tacforce_ros.nodes.common import (HAND_CONFIG, ParamSpec, ParameterError, T
                                        hand_parameter, publisher_qos, run_node, subscriber_qos)
 from tacforce_ros.recording.synchroniser import ApproximateTimeSynchroniser
 from tacforce_ros.topics import (TOPIC_CONTROLLER_STATE, TOPIC_DESIRED, TOPIC_JOINTS,
-                                 TOPIC_SAMPLE, TOPIC_SIM_CONTACT, TOPIC_TACTILE, TOPIC_WRENCH)
+                                 TOPIC_SAMPLE, TOPIC_SIM_CONTACT, TOPIC_TACTILE, TOPIC_WRENCH,
+                                 relative)
 
 INPUTS = (TOPIC_TACTILE, TOPIC_WRENCH, TOPIC_JOINTS)   # synchroniser input order
 # Written as received, outside the samples: present only when the graph publishes them.
@@ -93,14 +94,14 @@ class SyncRecorder(TacforceNode):
         self._counts: dict[str, int] = {}
         self._missing_array = 0
         self._undecodable = 0
-        self.sample_publisher = self.create_publisher(CalibrationSample, TOPIC_SAMPLE,
+        self.sample_publisher = self.create_publisher(CalibrationSample, relative(TOPIC_SAMPLE),
                                                       publisher_qos(TOPIC_SAMPLE))
         for index, (topic, msg_type) in enumerate(zip(
                 INPUTS, (TactileHand, WrenchStamped, JointState))):
-            self.create_subscription(msg_type, topic, self._callback(index, topic),
+            self.create_subscription(msg_type, relative(topic), self._callback(index, topic),
                                      subscriber_qos(topic, depth=RECORDER_DEPTH), raw=True)
         for topic, (msg_type, _) in PASSTHROUGH.items():
-            self.create_subscription(msg_type, topic, self._passthrough(topic),
+            self.create_subscription(msg_type, relative(topic), self._passthrough(topic),
                                      subscriber_qos(topic, depth=RECORDER_DEPTH), raw=True)
         self.create_service(StartRecording, '~/start', self._on_start)
         self.create_service(Trigger, '~/stop', self._on_stop)

@@ -27,7 +27,7 @@ from tacforce_ros.nodes.common import (HAND_CONFIG, ParamSpec, ParameterError, h
 from tacforce_ros.nodes.link_status import STATUS_PARAMETERS
 from tacforce_ros.nodes.managed_driver import AUTOSTART, ManagedDriver
 from tacforce_ros.nodes.messages import tactile_hand
-from tacforce_ros.topics import TOPIC_TACTILE
+from tacforce_ros.topics import TOPIC_TACTILE, relative
 
 # Frames are stamped within milliseconds of their arrival; a second apart means two clocks.
 CLOCK_MISMATCH_NS = 1_000_000_000
@@ -59,7 +59,7 @@ class XelaDriver(ManagedDriver):
         if not p['url'].startswith(('ws://', 'wss://')):
             raise ParameterError(f'url: {p["url"]!r} is not a ws:// or wss:// URL')
         self.hand = hand_parameter(p)
-        self.publisher = self.create_lifecycle_publisher(TactileHand, TOPIC_TACTILE,
+        self.publisher = self.create_lifecycle_publisher(TactileHand, relative(TOPIC_TACTILE),
                                                          publisher_qos(TOPIC_TACTILE))
         self.device_clock = DeviceClock(p['server_clock'] == 'node', p['max_clock_skew'])
         self.client: XelaClient | None = None

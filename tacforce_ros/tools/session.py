@@ -271,6 +271,9 @@ def main(argv: list[str] | None = None) -> None:
                         help='seconds the nodes get to stop after SIGINT before being killed')
     parser.add_argument('--compose', action='store_true',
                         help='the nodes (all but the simulator) in one tacforce_container process')
+    parser.add_argument('--namespace', default='',
+                        help='every node in this ROS namespace (e.g. /left: /left/tactile/raw, '
+                        'and in simulation /left/clock); default: the root namespace')
     parser.add_argument('--autostart', action=argparse.BooleanOptionalAction, default=True,
                         help='the drivers configure and activate themselves (default); '
                         '--no-autostart: they start unconfigured, for ros2 lifecycle set')
@@ -297,7 +300,8 @@ def main(argv: list[str] | None = None) -> None:
                              model_config=a.model, sequence=a.sequence, out=str(a.out),
                              real_time_factor=a.real_time_factor, lockstep=a.lockstep,
                              sim_duration=a.sim_duration, seed=a.seed, compose=a.compose,
-                             autostart=a.autostart, xela_port=a.ports[0],
+                             autostart=a.autostart, namespace=a.namespace,
+                             xela_port=a.ports[0],
                              netft_port=a.ports[1], can_port=a.ports[2]),
                  a.duration, a.grace, crash))
 

@@ -35,6 +35,12 @@ def test_node_keys_match_as_rcl_matches_them():
     assert not node_key_matches('/*/recorder', '/recorder')
     assert not node_key_matches('estimatr', '/estimator')
     assert not node_key_matches('/left/estimator', '/estimator')
+    # The shipped files' keys: the node in the root namespace or any other.
+    assert node_key_matches('/**/estimator', '/estimator')
+    assert node_key_matches('/**/estimator', '/left/estimator')
+    assert node_key_matches('/**/estimator', '/rig/left/estimator')
+    assert not node_key_matches('/**/estimator', '/left/estimator_2')
+    assert not node_key_matches('/**/estimator', '/left_estimator')
     assert params_files(['x', '--ros-args', '-p', 'a:=1', '--params-file', 'f.yaml', '--',
                          '--params-file', 'not_ros.yaml']) == [Path('f.yaml')]
 

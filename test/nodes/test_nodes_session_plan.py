@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from tacforce_ros.nodes.session_plan import MODES, PlanError, SessionArgs, plan
+from tacforce_ros.nodes.session_plan import MODES, PlanError, SessionArgs, params_node_key, plan
 from tacforce_ros.paths import share_dir
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
@@ -26,8 +26,8 @@ def test_every_named_executable_and_file_exists(mode, sim):
         for path in node.param_files:
             assert path.is_file(), f'{node.executable}: {path} missing'
             doc = yaml.safe_load(path.read_text())
-            # Each file addresses this node by name (or every node with /**).
-            assert set(doc) & {node.executable, '/**'}, f'{path} does not address the node'
+            # Each file addresses this node in any namespace.
+            assert list(doc) == [params_node_key(node.executable)], path
         # In simulation every node but the clock source runs on /clock.
         wants_sim_time = sim and node.executable != 'sim_world'
         assert node.overrides.get('use_sim_time', False) is wants_sim_time
@@ -149,3 +149,36 @@ def test_a_crash_drill_of_a_node_the_session_lacks_is_refused_before_any_start(t
                           capture_output=True, text=True, timeout=60)
     assert done.returncode == 2 and "'estimator' is not a node of this session" in done.stderr
     assert not (tmp_path / 'logs').exists()
+
+
+def test_a_namespace_reaches_every_node_with_its_own_clock_in_simulation():
+    for compose in (False, True):
+        nodes = plan(SessionArgs(mode='closed_loop', namespace='/left', compose=compose))
+        parts = [p for n in nodes for p in (n.parts or (n,))]
+        assert {p.namespace for p in parts} == {'/left'}
+        for part in parts:
+            args = part.ros_args()
+            assert ['-r', '__ns:=/left', '-r', '/clock:=/left/clock'] == args[1:5], args
+    hardware = plan(SessionArgs(mode='closed_loop', sim=False, namespace='/rig2'))
+    assert all(n.remappings == () and n.namespace == '/rig2' for n in hardware)
+    assert all(n.namespace == '' and '-r' not in n.ros_args()
+               for n in plan(SessionArgs(mode='closed_loop')))
+
+
+@pytest.mark.parametrize('namespace', ['left', '/left/', '/2hands', '/le ft'])
+def test_a_namespace_that_is_not_one_is_refused(namespace):
+    with pytest.raises(PlanError, match='namespace'):
+        plan(SessionArgs(mode='calibration', namespace=namespace))
+
+
+def test_the_two_hands_example_includes_the_closed_loop_in_two_namespaces_on_distinct_ports():
+    tree = ast.parse((LAUNCH / 'two_hands_sim.launch.py').read_text())
+    hands = next(n.value for n in ast.walk(tree) if isinstance(n, ast.Assign)
+                 and getattr(n.targets[0], 'id', '') == 'HANDS')
+    hands = ast.literal_eval(hands)
+    assert set(hands) == {'/left', '/right'}
+    ports = [p for triple in hands.values() for p in triple]
+    assert len(set(ports)) == len(ports)
+    shared = (LAUNCH / 'session_launch.py').read_text()
+    for argument in ('namespace', 'xela_port', 'netft_port', 'can_port'):
+        assert f"'{argument}': (" in shared

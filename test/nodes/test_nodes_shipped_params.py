@@ -4,6 +4,7 @@ range, so a file and the code cannot drift apart."""
 import pytest
 import yaml
 
+from tacforce_ros.nodes.session_plan import params_node_key
 from tacforce_ros.nodes.tacforce_container import NODE_CLASSES, node_class
 from tacforce_ros.paths import config_dir
 
@@ -28,8 +29,8 @@ def test_every_node_has_a_shipped_parameter_file():
 @pytest.mark.parametrize('node', sorted(NODE_CLASSES))
 def test_a_shipped_parameter_file_holds_only_declared_parameters_of_valid_values(node):
     doc = yaml.safe_load((config_dir() / 'params' / f'{node}.yaml').read_text())
-    assert list(doc) == [node]
-    values = flattened(doc[node]['ros__parameters'])
+    assert list(doc) == [params_node_key(node)]
+    values = flattened(doc[params_node_key(node)]['ros__parameters'])
     specs = {spec.name: spec for spec in node_class(node).PARAMETERS}
     undeclared = set(values) - set(specs) - ROS_DECLARED
     assert not undeclared, f'{node}.yaml sets parameters {node} does not declare: {undeclared}'

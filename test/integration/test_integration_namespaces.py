@@ -1,0 +1,69 @@
+"""Two simulated hands in one ROS graph, in the namespaces /left and /right (session_plan's
+`namespace`, as `session --namespace` and the launch files' `namespace:=` start them): each
+simulator, its drivers and estimator (a model on every array) run in its hand's namespace, with its
+own /clock remapped into it, and each estimator publishes its own hand's 18 wrench topics under
+its namespace and nothing in the other's or in the root namespace."""
+import sys
+from pathlib import Path
+
+import pytest
+import rclpy
+from geometry_msgs.msg import WrenchStamped
+
+from tacforce_ros.hand.description import load_hand
+from tacforce_ros.nodes.common import subscriber_qos
+from tacforce_ros.topics import array_wrench_topic
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from graph_support import (Graph, graph_nodes, session_args, synthetic_model_set,  # noqa: E402
+                           unique_domain_id, wait_until, with_overrides)
+
+pytestmark = pytest.mark.ros
+DOMAIN = unique_domain_id(offset=87)
+# The hand's driver too: simulated time starts when its servos are on.
+NODES = ('sim_world', 'xela_driver', 'estimator', 'allegro_driver')
+HANDS = ('/left', '/right')
+TIMEOUT_S = 180.0
+
+
+def test_two_hands_in_their_namespaces_publish_only_their_own_wrenches(tmp_path):
+    hand = load_hand()
+    models = synthetic_model_set(tmp_path / 'models', hand)
+    graphs = []
+    rclpy.init(domain_id=DOMAIN)
+    probe = rclpy.create_node('namespaces_probe')
+    received = {(ns, a.name): 0 for ns in HANDS for a in hand.arrays}
+
+    def receiver(key):
+        def receive(_msg: WrenchStamped) -> None:
+            received[key] += 1
+        return receive
+
+    for ns, name in received:
+        topic = array_wrench_topic(name)
+        probe.create_subscription(WrenchStamped, ns + topic, receiver((ns, name)),
+                                  subscriber_qos(topic))
+    try:
+        for offset, ns in enumerate(HANDS):
+            # Free-running: the graph has no controller for lockstep to wait for.
+            args = session_args('closed_loop', offset=7 + offset, namespace=ns, lockstep=False)
+            nodes = [n for n in graph_nodes(args) if n.executable in NODES]
+            graphs.append(Graph(with_overrides(nodes, estimator={'model_config': str(models)}),
+                                DOMAIN, tmp_path / f'logs{offset}'))
+        assert wait_until(lambda: all(count >= 20 for count in received.values()), TIMEOUT_S,
+                          lambda: rclpy.spin_once(probe, timeout_sec=0.05)), (
+            sorted(k for k, v in received.items() if v < 20),
+            '\n'.join(g.logs() for g in graphs))
+        names = {name for name, _ in probe.get_topic_names_and_types()}
+        for a in hand.arrays:
+            assert array_wrench_topic(a.name) not in names, 'a wrench in the root namespace'
+            for ns in HANDS:
+                publishers = probe.get_publishers_info_by_topic(ns + array_wrench_topic(a.name))
+                assert [(p.node_name, p.node_namespace) for p in publishers] == \
+                    [('estimator', ns)], publishers
+        assert {'/left/clock', '/right/clock'} <= names
+    finally:
+        probe.destroy_node()
+        rclpy.shutdown()
+        codes = [g.stop() for g in graphs]
+    assert all(c == 0 for graph_codes in codes for c in graph_codes.values()), codes

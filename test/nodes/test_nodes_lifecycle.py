@@ -60,6 +60,14 @@ def _quiet(node, received: list) -> bool:
     return len(received) == before
 
 
+def unconfigured_allegro_driver(host: str, port: int, domain: int) -> OutputLines:
+    params = ['interface:=socketcand', 'channel:=can0', f'host:={host}', f'port:={port}',
+              'rtr_requests:=false', 'control:=off', 'autostart:=false']
+    return OutputLines(start([executable('allegro_driver'), '--ros-args', '--params-file',
+                              params_file('allegro_driver'),
+                              *[a for p in params for a in ('-p', p)]], domain))
+
+
 def test_allegro_driver_through_its_lifecycle_switches_servos_and_stream():
     domain = unique_domain_id(offset=61)
     with AllegroEmulator(lambda: np.linspace(0.0, 0.6, 16), lambda tau: None) as hand, \
@@ -68,11 +76,7 @@ def test_allegro_driver_through_its_lifecycle_switches_servos_and_stream():
         received: list = []
         node.create_subscription(JointState, TOPIC_JOINTS, received.append,
                                  subscriber_qos(TOPIC_JOINTS))
-        params = ['interface:=socketcand', 'channel:=can0', f'host:={host}', f'port:={port}',
-                  'rtr_requests:=false', 'control:=off', 'autostart:=false']
-        out = OutputLines(start([executable('allegro_driver'), '--ros-args', '--params-file',
-                                 params_file('allegro_driver'),
-                                 *[a for p in params for a in ('-p', p)]], domain))
+        out = unconfigured_allegro_driver(host, port, domain)
         life = Lifecycle(node, 'allegro_driver')
         try:
             assert life.state() == 'unconfigured', out.text()
@@ -143,11 +147,7 @@ def test_a_configure_that_cannot_reach_the_hand_fails_and_says_why():
     with AllegroEmulator(lambda: np.zeros(16), lambda tau: None) as hand:
         host, port = hand.address          # a port that was served, and is closed now
     with rclpy_node('lifecycle_test', domain) as node:
-        params = ['interface:=socketcand', 'channel:=can0', f'host:={host}', f'port:={port}',
-                  'rtr_requests:=false', 'control:=off', 'autostart:=false']
-        out = OutputLines(start([executable('allegro_driver'), '--ros-args', '--params-file',
-                                 params_file('allegro_driver'),
-                                 *[a for p in params for a in ('-p', p)]], domain))
+        out = unconfigured_allegro_driver(host, port, domain)
         life = Lifecycle(node, 'allegro_driver')
         try:
             assert not life.change(Transition.TRANSITION_CONFIGURE)

@@ -89,7 +89,8 @@ class ForceControllerNode(TacforceNode):
                                  subscriber_qos(TOPIC_ESTIMATES, depth=1))
         self.torque_publisher = self.create_publisher(JointState, relative(TOPIC_TORQUE_COMMAND),
                                                       publisher_qos(TOPIC_TORQUE_COMMAND))
-        self.state_publisher = self.create_publisher(ControllerState, relative(TOPIC_CONTROLLER_STATE),
+        self.state_publisher = self.create_publisher(ControllerState,
+                                                     relative(TOPIC_CONTROLLER_STATE),
                                                      publisher_qos(TOPIC_CONTROLLER_STATE))
         self.create_timer(1.0 / p['control_rate_hz'], self._control)
         self.get_logger().info(

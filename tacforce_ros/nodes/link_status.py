@@ -1,12 +1,12 @@
 """Link health of the driver nodes on /diagnostics (diagnostic_msgs/DiagnosticArray), as
-diagnostic_updater publishes it: one DiagnosticStatus per driver every `diagnostics_period`
-wall seconds while the driver is active (a managed driver that is deactivated says so once,
-STALE, and reports again when activated), named '<node>: device link', with the device as hardware_id, a level
-(devices/diagnostics.link_health: OK, WARN, ERROR, STALE), and the link's counters as values
-(never reset: a driver that replaces its client carries the old one's counts), the delivery rate
-over the period, and the last error while the link is not OK. rqt_robot_monitor and Foxglove's
-diagnostics panel read it. A change of level is logged once at its severity with the counters,
-and the driver's own events (faults, recoveries) are logged as they happen."""
+diagnostic_updater publishes it: one DiagnosticStatus per driver every `diagnostics_period` wall
+seconds while the driver is active (a managed driver that is deactivated says so once, STALE,
+and reports again when activated), named '<node>: device link', with the device as hardware_id,
+a level (devices/diagnostics.link_health: OK, WARN, ERROR, STALE), and the link's counters as
+values (never reset: a driver that replaces its client carries the old one's counts), the
+delivery rate over the period, and the last error while the link is not OK. rqt_robot_monitor
+and Foxglove's diagnostics panel read it. A change of level is logged once at its severity with
+the counters, and the driver's own events (faults, recoveries) are logged as they happen."""
 from __future__ import annotations
 
 import dataclasses

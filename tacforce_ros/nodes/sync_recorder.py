@@ -9,8 +9,9 @@ simulator's ground truth /sim/contact_force, so a closed-loop bag carries comman
 truth on the one clock. Bag layout and session metadata: docs/CONTRACTS.md. The bag is what
 `ros2 bag record -s mcap` writes (one MCAP file unless `max_bag_size` or `max_bag_duration`
 splits it); an MCAP chunk ends every `flush_seconds` (wall time), so a recorder killed with
-SIGKILL leaves every message up to then on disk, and `bag_repair BAG` makes the bag whole. Services: ~/start (tacforce_msgs/srv/StartRecording; empty fields take the
-parameters) and ~/stop (std_srvs/Trigger).
+SIGKILL leaves every message up to then on disk, and `bag_repair BAG` makes the bag whole.
+Services: ~/start (tacforce_msgs/srv/StartRecording; empty fields take the parameters) and ~/stop
+(std_srvs/Trigger).
 
 Log times are the node clock's. Under use_sim_time the clock reads 0 until the first /clock, so
 nothing is recorded before it: `autostart` starts the session at the first /clock, and ~/start

@@ -77,7 +77,8 @@ def written(tmp_path_factory):
     return path, flushes, (path / 'cut_0.mcap').read_bytes()
 
 
-@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@settings(max_examples=25, deadline=None,
+          suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(after=st.integers(0, 11), extra=st.floats(0.0, 1.0))
 def test_a_file_cut_after_a_flush_keeps_every_message_up_to_it(written, tmp_path_factory,
                                                                after, extra):

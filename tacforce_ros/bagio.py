@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import io
 import json
+import shutil
 import time
 from collections import Counter
 from collections.abc import Iterator, Sequence
@@ -205,14 +206,18 @@ class FileRecord:
 
 @dataclass(frozen=True)
 class TopicRecord:
-    """A recorded topic: its type and its publishers' offered QoS (metadata version 9 form)."""
+    """A recorded topic: its type, its publishers' offered QoS (metadata version 9 form) and its
+    type's hash (RIHS01)."""
 
     msgtype: str
     offered_qos: list[dict[str, Any]]
+    type_hash: str
 
 
 def topic_records(topics: dict[str, str]) -> dict[str, TopicRecord]:
-    return {topic: TopicRecord(msgtype, dump_qos_v9(offered_qos(topic)))
+    store = typestore()
+    return {topic: TopicRecord(msgtype, dump_qos_v9(offered_qos(topic)),
+                               store.hash_rihs01(msgtype))
             for topic, msgtype in topics.items()}
 
 
@@ -226,7 +231,6 @@ def bag_metadata(files: Sequence[FileRecord], topics: dict[str, TopicRecord],
                  custom_data: dict[str, str]) -> dict[str, Any]:
     """rosbag2 metadata (version 9) of a bag of MCAP files, the fields `ros2 bag record -s mcap`
     writes."""
-    store = typestore()
     starts = [f.start_ns for f in files if f.start_ns is not None]
     ends = [f.end_ns for f in files if f.end_ns is not None]
     return {
@@ -238,7 +242,7 @@ def bag_metadata(files: Sequence[FileRecord], topics: dict[str, TopicRecord],
             {'topic_metadata': {'name': topic, 'type': record.msgtype,
                                 'serialization_format': 'cdr',
                                 'offered_qos_profiles': record.offered_qos,
-                                'type_description_hash': store.hash_rihs01(record.msgtype)},
+                                'type_description_hash': record.type_hash},
              'message_count': sum(f.counts.get(topic, 0) for f in files)}
             for topic, record in topics.items()],
         'compression_format': '', 'compression_mode': '',
@@ -259,7 +263,7 @@ def write_metadata(bag_dir: Path, info: dict[str, Any]) -> None:
     tmp.replace(bag_dir / 'metadata.yaml')
 
 
-def _yaml_text(value: Any) -> str:
+def yaml_text(value: Any) -> str:
     stream = io.StringIO()
     yaml = YAML(typ='safe')
     yaml.default_flow_style = False
@@ -267,15 +271,21 @@ def _yaml_text(value: Any) -> str:
     return stream.getvalue().strip()
 
 
-def start_mcap(stream, topics: dict[str, TopicRecord], mcap_header: tuple[str, str] | None = None
-               ) -> tuple[McapWriter, dict[str, int]]:
+def mcap_writer(stream, profile: str = 'ros2',
+                library: str = f'tacforce_ros, mcap {version("mcap")}') -> McapWriter:
+    """A started MCAP writer on `stream` as every bag file is written: CHUNK_BYTES chunks, no
+    compression (the recorder shares the loop's cores)."""
+    writer = McapWriter(stream, chunk_size=CHUNK_BYTES, compression=CompressionType.NONE)
+    writer.start(profile=profile, library=library)
+    return writer
+
+
+def start_mcap(stream, topics: dict[str, TopicRecord]) -> tuple[McapWriter, dict[str, int]]:
     """An MCAP writer on `stream` with the ROS 2 profile, a ros2msg schema per type (the full
     definition, as rosbag2 embeds it, so Foxglove and rosbags decode without ROS) and a cdr
     channel per topic with its offered QoS; returns it and the channel id of each topic."""
     store = typestore()
-    writer = McapWriter(stream, chunk_size=CHUNK_BYTES, compression=CompressionType.NONE)
-    profile, library = mcap_header or ('ros2', f'tacforce_ros, mcap {version("mcap")}')
-    writer.start(profile=profile, library=library)
+    writer = mcap_writer(stream)
     schemas: dict[str, int] = {}
     channels = {}
     for topic, record in topics.items():
@@ -285,8 +295,8 @@ def start_mcap(stream, topics: dict[str, TopicRecord], mcap_header: tuple[str, s
                                                              msgdef.encode())
         channels[topic] = writer.register_channel(
             topic, 'cdr', schemas[record.msgtype],
-            {'offered_qos_profiles': _yaml_text(record.offered_qos),
-             'topic_type_hash': store.hash_rihs01(record.msgtype)})
+            {'offered_qos_profiles': yaml_text(record.offered_qos),
+             'topic_type_hash': record.type_hash})
     return writer, channels
 
 
@@ -296,9 +306,9 @@ class CalibrationBagWriter:
     time) splits it, metadata.yaml rewritten whenever a file opens or closes.
 
     Crash safety is MCAP's own: messages are written in chunks, and a chunk ends (it and all
-    before it are on disk, readable after a SIGKILL) at every `flush()`: every `flush_seconds`
-    of wall time through `flush_if_due()`, which a recorder also calls from a timer so a quiet
-    stream still reaches the disk. A bag cut off by a crash is made whole by `bag_repair`. No
+    before it are on disk, readable after a SIGKILL) at every `flush()`: by the writes, once
+    `flush_seconds` of wall time have passed since the last, and by a recorder's timer of that
+    period, so a quiet stream still reaches the disk. A bag cut off by a crash is made whole by `bag_repair`. No
     compression: the recorder shares the loop's cores. Use as a context manager; `close()` ends
     the bag.
     """
@@ -324,17 +334,25 @@ class CalibrationBagWriter:
         self.max_bag_duration_ns = round(max_bag_duration * 1e9)
         self.files: list[FileRecord] = []
         self._writer: McapWriter | None = None
-        self._open_file()
-        # started_ns: the recorder's clock (sim time under use_sim_time), else wall time.
-        self.write(TOPIC_SESSION, time.time_ns() if started_ns is None else started_ns,
-                   session_message(self.metadata))
-        self.flush()        # the schemas, channels and session metadata on disk at once
+        self._stream = None
+        try:
+            self._open_file()
+            # started_ns: the recorder's clock (sim time under use_sim_time), else wall time.
+            self.write(TOPIC_SESSION, time.time_ns() if started_ns is None else started_ns,
+                       session_message(self.metadata))
+            self.flush()        # the schemas, channels and session metadata on disk at once
+        except BaseException:
+            # A bag that could not start leaves nothing behind.
+            if self._stream is not None:
+                self._stream.close()
+            shutil.rmtree(self.path, ignore_errors=True)
+            raise
 
     def _open_file(self) -> None:
         name = f'{self.path.name}_{len(self.files)}.mcap'
         self._stream = (self.path / name).open('xb')
-        self._writer, self._channels = start_mcap(self._stream, self.topics)
         self.files.append(FileRecord(name))
+        self._writer, self._channels = start_mcap(self._stream, self.topics)
         self._flushed = time.monotonic()
         self._write_metadata()
 
@@ -342,9 +360,11 @@ class CalibrationBagWriter:
         writer, self._writer = self._writer, None
         if writer is None:
             return
-        writer.finish()
-        self._stream.close()
-        self._write_metadata()
+        try:
+            writer.finish()
+        finally:
+            self._stream.close()
+            self._write_metadata()
 
     def _write_metadata(self) -> None:
         write_metadata(self.path, bag_metadata(self.files, self.topics, self.custom_data))

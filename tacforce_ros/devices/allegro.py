@@ -13,6 +13,7 @@ import logging
 import math
 import socket
 import struct
+import threading
 import time
 from dataclasses import dataclass, field
 
@@ -232,6 +233,9 @@ class AllegroV4Driver(PollingDriver[JointSample]):
                                                        channel=config.channel,
                                                        **config.bus_kwargs)
         self._socket = _socketcand_socket(self.bus)
+        # Frames go out from the polling thread (stream requests, safe stops) and the caller's
+        # (torques, servos on/off): one at a time, and the stream state with them.
+        self._lock = threading.RLock()
         self.safe_stop = ''
         self._streaming = False                   # the stream was asked for (start-up done)
         self._last_cycle: float | None = None     # monotonic time of the last complete cycle
@@ -254,15 +258,17 @@ class AllegroV4Driver(PollingDriver[JointSample]):
 
     def _send(self, command: int, data: bytes = b'') -> None:
         try:
-            self.bus.send(can.Message(arbitration_id=wire_id(command, self.config.device_id),
-                                      data=data, is_extended_id=False))
+            with self._lock:
+                self.bus.send(can.Message(arbitration_id=wire_id(command, self.config.device_id),
+                                          data=data, is_extended_id=False))
         except (can.CanError, OSError) as error:
             raise LinkLost(f'link lost: sending to the hand failed: {error!r}') from error
 
     def _request(self, command: int) -> None:
         if self.config.rtr_requests:
-            self.bus.send(can.Message(arbitration_id=wire_id(command, self.config.device_id),
-                                      is_remote_frame=True, dlc=0, is_extended_id=False))
+            with self._lock:
+                self.bus.send(can.Message(arbitration_id=wire_id(command, self.config.device_id),
+                                          is_remote_frame=True, dlc=0, is_extended_id=False))
         else:
             self._send(command)
 
@@ -283,23 +289,25 @@ class AllegroV4Driver(PollingDriver[JointSample]):
     def servos_on(self) -> None:
         """Start the joint stream and switch the servos on (the end of the hand's start-up; a
         managed driver's activate). A hand the silence policy made safe starts afresh."""
-        self._last_cycle = self._last_watch = None
-        self._silent = False
-        self._judge_after = 0.0
-        self.safe_stop = ''
-        self._send(CMD_SET_PERIOD, encode_period(self.config.position_period_ms))
-        self._send(CMD_SYSTEM_ON)
-        self._streaming = True
+        with self._lock:
+            self._last_cycle = self._last_watch = None
+            self._silent = False
+            self._judge_after = 0.0
+            self.safe_stop = ''
+            self._send(CMD_SET_PERIOD, encode_period(self.config.position_period_ms))
+            self._send(CMD_SYSTEM_ON)
+            self._streaming = True
 
     def servos_off(self) -> None:
         """Stop the joint stream, zero torque, servos off, the link kept open (a managed
         driver's deactivate); best effort, failures in ``diagnostics.last_error``."""
-        self._streaming = False
-        try:
-            self._send(CMD_SET_PERIOD, encode_period(0))
-        except LinkLost as error:
-            self.diagnostics.last_error = f'stop stream failed: {error}'
-        self._make_safe()
+        with self._lock:
+            self._streaming = False
+            try:
+                self._send(CMD_SET_PERIOD, encode_period(0))
+            except LinkLost as error:
+                self.diagnostics.last_error = f'stop stream failed: {error}'
+            self._make_safe()
 
     def set_torques(self, tau: np.ndarray) -> np.ndarray:
         """Command 16 joint torques [Nm] (Allegro order); returns the PWM values sent.
@@ -331,8 +339,9 @@ class AllegroV4Driver(PollingDriver[JointSample]):
                 if sample is not None:
                     samples.append(sample)
                 message = self.bus.recv(0.0)
-            if self._streaming:
-                self._watch_stream(bool(samples))
+            with self._lock:
+                if self._streaming:
+                    self._watch_stream(bool(samples))
         except LinkLost:
             raise
         except (can.CanError, OSError) as error:

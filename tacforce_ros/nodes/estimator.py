@@ -125,7 +125,7 @@ class Estimator(TacforceNode):
                                   publisher_qos(array_wrench_topic(n)), event_callbacks=quiet)
             for n in self.names]
         self.estimates_publisher = self.create_publisher(
-            ForceEstimateArray, TOPIC_ESTIMATES, publisher_qos(TOPIC_ESTIMATES),
+            ForceEstimateArray, relative(TOPIC_ESTIMATES), publisher_qos(TOPIC_ESTIMATES),
             event_callbacks=quiet)
         self.create_subscription(TactileHand, relative(TOPIC_TACTILE), self._on_frame,
                                  subscriber_qos(TOPIC_TACTILE, depth=FRAME_QUEUE_DEPTH),

@@ -1,12 +1,13 @@
 """Link health of the driver nodes on /diagnostics (diagnostic_msgs/DiagnosticArray), as
 diagnostic_updater publishes it: one DiagnosticStatus per driver every `diagnostics_period` wall
 seconds while the driver is active (a managed driver that is deactivated says so once, STALE,
-and reports again when activated), named '<node>: device link', with the device as hardware_id,
-a level (devices/diagnostics.link_health: OK, WARN, ERROR, STALE), and the link's counters as
-values (never reset: a driver that replaces its client carries the old one's counts), the
-delivery rate over the period, and the last error while the link is not OK. rqt_robot_monitor
-and Foxglove's diagnostics panel read it. A change of level is logged once at its severity with
-the counters, and the driver's own events (faults, recoveries) are logged as they happen."""
+and reports again when activated), named '<node's full name>: device link' (e.g.
+'/left/xela_driver: device link'), with the device as hardware_id, a level
+(devices/diagnostics.link_health: OK, WARN, ERROR, STALE), and the link's counters as values
+(never reset: a driver that replaces its client carries the old one's counts), the delivery rate
+over the period, and the last error while the link is not OK. rqt_robot_monitor and Foxglove's
+diagnostics panel read it. A change of level is logged once at its severity with the counters,
+and the driver's own events (faults, recoveries) are logged as they happen."""
 from __future__ import annotations
 
 import dataclasses
@@ -52,7 +53,8 @@ class LinkStatusReporter:
         self.hardware_id = hardware_id
         self.node_counters = node_counters      # the node's own counters, reported alongside
         self.failure = failure
-        self.name = f'{node.get_name()}: device link'
+        # The node's full name: /diagnostics is one topic for every namespace.
+        self.name = f'{node.get_fully_qualified_name()}: device link'
         self._carried = dict.fromkeys(_COUNTERS, 0)
         self._carried_seen = math.nan
         self.driver: PollingDriver | None = None
@@ -83,15 +85,16 @@ class LinkStatusReporter:
 
     def resume(self) -> None:
         """Report every period from now on (the driver was activated)."""
-        self._before, self._before_time, self.level = None, time.monotonic(), None
+        # The first period starts now: what rose while inactive is not this period's trouble.
+        self._before, self._before_time, self.level = self.counters(), time.monotonic(), None
         if self.timer is not None:
             self.timer.reset()
-            self.report()
 
     def pause(self, message: str) -> None:
         """Stop reporting (the driver was deactivated), saying why once, at level STALE."""
-        if self.timer is not None:
-            self.timer.cancel()
+        if self.timer is None:
+            return                  # diagnostics_period 0: never reported
+        self.timer.cancel()
         self._publish(STALE, message, {name: getattr(self.counters(), name)
                                        for name in _COUNTERS})
         self.level = STALE

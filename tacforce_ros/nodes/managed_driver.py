@@ -11,11 +11,13 @@ lifecycle managers drive them:
   the process (SIGINT/SIGTERM), through `leave_safe`.
 
 `autostart` (default true, as the launch files and `session` pass it) configures and activates
-at start-up, so the node behaves as a plain driver; a device that cannot be opened then ends the
-process with the reason (exit code 2), as a bad parameter does. With autostart false the node
-starts unconfigured and waits for its transitions. A transition that fails logs why and leaves
-the node where it was (configure: unconfigured), as the lifecycle design asks.
-The link's health is on /diagnostics while the node is active (nodes/link_status.py).
+at start-up, so the node behaves as a plain driver; a failed transition then ends the process
+with the reason: exit code 2 for a device that cannot be opened (as for a bad parameter), 1 for
+anything else. With autostart false the node starts unconfigured and waits for its
+transitions. A transition that fails logs why and leaves the node where it was (configure:
+unconfigured, activate: inactive), as the lifecycle design asks; a deactivate or cleanup that
+fails is an error: the device is made safe, its link closed, and the node goes back to
+unconfigured. The link's health is on /diagnostics while the node is active (nodes/link_status.py).
 """
 from __future__ import annotations
 
@@ -29,7 +31,8 @@ from tacforce_ros.nodes.link_status import LinkStatusReporter
 
 AUTOSTART = ParamSpec('autostart', True, 'configure and activate at start-up; false: start '
                       'unconfigured, for `ros2 lifecycle set` or a lifecycle manager')
-SUCCESS, FAILURE = TransitionCallbackReturn.SUCCESS, TransitionCallbackReturn.FAILURE
+SUCCESS, FAILURE, ERROR = (TransitionCallbackReturn.SUCCESS, TransitionCallbackReturn.FAILURE,
+                           TransitionCallbackReturn.ERROR)
 
 
 class ManagedDriver(TacforceNode, LifecycleNode):
@@ -70,46 +73,57 @@ class ManagedDriver(TacforceNode, LifecycleNode):
 
     # --- the lifecycle ---------------------------------------------------------------------
 
-    def _step(self, transition: str, step: Callable[[], None]) -> TransitionCallbackReturn:
+    def _step(self, transition: str, step: Callable[[], None], *, first: bool = True
+              ) -> TransitionCallbackReturn:
+        """Run one device step; a failure is logged with its reason and, for the step the
+        transition is about (`first`), kept as `transition_error`."""
         try:
             step()
         except Exception as exc:     # noqa: BLE001 - a failed transition says why, in the log
-            self.transition_error = exc
+            if first:
+                self.transition_error = exc
             self.get_logger().error(f'{transition} failed: {type(exc).__name__}: {exc}')
             return FAILURE
         return SUCCESS
 
     def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self.transition_error = None
         if self._step('configure', self.open_device) != SUCCESS:
-            self._step('configure (closing what it opened)', self.close_device)
-            return FAILURE
+            self._step('configure (closing what it opened)', self.close_device, first=False)
+            return FAILURE          # back to unconfigured
         self.configured = True
         return super().on_configure(state)
 
     def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self.transition_error = None
         if self._step('activate', self.start_device) != SUCCESS:
-            self._step('activate (making the device safe again)', self.stop_device)
-            return FAILURE
+            self._step('activate (making the device safe again)', self.stop_device, first=False)
+            return FAILURE          # back to inactive
         self.active = True
         if self.status is not None:
             self.status.resume()
         return super().on_activate(state)      # enables the lifecycle publishers
 
     def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        # Publishing stops first, whatever the device does; a device that cannot be made safe
+        # is an error: on_error then closes its link.
+        self.transition_error = None
         super().on_deactivate(state)
         self.active = False
-        result = self._step('deactivate', self.stop_device)
         if self.status is not None:
             self.status.pause('inactive (lifecycle): nothing published')
-        return result
+        return SUCCESS if self._step('deactivate', self.stop_device) == SUCCESS else ERROR
 
     def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
+        # The link is released, or abandoned if closing fails (an error: logged, and on_error
+        # finds nothing left to close).
+        self.transition_error = None
+        result = self._step('cleanup', self.close_device)
         self.configured = False
         super().on_cleanup(state)
-        result = self._step('cleanup', self.close_device)
         if self.status is not None:
             self.status.log_counters()
-        return result
+        return SUCCESS if result == SUCCESS else ERROR
 
     def on_shutdown(self, state: LifecycleState) -> TransitionCallbackReturn:
         result = SUCCESS
@@ -121,8 +135,16 @@ class ManagedDriver(TacforceNode, LifecycleNode):
         return result
 
     def on_error(self, state: LifecycleState) -> TransitionCallbackReturn:
-        # A callback raised past _step (a bug): make safe, back to unconfigured.
-        self.on_shutdown(state)
+        # A transition returned ERROR, or raised (rclpy then logs nothing): make safe what is
+        # open, back to unconfigured.
+        self.get_logger().error(f'lifecycle error from {state.label}: making the device safe '
+                                'and closing its link')
+        if self.active:
+            self.active = False
+            self._step('error (making the device safe)', self.stop_device, first=False)
+        if self.configured:
+            self.configured = False
+            self._step('error (closing the link)', self.close_device, first=False)
         return SUCCESS
 
     # --- start and end of the process -------------------------------------------------------
@@ -135,11 +157,15 @@ class ManagedDriver(TacforceNode, LifecycleNode):
             return
         self.autostarting = True
         try:
-            for transition in (self.trigger_configure, self.trigger_activate):
+            for name, transition in (('configure', self.trigger_configure),
+                                     ('activate', self.trigger_activate)):
                 if transition() != SUCCESS:
                     error = self.transition_error
-                    raise (error if isinstance(error, ParameterError)
-                           else RuntimeError(f'autostart: {error}'))
+                    if isinstance(error, ParameterError):
+                        raise error
+                    raise RuntimeError(f'autostart: {name} failed: '
+                                       + (f'{type(error).__name__}: {error}' if error
+                                          else 'see the log above'))
         finally:
             self.autostarting = False
 

@@ -137,9 +137,11 @@ def launch_bool(name: str, text: str) -> bool:
     return value in ('true', '1')
 
 
-def tare_file(session_id: str) -> Path:
-    """Where a session's estimator keeps its tare: under ROS_HOME (~/.ros), not among the bags."""
-    return ros_home() / 'tacforce_ros' / f'estimator_tare_{session_id}.npz'
+def tare_file(session_id: str, namespace: str = '') -> Path:
+    """Where a session's estimator keeps its tare: under ROS_HOME (~/.ros), not among the bags;
+    one per namespace (two hands planned in the same second by one process)."""
+    hand = namespace.strip('/').replace('/', '_')
+    return ros_home() / 'tacforce_ros' / f'estimator_tare_{session_id}{"_" + hand if hand else ""}.npz'
 
 
 def params_file(name: str) -> Path:
@@ -229,7 +231,7 @@ def plan(args: SessionArgs) -> list[NodeLaunch]:
     else:
         nodes.append(NodeLaunch('estimator', (params_file('estimator'),), {
             **common, **hand_param,
-            'tare_file': str(tare_file(args.session_id)),
+            'tare_file': str(tare_file(args.session_id, args.namespace)),
             **({'model_config': args.model_config} if args.model_config else {})}))
         # The hand, then the controller that sends it the finger's torques.
         nodes.append(NodeLaunch('allegro_driver', (params_file('allegro_driver'),),

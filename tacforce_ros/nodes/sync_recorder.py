@@ -106,8 +106,9 @@ class SyncRecorder(TacforceNode):
                                      subscriber_qos(topic, depth=RECORDER_DEPTH), raw=True)
         self.create_service(StartRecording, '~/start', self._on_start)
         self.create_service(Trigger, '~/stop', self._on_stop)
-        # Flushing is about wall time (what a crash can lose), not sim time: a steady timer.
-        self.create_timer(min(0.5, self.params['flush_seconds']), self._flush_if_due,
+        # Flushing is about wall time (what a crash can lose), not sim time: a steady timer
+        # flushes a quiet stream too (a busy one is flushed by its writes, on the same period).
+        self.create_timer(self.params['flush_seconds'], self._flush,
                           clock=Clock(clock_type=ClockType.STEADY_TIME))
         self._autostart_timer = None
         if self.params['autostart']:
@@ -197,9 +198,9 @@ class SyncRecorder(TacforceNode):
     def leave_safe(self) -> None:
         self.stop()
 
-    def _flush_if_due(self) -> None:
+    def _flush(self) -> None:
         if self.writer is not None:
-            self.writer.flush_if_due()
+            self.writer.flush()
 
     # --- streams ---------------------------------------------------------------------------
 

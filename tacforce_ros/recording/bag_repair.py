@@ -1,10 +1,11 @@
 """Make a bag cut off by a crash whole again (what `ros2 bag reindex` and `mcap recover` do
-together): every MCAP file that does not end with the MCAP magic is rewritten with each complete
-chunk it holds (its schemas, channels and messages; a chunk cut off mid-write is dropped, and
-with it only what came after the writer's last flush), an MCAP file left with no message is
-removed, and metadata.yaml is rebuilt from the files. The session metadata comes from the old
-metadata.yaml where it loads, else from the /session/metadata message the bag starts with.
-Complete files are read, never rewritten. ROS-free; the `bag_repair` tool runs it.
+together): every MCAP file that does not end with the MCAP magic, or whose summary cannot be
+read, is rewritten with each complete chunk it holds (its own schemas, channels and messages,
+copied as they are; a chunk cut off mid-write is dropped, and with it only what came after the
+writer's last flush), an MCAP file left with no message is removed, and metadata.yaml is rebuilt
+from the files; a bag with no complete message at all is refused. The session metadata comes
+from the old metadata.yaml where it loads, else from the /session/metadata message the bag
+starts with. Complete files are read, never rewritten. ROS-free; the `bag_repair` tool runs it.
 """
 from __future__ import annotations
 
@@ -21,7 +22,7 @@ from mcap.stream_reader import StreamReader
 from ruamel.yaml import YAML
 
 from tacforce_ros.bagio import (CUSTOM_DATA_PREFIX, BagError, FileRecord, TopicRecord,
-                                _load_metadata, bag_metadata, mcap_complete, start_mcap,
+                                _load_metadata, bag_metadata, mcap_complete, mcap_writer,
                                 typestore, write_metadata)
 from tacforce_ros.topics import TOPIC_SESSION
 
@@ -53,20 +54,19 @@ def _file_index(path: Path) -> tuple[int, str]:
     return (int(match.group(1)) if match else -1, path.name)
 
 
-def _topics_of(channels: dict[int, Channel], schemas: dict[int, Schema]) -> dict[str, TopicRecord]:
-    yaml = YAML(typ='safe')
-    return {c.topic: TopicRecord(schemas[c.schema_id].name,
-                                 yaml.load(c.metadata.get('offered_qos_profiles', '')) or [])
-            for c in channels.values()}
+def _topic_record(channel: Channel, schema: Schema) -> TopicRecord:
+    qos = YAML(typ='safe').load(channel.metadata.get('offered_qos_profiles', '')) or []
+    return TopicRecord(schema.name, qos, channel.metadata.get('topic_type_hash', ''))
 
 
 def _read_complete(path: Path) -> tuple[FileRecord, dict[str, TopicRecord], bytes | None]:
-    """A complete file's counts and times from its summary; the first session message too."""
+    """A complete file's counts and times from its summary; the first session message too.
+    McapError when the summary cannot be read."""
     with path.open('rb') as stream:
         reader = make_reader(stream)
         summary = reader.get_summary()
         if summary is None or summary.statistics is None:
-            raise BagError(f'{path}: a complete MCAP file without a summary; not one of ours')
+            raise McapError('no summary with statistics')
         record = FileRecord(path.name)
         stats = summary.statistics
         for channel_id, count in stats.channel_message_counts.items():
@@ -75,53 +75,58 @@ def _read_complete(path: Path) -> tuple[FileRecord, dict[str, TopicRecord], byte
             record.start_ns, record.end_ns = stats.message_start_time, stats.message_end_time
         session = next((message.data for _, channel, message in
                         reader.iter_messages(topics=[TOPIC_SESSION])), None)
-        return record, _topics_of(summary.channels, summary.schemas), session
+        topics = {c.topic: _topic_record(c, summary.schemas[c.schema_id])
+                  for c in summary.channels.values()}
+        return record, topics, session
 
 
 def _recover(path: Path) -> tuple[FileRecord, dict[str, TopicRecord], bytes | None, FileRepair]:
-    """Rewrite a cut-off file with its complete records (atomically: a temporary file that
-    replaces it)."""
-    schemas: dict[int, Schema] = {}
-    channels: dict[int, Channel] = {}
-    messages: list[Message] = []
-    header = ('ros2', 'tacforce_ros bag_repair')
+    """Rewrite a cut-off file with its complete records, as they are (schemas, channels and
+    messages copied, not rebuilt), into a temporary file that then replaces it."""
+    file = FileRecord(path.name)
+    topics: dict[str, TopicRecord] = {}
+    session = None
     stopped_by, good_end = 'end of file', 0
     size = path.stat().st_size
-    with path.open('rb') as stream:
+    tmp = path.with_name(path.name + '.repairing')
+    schemas: dict[int, Schema] = {}
+    channels: dict[int, Channel] = {}
+    schema_ids: dict[int, int] = {}       # this file's ids -> the rewritten file's
+    channel_ids: dict[int, int] = {}
+    with path.open('rb') as stream, tmp.open('wb') as out:
+        writer = None
         reader = StreamReader(stream, skip_magic=False, emit_chunks=False, validate_crcs=True)
         try:
             for record in reader.records:
                 if isinstance(record, Header):
-                    header = (record.profile, record.library)
-                elif isinstance(record, Schema):
+                    writer = mcap_writer(out, record.profile, record.library)
+                elif isinstance(record, Schema) and writer is not None:
                     schemas[record.id] = record
-                elif isinstance(record, Channel):
+                    schema_ids[record.id] = writer.register_schema(record.name, record.encoding,
+                                                                   record.data)
+                elif isinstance(record, Channel) and record.schema_id in schema_ids:
                     channels[record.id] = record
-                elif isinstance(record, Message):
-                    messages.append(record)
+                    channel_ids[record.id] = writer.register_channel(
+                        record.topic, record.message_encoding, schema_ids[record.schema_id],
+                        record.metadata)
+                    topics[record.topic] = _topic_record(record, schemas[record.schema_id])
+                elif isinstance(record, Message) and record.channel_id in channel_ids:
+                    writer.add_message(channel_ids[record.channel_id], record.log_time,
+                                       record.data, record.publish_time, record.sequence)
+                    topic = channels[record.channel_id].topic
+                    file.add(topic, record.log_time)
+                    if topic == TOPIC_SESSION and session is None:
+                        session = record.data
                 good_end = stream.tell()
         except (McapError, EOFError, struct.error, ValueError) as exc:
             stopped_by = f'{type(exc).__name__}: {exc}'
-    file = FileRecord(path.name)
-    session = None
-    kept = [m for m in messages if m.channel_id in channels]
-    if kept:
-        topics = _topics_of(channels, schemas)
-        tmp = path.with_name(path.name + '.repairing')
-        with tmp.open('wb') as out:
-            writer, ids = start_mcap(out, topics, header)
-            for message in kept:
-                topic = channels[message.channel_id].topic
-                writer.add_message(ids[topic], message.log_time, message.data,
-                                   message.publish_time, message.sequence)
-                file.add(topic, message.log_time)
-                if topic == TOPIC_SESSION and session is None:
-                    session = message.data
+        if writer is not None:
             writer.finish()
+    if file.message_count:
         tmp.replace(path)
     else:
-        topics = {}
-    return file, topics, session, FileRepair(path.name, True, len(kept),
+        tmp.unlink()
+    return file, topics, session, FileRepair(path.name, True, file.message_count,
                                              max(size - good_end, 0), stopped_by)
 
 
@@ -132,8 +137,12 @@ def _custom_data(bag: Path, session: bytes | None) -> dict[str, str]:
         custom = {}
     if custom or session is None:
         return custom
-    text = typestore().deserialize_cdr(session, 'std_msgs/msg/String').data
-    return {CUSTOM_DATA_PREFIX + key: str(value) for key, value in json.loads(text).items()}
+    try:
+        text = typestore().deserialize_cdr(session, 'std_msgs/msg/String').data
+        fields = json.loads(text)
+    except Exception:   # noqa: BLE001 - an unreadable session message: no custom data
+        return {}
+    return {CUSTOM_DATA_PREFIX + key: str(value) for key, value in fields.items()}
 
 
 def repair_bag(bag: str | Path) -> BagRepair:
@@ -149,18 +158,25 @@ def repair_bag(bag: str | Path) -> BagRepair:
     topics: dict[str, TopicRecord] = {}
     session = None
     for path in files:
-        if mcap_complete(path):
+        try:
+            if not mcap_complete(path):
+                raise McapError('it does not end with the MCAP magic')
             record, file_topics, first = _read_complete(path)
             report.files.append(FileRepair(path.name, False, record.message_count))
-        else:
+        except (McapError, EOFError, struct.error, ValueError, OSError):
+            # OSError: a file shorter than a footer cannot be seeked back from its end.
             record, file_topics, first, repair = _recover(path)
             report.files.append(repair)
         if not record.message_count:
-            path.unlink()
             report.removed.append(path.name)
             continue
         records.append(record)
         topics.update({t: r for t, r in file_topics.items() if t not in topics})
         session = session if session is not None else first
+    if not records:
+        raise BagError(f'{bag}: no complete message in any MCAP file (cut off before the '
+                       'first flush?); nothing to keep, nothing changed')
+    for name in report.removed:
+        (bag / name).unlink()
     write_metadata(bag, bag_metadata(records, topics, _custom_data(bag, session)))
     return report

@@ -2,17 +2,19 @@
 `namespace`, as `session --namespace` and the launch files' `namespace:=` start them): each
 simulator, its drivers and estimator (a model on every array) run in its hand's namespace, with its
 own /clock remapped into it, and each estimator publishes its own hand's 18 wrench topics under
-its namespace and nothing in the other's or in the root namespace."""
+its namespace and nothing in the other's or in the root namespace; /diagnostics, shared, names
+each device link by its node's full name."""
 import sys
 from pathlib import Path
 
 import pytest
 import rclpy
+from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import WrenchStamped
 
 from tacforce_ros.hand.description import load_hand
 from tacforce_ros.nodes.common import subscriber_qos
-from tacforce_ros.topics import array_wrench_topic
+from tacforce_ros.topics import TOPIC_DIAGNOSTICS, TOPIC_ESTIMATES, array_wrench_topic
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from graph_support import (Graph, graph_nodes, session_args, synthetic_model_set,  # noqa: E402
@@ -39,6 +41,10 @@ def test_two_hands_in_their_namespaces_publish_only_their_own_wrenches(tmp_path)
             received[key] += 1
         return receive
 
+    health: set[str] = set()
+    probe.create_subscription(DiagnosticArray, TOPIC_DIAGNOSTICS,
+                              lambda msg: health.update(s.name for s in msg.status),
+                              subscriber_qos(TOPIC_DIAGNOSTICS))
     for ns, name in received:
         topic = array_wrench_topic(name)
         probe.create_subscription(WrenchStamped, ns + topic, receiver((ns, name)),
@@ -62,6 +68,15 @@ def test_two_hands_in_their_namespaces_publish_only_their_own_wrenches(tmp_path)
                 assert [(p.node_name, p.node_namespace) for p in publishers] == \
                     [('estimator', ns)], publishers
         assert {'/left/clock', '/right/clock'} <= names
+        assert TOPIC_ESTIMATES not in names
+        for ns in HANDS:
+            publishers = probe.get_publishers_info_by_topic(ns + TOPIC_ESTIMATES)
+            assert [(p.node_name, p.node_namespace) for p in publishers] == [('estimator', ns)]
+        # One /diagnostics for both hands, each device link under its node's full name.
+        links = {f'{ns}/{driver}: device link' for ns in HANDS
+                 for driver in ('xela_driver', 'allegro_driver')}
+        assert wait_until(lambda: links <= health, 10.0,
+                          lambda: rclpy.spin_once(probe, timeout_sec=0.05)), health
     finally:
         probe.destroy_node()
         rclpy.shutdown()

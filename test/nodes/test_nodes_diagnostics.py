@@ -101,7 +101,7 @@ def test_a_driver_s_link_goes_ok_error_ok_on_diagnostics(device):
     domain = unique_domain_id(offset=41 + [XelaDevice, NetFtDevice, AllegroDevice].index(device))
     seen: list[tuple[float, DiagnosticStatus]] = []
     with device() as dev, rclpy_node('diagnostics_test', domain) as node:
-        name = f'{dev.node}: device link'
+        name = f'/{dev.node}: device link'
         node.create_subscription(
             DiagnosticArray, TOPIC_DIAGNOSTICS,
             lambda msg: seen.extend((time.monotonic(), s) for s in msg.status if s.name == name),

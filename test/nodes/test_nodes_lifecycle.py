@@ -1,15 +1,17 @@
 """The drivers as managed (lifecycle) nodes, driven the way `ros2 lifecycle set` drives them
 (lifecycle_msgs services of a real process, on loopback): with autostart false a driver starts
 unconfigured and publishes nothing; configure opens the device, activate starts the stream (the
-hand's servos on), deactivate stops it (servos off), activate starts it again, cleanup closes
+hand's servos on) and the link's reports on /diagnostics, deactivate stops it (servos off; the
+link says once, STALE, that it is inactive), activate starts it again, cleanup closes
 the device, shutdown finalizes; a configure that cannot reach the device fails, says why, and
-leaves the node unconfigured."""
+leaves the node unconfigured; the end of the process leaves an active hand safe."""
 import sys
 import time
 from pathlib import Path
 
 import numpy as np
 import pytest
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from lifecycle_msgs.msg import Transition
 from lifecycle_msgs.srv import ChangeState, GetState
 from sensor_msgs.msg import JointState
@@ -20,7 +22,7 @@ from tacforce_ros.nodes.common import subscriber_qos
 from tacforce_ros.nodes.session_plan import params_file
 from tacforce_ros.sim.emulators.allegro import AllegroEmulator
 from tacforce_ros.sim.emulators.xela_server import XelaServerEmulator
-from tacforce_ros.topics import TOPIC_JOINTS, TOPIC_TACTILE
+from tacforce_ros.topics import TOPIC_DIAGNOSTICS, TOPIC_JOINTS, TOPIC_TACTILE
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from ros_processes import (OutputLines, call_service, executable, rclpy_node,  # noqa: E402
@@ -60,9 +62,9 @@ def _quiet(node, received: list) -> bool:
     return len(received) == before
 
 
-def unconfigured_allegro_driver(host: str, port: int, domain: int) -> OutputLines:
+def allegro_driver(host: str, port: int, domain: int, autostart: bool) -> OutputLines:
     params = ['interface:=socketcand', 'channel:=can0', f'host:={host}', f'port:={port}',
-              'rtr_requests:=false', 'control:=off', 'autostart:=false']
+              'rtr_requests:=false', 'control:=off', f'autostart:={str(autostart).lower()}']
     return OutputLines(start([executable('allegro_driver'), '--ros-args', '--params-file',
                               params_file('allegro_driver'),
                               *[a for p in params for a in ('-p', p)]], domain))
@@ -76,7 +78,13 @@ def test_allegro_driver_through_its_lifecycle_switches_servos_and_stream():
         received: list = []
         node.create_subscription(JointState, TOPIC_JOINTS, received.append,
                                  subscriber_qos(TOPIC_JOINTS))
-        out = unconfigured_allegro_driver(host, port, domain)
+        health: list = []       # (level, message) of the driver's link on /diagnostics
+        node.create_subscription(
+            DiagnosticArray, TOPIC_DIAGNOSTICS,
+            lambda msg: health.extend((s.level, s.message) for s in msg.status
+                                      if s.name == '/allegro_driver: device link'),
+            subscriber_qos(TOPIC_DIAGNOSTICS))
+        out = allegro_driver(host, port, domain, autostart=False)
         life = Lifecycle(node, 'allegro_driver')
         try:
             assert life.state() == 'unconfigured', out.text()
@@ -91,10 +99,15 @@ def test_allegro_driver_through_its_lifecycle_switches_servos_and_stream():
                 assert life.state() == 'active'
                 assert _arrives(node, received), (round_, out.text())
                 assert hand.servo_on and hand.period_ms > 0
+                assert spin_until(node, lambda: health and health[-1][0] == DiagnosticStatus.OK,
+                                  10.0), health[-3:]
                 assert life.change(Transition.TRANSITION_DEACTIVATE), out.text()
                 assert life.state() == 'inactive'
                 assert _quiet(node, received), f'joint states while inactive (round {round_})'
                 assert not hand.servo_on and hand.period_ms == 0
+                # The link says once that it is inactive, and no ERROR for the stopped stream.
+                assert health[-1] == (DiagnosticStatus.STALE,
+                                      'inactive (lifecycle): nothing published'), health[-3:]
 
             assert life.change(Transition.TRANSITION_CLEANUP), out.text()
             assert life.state() == 'unconfigured'
@@ -147,7 +160,7 @@ def test_a_configure_that_cannot_reach_the_hand_fails_and_says_why():
     with AllegroEmulator(lambda: np.zeros(16), lambda tau: None) as hand:
         host, port = hand.address          # a port that was served, and is closed now
     with rclpy_node('lifecycle_test', domain) as node:
-        out = unconfigured_allegro_driver(host, port, domain)
+        out = allegro_driver(host, port, domain, autostart=False)
         life = Lifecycle(node, 'allegro_driver')
         try:
             assert not life.change(Transition.TRANSITION_CONFIGURE)
@@ -157,3 +170,23 @@ def test_a_configure_that_cannot_reach_the_hand_fails_and_says_why():
             text = out.stop()
     assert 'hand not reachable' in text, text
     assert out.proc.returncode == 0, text
+
+
+def test_the_end_of_the_process_leaves_an_active_hand_safe():
+    """SIGINT to an active hand driver (autostart, as launch starts it): shutdown from active
+    stops the stream and switches the servos off before the process ends."""
+    domain = unique_domain_id(offset=64)
+    with AllegroEmulator(lambda: np.linspace(0.0, 0.6, 16), lambda tau: None) as hand, \
+            rclpy_node('lifecycle_test', domain) as node:
+        host, port = hand.address
+        received: list = []
+        node.create_subscription(JointState, TOPIC_JOINTS, received.append,
+                                 subscriber_qos(TOPIC_JOINTS))
+        out = allegro_driver(host, port, domain, autostart=True)
+        try:
+            assert _arrives(node, received, 30.0), out.text()
+            assert hand.servo_on and hand.period_ms > 0
+        finally:
+            text = out.stop()
+        assert out.proc.returncode == 0, text
+        assert not hand.servo_on and hand.period_ms == 0, text

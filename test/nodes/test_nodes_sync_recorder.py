@@ -1,5 +1,6 @@
 """sync_recorder as a real process over DDS: services, bag contents and metadata, SIGKILL."""
 import json
+import shutil
 import signal
 import subprocess
 import sys
@@ -22,6 +23,7 @@ from tacforce_ros.hand.description import load_hand
 from tacforce_ros.nodes import sync_recorder
 from tacforce_ros.nodes.common import EXIT_OK, publisher_qos, subscriber_qos
 from tacforce_ros.paths import config_dir
+from tacforce_ros.recording.bag_repair import repair_bag
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from bag_readers import readers_agree  # noqa: E402
@@ -358,6 +360,24 @@ def test_under_sim_time_nothing_is_recorded_before_the_first_clock(ros_node, str
     assert 'recording starts at the first /clock' in output, output
 
 
+def flushed_tactile_frames(out: Path) -> int:
+    """Tactile frames in the flushed chunks of the bag being recorded in `out`: a copy of it,
+    repaired, read (bounded by the bag's size)."""
+    bags = [p for p in out.iterdir() if p.name != 'copy']
+    if not bags:
+        return 0
+    copy = out / 'copy'
+    shutil.rmtree(copy, ignore_errors=True)
+    shutil.copytree(bags[0], copy)
+    try:
+        repair_bag(copy)
+        return sum(1 for _ in bagio.read_messages(copy, [topics.TOPIC_TACTILE]))
+    except bagio.BagError:
+        return 0
+    finally:
+        shutil.rmtree(copy, ignore_errors=True)
+
+
 # Last in the module: the killed process's DDS endpoints linger until their lease expires.
 def test_killed_recorder_leaves_every_flushed_message_and_bag_repair_makes_the_bag_whole(
         ros_node, streams, tmp_path):
@@ -366,8 +386,9 @@ def test_killed_recorder_leaves_every_flushed_message_and_bag_repair_makes_the_b
         assert streams.wait_for_recorder(), 'recorder never subscribed'
         streams.run(1.5)
         before = len(streams.published[topics.TOPIC_TACTILE])
-        # Quiet for three flush periods: what the recorder got is in complete chunks ...
-        spin_until(ros_node, lambda: False, 3 * FLUSH_S)
+        # Until the chunks on disk (a repaired copy reads them) hold most of those frames ...
+        assert spin_until(ros_node, lambda: flushed_tactile_frames(tmp_path) >= 0.8 * before,
+                          30.0), 'the frames never reached a flushed chunk'
         # ... then more frames, into the chunk open at the kill.
         streams.run(0.3)
         proc.send_signal(signal.SIGKILL)

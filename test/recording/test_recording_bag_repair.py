@@ -132,3 +132,18 @@ def test_the_tool_refuses_a_folder_that_is_not_a_bag(tmp_path):
     out = subprocess.run([executable('bag_repair'), str(tmp_path)], capture_output=True,
                          text=True, timeout=60)
     assert out.returncode == 2 and 'no .mcap files' in out.stderr, out.stderr
+
+
+@pytest.mark.parametrize('keep', [0, 8, 40])
+def test_a_bag_cut_before_its_first_flush_is_refused_and_left_as_it_was(tmp_path, keep):
+    """Nothing complete to keep (an empty file, the magic alone, the header): the tool says so
+    (exit code 2) and changes nothing."""
+    bag = tmp_path / 'early'
+    write(bag, 5)
+    mcap = bag / 'early_0.mcap'
+    mcap.write_bytes(mcap.read_bytes()[:keep])
+    before = {p.name: p.read_bytes() for p in bag.iterdir()}
+    out = subprocess.run([executable('bag_repair'), str(bag)], capture_output=True, text=True,
+                         timeout=60)
+    assert out.returncode == 2 and 'no complete message' in out.stderr, out.stdout + out.stderr
+    assert {p.name: p.read_bytes() for p in bag.iterdir()} == before

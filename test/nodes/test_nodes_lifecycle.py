@@ -5,6 +5,7 @@ hand's servos on) and the link's reports on /diagnostics, deactivate stops it (s
 link says once, STALE, that it is inactive), activate starts it again, cleanup closes
 the device, shutdown finalizes; a configure that cannot reach the device fails, says why, and
 leaves the node unconfigured; the end of the process leaves an active hand safe."""
+import contextlib
 import sys
 import time
 from pathlib import Path
@@ -70,14 +71,21 @@ def allegro_driver(host: str, port: int, domain: int, autostart: bool) -> Output
                               *[a for p in params for a in ('-p', p)]], domain))
 
 
-def test_allegro_driver_through_its_lifecycle_switches_servos_and_stream():
-    domain = unique_domain_id(offset=61)
+@contextlib.contextmanager
+def hand_and_probe(domain: int):
+    """An emulated hand, and a test node that keeps every joint state the driver publishes."""
     with AllegroEmulator(lambda: np.linspace(0.0, 0.6, 16), lambda tau: None) as hand, \
             rclpy_node('lifecycle_test', domain) as node:
-        host, port = hand.address
         received: list = []
         node.create_subscription(JointState, TOPIC_JOINTS, received.append,
                                  subscriber_qos(TOPIC_JOINTS))
+        yield hand, node, received
+
+
+def test_allegro_driver_through_its_lifecycle_switches_servos_and_stream():
+    domain = unique_domain_id(offset=61)
+    with hand_and_probe(domain) as (hand, node, received):
+        host, port = hand.address
         health: list = []       # (level, message) of the driver's link on /diagnostics
         node.create_subscription(
             DiagnosticArray, TOPIC_DIAGNOSTICS,
@@ -176,12 +184,8 @@ def test_the_end_of_the_process_leaves_an_active_hand_safe():
     """SIGINT to an active hand driver (autostart, as launch starts it): shutdown from active
     stops the stream and switches the servos off before the process ends."""
     domain = unique_domain_id(offset=64)
-    with AllegroEmulator(lambda: np.linspace(0.0, 0.6, 16), lambda tau: None) as hand, \
-            rclpy_node('lifecycle_test', domain) as node:
+    with hand_and_probe(domain) as (hand, node, received):
         host, port = hand.address
-        received: list = []
-        node.create_subscription(JointState, TOPIC_JOINTS, received.append,
-                                 subscriber_qos(TOPIC_JOINTS))
         out = allegro_driver(host, port, domain, autostart=True)
         try:
             assert _arrives(node, received, 30.0), out.text()

@@ -182,3 +182,11 @@ def test_the_two_hands_example_includes_the_closed_loop_in_two_namespaces_on_dis
     shared = (LAUNCH / 'session_launch.py').read_text()
     for argument in ('namespace', 'xela_port', 'netft_port', 'can_port'):
         assert f"'{argument}': (" in shared
+
+
+def test_two_hands_planned_together_keep_their_own_tare():
+    left, right = (plan(SessionArgs(mode='closed_loop', namespace=ns, session_id='same'))
+                   for ns in ('/left', '/right'))
+    tare = [next(n for n in nodes if n.executable == 'estimator').overrides['tare_file']
+            for nodes in (left, right)]
+    assert tare[0] != tare[1]

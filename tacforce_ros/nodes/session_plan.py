@@ -243,11 +243,16 @@ def plan(args: SessionArgs) -> list[NodeLaunch]:
         nodes.append(NodeLaunch('command_player', (params_file('command_player'),),
                                 {**common, 'min_subscribers': 2,
                                  **({'sequence': args.sequence} if args.sequence else {})}))
-    # Both modes keep the raw streams (closed loop: the F/T reading is the reference).
-    nodes.append(NodeLaunch('sync_recorder', (params_file('sync_recorder'),), {
+    # Both modes keep the raw streams (closed loop: the F/T reading is the reference). The
+    # recorder starts before the streams it records (right after the simulator, as one starts
+    # `ros2 bag record` first): it has their start-up to discover them. Started last, it missed
+    # the first 0.56 s of simulated F/T readings once on a loaded host (DDS discovery), which a
+    # closed-loop run needs to zero the F/T before the controller engages.
+    recorder = NodeLaunch('sync_recorder', (params_file('sync_recorder'),), {
         **common, **hand_param, 'output_dir': args.out, 'array': args.array,
         'plate': args.plate, 'source': 'sim' if args.sim else 'lab', 'autostart': True,
-        **({'scene': args.scene_name(), 'seed': args.seed} if args.sim else {})}))
+        **({'scene': args.scene_name(), 'seed': args.seed} if args.sim else {})})
+    nodes.insert(1 if args.sim else 0, recorder)
     if args.namespace:
         # Each simulated hand keeps its own simulated time: /clock inside its namespace.
         clock = ((('/clock', f'{args.namespace}/clock'),) if args.sim else ())

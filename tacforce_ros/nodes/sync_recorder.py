@@ -6,7 +6,8 @@ the three raw streams and the synchronised /calibration/sample stream (approxima
 publishes. It also writes, as they arrive, the closed-loop streams when a graph publishes them:
 /force_controller/desired (f_d), /force_controller/state (the controller's every tick) and the
 simulator's ground truth /sim/contact_force, so a closed-loop bag carries command, estimate and
-truth on the one clock. Bag layout and session metadata: docs/CONTRACTS.md. The bag is what
+truth on the one clock; it subscribes to /force_controller/desired only once it records all three
+input streams, so a command_player that waits for it starts when the bag has everything. Bag layout and session metadata: docs/CONTRACTS.md. The bag is what
 `ros2 bag record -s mcap` writes (one MCAP file unless `max_bag_size` or `max_bag_duration`
 splits it); an MCAP chunk ends every `flush_seconds` (wall time), so a recorder killed with
 SIGKILL leaves every message up to then on disk, and `bag_repair BAG` makes the bag whole.
@@ -101,9 +102,15 @@ class SyncRecorder(TacforceNode):
                 INPUTS, (TactileHand, WrenchStamped, JointState))):
             self.create_subscription(msg_type, relative(topic), self._callback(index, topic),
                                      subscriber_qos(topic, depth=RECORDER_DEPTH), raw=True)
-        for topic, (msg_type, _) in PASSTHROUGH.items():
-            self.create_subscription(msg_type, relative(topic), self._passthrough(topic),
-                                     subscriber_qos(topic, depth=RECORDER_DEPTH), raw=True)
+        for topic in PASSTHROUGH:
+            if topic != TOPIC_DESIRED:
+                self._subscribe_passthrough(topic)
+        # The command topic is subscribed to once every input stream is being recorded: a
+        # command_player waiting for the recorder among its subscribers (min_subscribers) then
+        # starts a sequence only when the bag has everything. Subscribed from the start, it let
+        # a sequence start while the F/T stream had not yet reached the recorder (DDS discovery
+        # on a loaded host: 0.5 s of simulated F/T missing, too few readings to zero it).
+        self._desired_subscription = None
         self.create_service(StartRecording, '~/start', self._on_start)
         self.create_service(Trigger, '~/stop', self._on_stop)
         # Flushing is about wall time (what a crash can lose), not sim time: a steady timer
@@ -224,6 +231,11 @@ class SyncRecorder(TacforceNode):
                 self._write_sample(*matched)
         return receive
 
+    def _subscribe_passthrough(self, topic: str):
+        msg_type = PASSTHROUGH[topic][0]
+        return self.create_subscription(msg_type, relative(topic), self._passthrough(topic),
+                                        subscriber_qos(topic, depth=RECORDER_DEPTH), raw=True)
+
     def _passthrough(self, topic: str):
         def receive(data: bytes) -> None:
             if self.writer is not None:
@@ -233,6 +245,9 @@ class SyncRecorder(TacforceNode):
     def _write(self, topic: str, data: bytes) -> None:
         self.writer.write_serialized(topic, self.now_ns(), data)
         self._counts[topic] += 1
+        if self._desired_subscription is None and all(self._counts[t] for t in INPUTS):
+            self._desired_subscription = self._subscribe_passthrough(TOPIC_DESIRED)
+            self.get_logger().info(f'recording every input: listening to {TOPIC_DESIRED}')
 
     def _write_sample(self, hand, wrench, joints) -> None:
         """hand, wrench, joints: rosbags messages; the sample is published as CDR bytes."""

@@ -69,7 +69,8 @@ def test_a_silent_hand_is_warned_about_asked_again_and_made_safe_without_control
         out = driver(hand, 'off', timeout)
         try:
             assert out.wait_for(STARTED, 60.0), out.text()[-2000:]
-            assert hand.servo_on
+            # Servos on when the driver activates, just after that line (configure's).
+            assert wait_until(lambda: hand.servo_on, 10.0), out.text()[-2000:]
             # A board that lost its stream period: only a new SET_PERIOD brings it back.
             # Lines from here on only: a stall of this host can make the driver see a short
             # silence at start-up too (seen: "joint stream back after 1.20 s" before the test

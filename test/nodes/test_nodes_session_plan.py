@@ -190,3 +190,10 @@ def test_two_hands_planned_together_keep_their_own_tare():
     tare = [next(n for n in nodes if n.executable == 'estimator').overrides['tare_file']
             for nodes in (left, right)]
     assert tare[0] != tare[1]
+
+
+@pytest.mark.parametrize('sim', [True, False])
+def test_the_recorder_starts_before_the_streams_it_records(sim):
+    names = [n.executable for n in plan(SessionArgs(mode='closed_loop', sim=sim))]
+    assert names.index('sync_recorder') == (1 if sim else 0), names
+    assert names[0] == ('sim_world' if sim else 'sync_recorder')

@@ -266,9 +266,10 @@ def test_sigterm_closes_the_bag_completely(ros_node, streams, tmp_path):
     assert recorded.count(topics.TOPIC_TACTILE) >= 0.8 * len(sent)
     assert 'closed' in output
 
-def test_closed_loop_streams_are_recorded_when_published(ros_node, tmp_path):
+def test_closed_loop_streams_are_recorded_when_published(ros_node, streams, tmp_path):
     """f_d, the controller state and the simulator's ground truth go into the bag as sent,
-    with the scene and seed in the metadata."""
+    with the scene and seed in the metadata; the recorder listens to f_d only once it records
+    every input stream."""
     proc = recorder(tmp_path, '-p', 'autostart:=true', '-p', 'source:=sim',
                     '-p', "scene:='closed_loop_spherical'", '-p', 'seed:=7')
     types = {sync_recorder.TOPIC_DESIRED: Vector3Stamped,
@@ -277,6 +278,14 @@ def test_closed_loop_streams_are_recorded_when_published(ros_node, tmp_path):
     pubs = {t: ros_node.create_publisher(m, t, publisher_qos(t)) for t, m in types.items()}
     sent = {t: [] for t in types}
     try:
+        assert streams.wait_for_recorder(), 'recorder never subscribed to its inputs'
+        # Its other passthrough topics are matched by now; the command topic must not be, as
+        # no input has been published yet.
+        assert spin_until(ros_node, lambda: pubs[topics.TOPIC_SIM_CONTACT]
+                          .get_subscription_count() > 0, 20.0)
+        assert pubs[sync_recorder.TOPIC_DESIRED].get_subscription_count() == 0, \
+            'the command topic before the inputs were recorded'
+        streams.run(0.3)
         assert spin_until(ros_node, lambda: all(p.get_subscription_count() for p in
                                                  pubs.values()), 20.0), 'recorder never subscribed'
         for k in range(50):

@@ -43,6 +43,8 @@ class ManagedDriver(TacforceNode, LifecycleNode):
 
     def __init__(self, **node_options) -> None:
         super().__init__(**node_options)
+        # The device's state, set once a step has succeeded: the lifecycle's own state is a
+        # transition state meanwhile, and the device threads read these to gate publishing.
         self.configured = False
         self.active = False
         self.autostarting = False            # the device steps may block only while True

@@ -253,21 +253,24 @@ def bag_metadata(files: Sequence[FileRecord], topics: dict[str, TopicRecord],
     }
 
 
+def _block_yaml() -> YAML:
+    """rosbag2's YAML: safe, block style."""
+    yaml = YAML(typ='safe')
+    yaml.default_flow_style = False
+    return yaml
+
+
 def write_metadata(bag_dir: Path, info: dict[str, Any]) -> None:
     """metadata.yaml, replaced atomically (a reader sees the old or the new, never half)."""
     tmp = bag_dir / 'metadata.yaml.tmp'
-    yaml = YAML(typ='safe')
-    yaml.default_flow_style = False
     with tmp.open('w', encoding='utf8') as stream:
-        yaml.dump({'rosbag2_bagfile_information': info}, stream)
+        _block_yaml().dump({'rosbag2_bagfile_information': info}, stream)
     tmp.replace(bag_dir / 'metadata.yaml')
 
 
-def yaml_text(value: Any) -> str:
+def _yaml_text(value: Any) -> str:
     stream = io.StringIO()
-    yaml = YAML(typ='safe')
-    yaml.default_flow_style = False
-    yaml.dump(value, stream)
+    _block_yaml().dump(value, stream)
     return stream.getvalue().strip()
 
 
@@ -295,7 +298,7 @@ def start_mcap(stream, topics: dict[str, TopicRecord]) -> tuple[McapWriter, dict
                                                              msgdef.encode())
         channels[topic] = writer.register_channel(
             topic, 'cdr', schemas[record.msgtype],
-            {'offered_qos_profiles': yaml_text(record.offered_qos),
+            {'offered_qos_profiles': _yaml_text(record.offered_qos),
              'topic_type_hash': record.type_hash})
     return writer, channels
 
@@ -308,9 +311,8 @@ class CalibrationBagWriter:
     Crash safety is MCAP's own: messages are written in chunks, and a chunk ends (it and all
     before it are on disk, readable after a SIGKILL) at every `flush()`: by the writes, once
     `flush_seconds` of wall time have passed since the last, and by a recorder's timer of that
-    period, so a quiet stream still reaches the disk. A bag cut off by a crash is made whole by `bag_repair`. No
-    compression: the recorder shares the loop's cores. Use as a context manager; `close()` ends
-    the bag.
+    period, so a quiet stream still reaches the disk. A bag cut off by a crash is made whole by
+    `bag_repair`. Use as a context manager; `close()` ends the bag.
     """
 
     def __init__(self, path: str | Path, metadata: dict[str, Any], *,
@@ -423,7 +425,7 @@ class CalibrationBagWriter:
         self.close()
 
 
-def _load_metadata(bag_dir: Path) -> dict[str, Any]:
+def load_metadata(bag_dir: Path) -> dict[str, Any]:
     path = bag_dir / 'metadata.yaml'
     try:
         with path.open(encoding='utf8') as stream:
@@ -462,7 +464,7 @@ def read_session_metadata(path: str | Path) -> dict[str, Any]:
     path = Path(path)
     if not (path / 'metadata.yaml').is_file():
         raise BagError(f'{path} is not a rosbag2 folder (no metadata.yaml)')
-    custom = _load_metadata(path).get('custom_data') or {}
+    custom = load_metadata(path).get('custom_data') or {}
     meta = {key[len(CUSTOM_DATA_PREFIX):]: value for key, value in custom.items()
             if key.startswith(CUSTOM_DATA_PREFIX)}
     if not meta:
@@ -476,7 +478,7 @@ def read_messages(path: str | Path, topics: Sequence[str] | None = None
     path = Path(path)
     if not (path / 'metadata.yaml').is_file():
         raise BagError(f'{path} is not a rosbag2 folder (no metadata.yaml)')
-    _check_files(path, _load_metadata(path))
+    _check_files(path, load_metadata(path))
     store = typestore()
     try:
         with Reader(path) as reader:
@@ -489,7 +491,7 @@ def read_messages(path: str | Path, topics: Sequence[str] | None = None
 
 def bag_files(path: str | Path) -> list[str]:
     """The files of a bag, as its metadata.yaml lists them."""
-    return list(_load_metadata(Path(path)).get('relative_file_paths') or [])
+    return list(load_metadata(Path(path)).get('relative_file_paths') or [])
 
 
 def reader_counts(path: str | Path) -> dict[str, dict[str, int]]:
@@ -497,7 +499,7 @@ def reader_counts(path: str | Path) -> dict[str, dict[str, int]]:
     (the reader training uses) and Foxglove's `mcap` reader, file by file. Equal counts say the
     bag is what ROS tools expect; BagError for an unreadable bag."""
     path = Path(path)
-    info = _load_metadata(path)
+    info = load_metadata(path)
     _check_files(path, info)
     metadata = {entry['topic_metadata']['name']: entry['message_count']
                 for entry in info['topics_with_message_count'] if entry['message_count']}

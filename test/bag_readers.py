@@ -17,7 +17,7 @@ def readers_agree(bag: Path) -> Counter:
     is listed and complete, and every channel decodes from its embedded schema."""
     counts = bagio.reader_counts(bag)
     assert counts['metadata'] == counts['rosbags'] == counts['mcap'], counts
-    info = bagio._load_metadata(bag)
+    info = bagio.load_metadata(bag)
     assert sorted(p.name for p in bag.iterdir()) == sorted(
         ['metadata.yaml', *info['relative_file_paths']]), 'a file not listed'
     assert all(bagio.mcap_complete(bag / name) for name in info['relative_file_paths'])

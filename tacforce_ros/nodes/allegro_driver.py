@@ -172,7 +172,7 @@ class AllegroDriver(ManagedDriver):
                              if self.driver.safe_stop and self.controlled else ''))
         self.driver.start()
         self._hand_timers = [self.create_timer(LINK_CHECK_PERIOD_S, self._check_hand,
-                                          clock=Clock(clock_type=ClockType.STEADY_TIME))]
+                                               clock=Clock(clock_type=ClockType.STEADY_TIME))]
         if self.controlled:
             self._hand_timers.append(self.create_timer(1.0 / p['control_rate_hz'], self._tick))
         info = self.driver.hand_info

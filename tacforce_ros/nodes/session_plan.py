@@ -141,7 +141,8 @@ def tare_file(session_id: str, namespace: str = '') -> Path:
     """Where a session's estimator keeps its tare: under ROS_HOME (~/.ros), not among the bags;
     one per namespace (two hands planned in the same second by one process)."""
     hand = namespace.strip('/').replace('/', '_')
-    return ros_home() / 'tacforce_ros' / f'estimator_tare_{session_id}{"_" + hand if hand else ""}.npz'
+    suffix = f'_{hand}' if hand else ''
+    return ros_home() / 'tacforce_ros' / f'estimator_tare_{session_id}{suffix}.npz'
 
 
 def params_file(name: str) -> Path:

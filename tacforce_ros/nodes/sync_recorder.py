@@ -1,17 +1,18 @@
 """sync_recorder: records a calibration session into a rosbag2 (mcap) bag.
 
-Subscribes to /tactile/raw, /ft_sensor/wrench and /joint_states; while recording it writes
-the three raw streams and the synchronised /calibration/sample stream (approximate time,
+Subscribes to /tactile/raw, /ft_sensor/wrench and /joint_states; while recording it writes the
+three raw streams and the synchronised /calibration/sample stream (approximate time,
 `queue_size` and `slop`; the sample carries the selected array's TactileArray), which it also
 publishes. It also writes, as they arrive, the closed-loop streams when a graph publishes them:
 /force_controller/desired (f_d), /force_controller/state (the controller's every tick) and the
 simulator's ground truth /sim/contact_force, so a closed-loop bag carries command, estimate and
-truth on the one clock; it subscribes to /force_controller/desired only once it records all three
-input streams, so a command_player that waits for it starts when the bag has everything. Bag layout and session metadata: docs/CONTRACTS.md. The bag is what
-`ros2 bag record -s mcap` writes (one MCAP file unless `max_bag_size` or `max_bag_duration`
-splits it); an MCAP chunk ends every `flush_seconds` (wall time), so a recorder killed with
-SIGKILL leaves every message up to then on disk, and `bag_repair BAG` makes the bag whole.
-Services: ~/start (tacforce_msgs/srv/StartRecording; empty fields take the parameters) and ~/stop
+truth on the one clock; it subscribes to /force_controller/desired only once it records all
+three input streams, so a command_player that waits for it starts when the bag has everything.
+Bag layout and session metadata: docs/CONTRACTS.md. The bag is what `ros2 bag record -s mcap`
+writes (one MCAP file unless `max_bag_size` or `max_bag_duration` splits it); an MCAP chunk ends
+every `flush_seconds` (wall time), so a recorder killed with SIGKILL leaves every message up to
+then on disk, and `bag_repair BAG` makes the bag whole. Services: ~/start
+(tacforce_msgs/srv/StartRecording; empty fields take the parameters) and ~/stop
 (std_srvs/Trigger).
 
 Log times are the node clock's. Under use_sim_time the clock reads 0 until the first /clock, so

@@ -22,7 +22,7 @@ from mcap.stream_reader import StreamReader
 from ruamel.yaml import YAML
 
 from tacforce_ros.bagio import (CUSTOM_DATA_PREFIX, BagError, FileRecord, TopicRecord,
-                                _load_metadata, bag_metadata, mcap_complete, mcap_writer,
+                                load_metadata, bag_metadata, mcap_complete, mcap_writer,
                                 typestore, write_metadata)
 from tacforce_ros.topics import TOPIC_SESSION
 
@@ -132,7 +132,7 @@ def _recover(path: Path) -> tuple[FileRecord, dict[str, TopicRecord], bytes | No
 
 def _custom_data(bag: Path, session: bytes | None) -> dict[str, str]:
     try:
-        custom = _load_metadata(bag).get('custom_data') or {}
+        custom = load_metadata(bag).get('custom_data') or {}
     except (BagError, OSError):
         custom = {}
     if custom or session is None:

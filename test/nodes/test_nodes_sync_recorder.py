@@ -177,7 +177,7 @@ def test_session_started_and_stopped_by_services_records_everything(ros_node, st
     bag = Path(reply.bag_path)
     # 1.5 s of streams split by max_bag_duration 0.5 s; each file complete and listed, and the
     # bag read alike by rosbags (below), Foxglove's mcap reader and its metadata.
-    files = bagio._load_metadata(bag)['relative_file_paths']
+    files = bagio.bag_files(bag)
     assert bag.parent == tmp_path and len(files) >= 3, files
     readers_agree(bag)
 

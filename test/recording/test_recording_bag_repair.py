@@ -65,7 +65,7 @@ def test_one_file_by_default_and_splits_by_duration_and_by_size(tmp_path):
     for bag in ('by_time', 'by_size'):
         counts = readers_agree(tmp_path / bag)
         assert counts[topics.TOPIC_TACTILE] == counts[topics.TOPIC_WRENCH] > 0
-    info = bagio._load_metadata(tmp_path / 'by_time')
+    info = bagio.load_metadata(tmp_path / 'by_time')
     assert info['ros_distro'] == bagio.ROS_DISTRO and info['storage_identifier'] == 'mcap'
     assert bagio.read_session_metadata(tmp_path / 'by_time')['plate'] == 'convex'
 

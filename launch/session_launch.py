@@ -8,8 +8,7 @@ for RViz; our nodes compute frames from the URDF in-process and do not need /tf.
 from pathlib import Path
 
 from launch import LaunchDescription
-from launch.actions import (DeclareLaunchArgument, OpaqueFunction, RegisterEventHandler,
-                            Shutdown, TimerAction)
+from launch.actions import DeclareLaunchArgument, OpaqueFunction, RegisterEventHandler, Shutdown
 from launch.event_handlers import OnProcessExit, OnProcessIO
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
@@ -18,7 +17,6 @@ from tacforce_ros.nodes.session_plan import (CAN_PORT, NETFT_PORT, SCENE_DONE_MA
                                              SessionArgs, hand_config, launch_bool, plan)
 from tacforce_ros.paths import config_dir
 
-READY_DELAY_S = 3.0
 ARGUMENTS = {
     'sim': ('true', 'true: sim_world and its device emulators; false: the hardware'),
     'hand_side': ('right', 'hand description config/hand/allegro_<side>_uskin.yaml'),
@@ -63,14 +61,18 @@ def _nodes(context, mode: str):
                        namespace=value['namespace'],
                        xela_port=int(value['xela_port']), netft_port=int(value['netft_port']),
                        can_port=int(value['can_port']))
-    actions, delay = [], 0.0
+    # All nodes start together (as in `session`): the hand driver waits for the first /clock,
+    # which sim_world publishes once its emulators listen (on hardware: up to connect_timeout
+    # for the hand), the XELA and F/T clients keep trying their devices, and the command player
+    # starts its sequence only when the controller and the recorder listen.
+    actions = []
     for node in plan(args):
         action = (Node(package='tacforce_ros', executable=node.executable, output='screen',
                        arguments=node.command_args()) if node.parts else
                   Node(package='tacforce_ros', executable=node.executable, output='screen',
                        namespace=node.namespace or None, remappings=list(node.remappings),
                        parameters=[str(p) for p in node.param_files] + [node.overrides]))
-        actions.append(TimerAction(period=delay, actions=[action]) if delay else action)
+        actions.append(action)
         # A node that exits with an error ends the launch, naming itself (as `session` does).
         actions.append(RegisterEventHandler(OnProcessExit(
             target_action=action, on_exit=_shutdown_on_failure(node.executable))))
@@ -79,9 +81,6 @@ def _nodes(context, mode: str):
             actions.append(RegisterEventHandler(OnProcessIO(
                 target_action=action, on_stdout=_shutdown_when_done,
                 on_stderr=_shutdown_when_done)))
-        if node.ready_port is not None:
-            # launch cannot wait for a port like `session` does: give the emulators time.
-            delay = READY_DELAY_S
     urdf = Path(config_dir() / 'urdf' / f'allegro_{args.hand_side}_uskin.urdf')
     if hand_config(args.hand_side).is_file() and urdf.is_file():
         actions.append(Node(package='robot_state_publisher', executable='robot_state_publisher',

@@ -22,7 +22,9 @@ A managed (lifecycle) node (nodes/managed_driver.py): configure opens the bus an
 hand (servos off), activate starts the joint stream and switches the servos on (joints nobody
 commands hold the pose of that moment), deactivate stops the stream, sends zero torque and
 switches the servos off (torque commands are ignored while inactive), cleanup closes the bus.
-Shutdown, and the end of the process, do whatever of these is due.
+Shutdown, and the end of the process, do whatever of these is due. With autostart, configure
+waits (under sim time for the first /clock, then) up to `connect_timeout` for a hand that does not
+answer yet; asked for over the lifecycle service it tries once.
 
 Faults (README, fault table): a lost link (socketcand connection closed, CAN error) is logged at
 ERROR, the hand made safe as far as the bus still allows, and the node exits with code 1 in
@@ -34,6 +36,7 @@ servos off, logged at ERROR; with `control` = torque the node then exits with co
 from __future__ import annotations
 
 import sys
+import time
 
 import can
 import numpy as np
@@ -54,6 +57,7 @@ from tacforce_ros.topics import TOPIC_JOINTS, TOPIC_TORQUE_COMMAND, relative
 # Wall-time period of the check that ends the node on a lost link (and, under force control, on
 # a hand the driver made safe): the exit follows the fault within this.
 LINK_CHECK_PERIOD_S = 0.05
+CONNECT_RETRY_S = 0.2          # wall s between attempts to reach the hand at start-up
 
 class JointVelocity:
     """Joint velocity from positions: finite differences on the caller's clock, low-passed
@@ -108,6 +112,8 @@ class AllegroDriver(ManagedDriver):
                   range=(0.0, 1.0)),
         ParamSpec('clock_timeout', 30.0, 'use_sim_time: longest wait for the first /clock '
                   'before the hand is opened (s, wall)', range=(0.1, 600.0)),
+        ParamSpec('connect_timeout', 30.0, 'autostart: longest wait for the hand to answer '
+                  '(s, wall; a hand or bus still coming up is tried again)', range=(0.1, 600.0)),
         ParamSpec('silent_warn_after', 0.5, 'no joint data for this long with the link up: '
                   'warn and ask for the stream again (s, wall)', range=(0.01, 10.0)),
         ParamSpec('silent_timeout', 2.0, 'no joint data for this long: zero torque and servos '
@@ -158,11 +164,7 @@ class AllegroDriver(ManagedDriver):
             self.wait_for_clock(p['clock_timeout'])
         elif self.get_parameter('use_sim_time').value and self.now_ns() <= 0:
             raise RuntimeError('no /clock yet (use_sim_time is true: is the simulator running?)')
-        try:
-            self.driver = AllegroV4Driver(self._driver_config(), servos_on=False)
-        except (AllegroError, can.CanError, OSError, ValueError) as exc:
-            raise ParameterError(f'interface/channel/host/port: hand not reachable: {exc}'
-                                 ) from None
+        self.driver = self._open_hand(p['connect_timeout'] if self.autostarting else 0.0)
         self.driver.add_callback(self._on_joints)
         self.report_link(
             self.driver, f'Allegro {self.driver.serial}',
@@ -198,6 +200,23 @@ class AllegroDriver(ManagedDriver):
         self._hand_timers = []
         if self.driver is not None:
             self.driver.close()
+
+    def _open_hand(self, patience: float) -> AllegroV4Driver:
+        """The hand's driver, tried again for up to `patience` wall seconds while the hand, its
+        bus or an emulator does not answer yet: the launch files start every node at once. (In
+        simulation the first /clock already means the emulators listen: sim_world binds them
+        before its clock runs.)"""
+        deadline = time.monotonic() + patience
+        while True:
+            try:
+                return AllegroV4Driver(self._driver_config(), servos_on=False)
+            except (AllegroError, can.CanError, OSError, ValueError) as exc:
+                if time.monotonic() >= deadline:
+                    raise ParameterError(f'interface/channel/host/port: hand not reachable: '
+                                         f'{exc}') from None
+                self.get_logger().info(f'waiting for the hand: {exc}',
+                                       throttle_duration_sec=5.0)
+            time.sleep(CONNECT_RETRY_S)
 
     def _driver_config(self) -> AllegroConfig:
         p = self.params

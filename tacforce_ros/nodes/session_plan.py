@@ -54,7 +54,6 @@ class NodeLaunch:
     executable: str
     param_files: tuple[Path, ...] = ()
     overrides: dict[str, Any] = field(default_factory=dict)
-    ready_port: int | None = None     # a TCP port on 127.0.0.1 that accepts once it is ready
     parts: tuple[NodeLaunch, ...] = ()
     namespace: str = ''               # '' : the root namespace
     remappings: tuple[tuple[str, str], ...] = ()
@@ -211,8 +210,7 @@ def plan(args: SessionArgs) -> list[NodeLaunch]:
             'real_time_factor': float(args.real_time_factor), 'lockstep': args.lockstep,
             'stop_after': float(args.sim_duration),
             'xela_port': args.xela_port, 'netft_port': args.netft_port,
-            'can_port': args.can_port, **hand_param},
-            ready_port=args.can_port))    # the emulators bind before the CAN one
+            'can_port': args.can_port, **hand_param}))
     sim_devices = ({'xela': {'url': f'ws://127.0.0.1:{args.xela_port}'},
                     'netft': {'host': '127.0.0.1', 'port': args.netft_port},
                     'allegro': {'interface': 'socketcand', 'channel': 'can0',

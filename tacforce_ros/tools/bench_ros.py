@@ -39,7 +39,7 @@ from tacforce_ros.nodes.common import use_realtime_scheduling
 from tacforce_ros.nodes.latency_probe import Probe, bench_controller, bench_estimator
 from tacforce_ros.nodes.session_plan import NodeLaunch, params_file
 from tacforce_ros.paths import output_file
-from tacforce_ros.tools.session import start_nodes, stop_nodes
+from tacforce_ros.tools.session import first_exited, start_nodes, stop_nodes
 
 LATENCY_TARGET_P99_MS = 2.0
 RATE_TARGET_HZ = 1000.0
@@ -100,7 +100,7 @@ def run_estimator(probe: Probe, hand, args: argparse.Namespace, env: dict, tmp: 
     models = write_synthetic_model_set(tmp / 'models', hand)
     procs = start_nodes([NodeLaunch('estimator', (params_file('estimator'),), {
         'model_config': str(models), 'tare_at_start': False, 'marker_rate_hz': 0.0,
-        'realtime_priority': priority})], tmp / 'logs', 30.0, env)
+        'realtime_priority': priority})], tmp / 'logs', env)
     measured = False
     try:
         if priority > 0:
@@ -131,19 +131,22 @@ def run_controller(probe: Probe, args: argparse.Namespace, env: dict, tmp: Path)
         procs = start_nodes([
             NodeLaunch('sim_world', (params_file('sim_world'),), {
                 'publish_clock': False, 'lockstep': False, 'xela_port': xela,
-                'netft_port': netft, 'can_port': can}, ready_port=can),
+                'netft_port': netft, 'can_port': can}),
             NodeLaunch('allegro_driver', (params_file('allegro_driver'),), {
                 'interface': 'socketcand', 'channel': 'can0', 'host': '127.0.0.1',
                 'port': can, 'rtr_requests': False}),
             NodeLaunch('force_controller', (params_file('force_controller'),),
                        {'control_rate_hz': rate})],
-            tmp / 'logs', 30.0, env)
+            tmp / 'logs', env)
         try:
-            if len(procs) < 3:
-                log = (tmp / 'logs' / 'sim_world.log').read_text().strip().splitlines()
-                raise RuntimeError(f'sim_world was not ready on port {can} within 30 s'
-                                   + (f': {log[-1]}' if log else ''))
             out.append(bench_controller(probe, rate, args.seconds))
+        except RuntimeError as exc:
+            exited = first_exited(procs)
+            if exited is None:
+                raise
+            log = (tmp / 'logs' / f'{exited[0]}.log').read_text().strip().splitlines()
+            raise RuntimeError(f'{exited[0]} exited with code {exited[1]}'
+                               + (f': {log[-1]}' if log else '')) from exc
         finally:
             stop_nodes(procs, grace=10.0)
     return out

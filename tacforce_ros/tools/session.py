@@ -28,7 +28,6 @@ from __future__ import annotations
 import argparse
 import os
 import signal
-import socket
 import subprocess
 import sys
 import time
@@ -53,24 +52,11 @@ def executable(name: str) -> Path:
     return path
 
 
-def wait_for_port(port: int, proc: subprocess.Popen, timeout: float) -> bool:
-    """True once 127.0.0.1:port accepts a TCP connection; False on timeout or if proc exits."""
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline and proc.poll() is None:
-        try:
-            with socket.create_connection(('127.0.0.1', port), timeout=POLL_S):
-                return True
-        except OSError:
-            time.sleep(POLL_S)
-    return False
-
-
-def start_nodes(nodes: list[NodeLaunch], log_dir: Path, ready_timeout: float,
-                env: dict[str, str] | None = None, log_mode: str = 'w'
-                ) -> list[tuple[str, subprocess.Popen]]:
-    """Start the nodes in plan order; a node with a ready_port is waited for before the next
-    (the drivers expect their devices to answer at start-up). `log_mode` 'a': a restarted node
-    goes on in its log."""
+def start_nodes(nodes: list[NodeLaunch], log_dir: Path, env: dict[str, str] | None = None,
+                log_mode: str = 'w') -> list[tuple[str, subprocess.Popen]]:
+    """Start the nodes together, in plan order, as launch does: none waits for another (the
+    drivers wait for their devices themselves, sim time for the first /clock). `log_mode` 'a':
+    a restarted node goes on in its log."""
     log_dir.mkdir(parents=True, exist_ok=True)
     procs = []
     for node in nodes:
@@ -79,13 +65,13 @@ def start_nodes(nodes: list[NodeLaunch], log_dir: Path, ready_timeout: float,
                                     stdout=log, stderr=subprocess.STDOUT, start_new_session=True,
                                     env=env)
         procs.append((node.executable, proc))
-        if node.ready_port is not None and not wait_for_port(node.ready_port, proc,
-                                                             ready_timeout):
-            print(f'session: {node.executable} not ready on port {node.ready_port} '
-                  + (f'within {ready_timeout:g} s' if proc.poll() is None else
-                     f'(it exited with {proc.returncode})'), file=sys.stderr)
-            break
     return procs
+
+
+def first_exited(procs: list[tuple[str, subprocess.Popen]]) -> tuple[str, int] | None:
+    """(name, exit code) of the first node in `procs` that is no longer running, or None."""
+    return next(((name, proc.returncode) for name, proc in procs if proc.poll() is not None),
+                None)
 
 
 def cpu_seconds(pid: int) -> float | None:
@@ -176,8 +162,7 @@ class CrashDrill:
             print(f'session: {self.crash.node} killed at {elapsed:.1f} s (fault drill)',
                   flush=True)
         elif self.down and elapsed >= self.crash.at_s + self.crash.down_s:
-            procs[index] = start_nodes([self.launch], self.log_dir, ready_timeout=30.0,
-                                       log_mode='a')[0]
+            procs[index] = start_nodes([self.launch], self.log_dir, log_mode='a')[0]
             self.done = True
             print(f'session: {self.crash.node} restarted at {elapsed:.1f} s (fault drill)',
                   flush=True)
@@ -199,11 +184,11 @@ def run(args: SessionArgs, duration: float | None, grace: float,
     stop = {'requested': False}
     previous = {sig: signal.signal(sig, lambda *_: stop.update(requested=True))
                 for sig in (signal.SIGINT, signal.SIGTERM)}
-    procs = start_nodes(nodes, log_dir, ready_timeout=30.0)
+    procs = start_nodes(nodes, log_dir)
     print(f'session {args.mode}: started {", ".join(name for name, _ in procs)} '
           f'(logs in {log_dir})', flush=True)
     started = time.monotonic()
-    exited_early = None if len(procs) == len(nodes) else 'start-up'
+    exited_early = None
     scene_log = (SceneLog(log_dir / 'sim_world.log') if args.sim and args.sim_duration > 0
                  else None)
     try:
@@ -216,11 +201,12 @@ def run(args: SessionArgs, duration: float | None, grace: float,
                 break
             if drill is not None:
                 drill.step(time.monotonic() - started, procs)
-            exited_early = next((name for name, proc in procs if proc.poll() is not None
-                                 and not (drill is not None and drill.is_down(name))), None)
+            exited = first_exited([(name, proc) for name, proc in procs
+                                   if not (drill is not None and drill.is_down(name))])
+            exited_early = exited[0] if exited else None
             if exited_early:
-                print(f'session: {exited_early} exited early; see {log_dir}/'
-                      f'{exited_early}.log', file=sys.stderr)
+                print(f'session: {exited_early} exited early (code {exited[1]}); see '
+                      f'{log_dir}/{exited_early}.log', file=sys.stderr)
                 break
             time.sleep(POLL_S)
     finally:

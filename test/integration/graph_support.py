@@ -37,8 +37,7 @@ class Graph:
 
     def __init__(self, nodes: list[NodeLaunch], domain: int, log_dir: Path) -> None:
         self.log_dir = log_dir
-        self.procs = start_nodes(nodes, log_dir, ready_timeout=30.0, env=ros_env(domain))
-        assert len(self.procs) == len(nodes), self.logs()
+        self.procs = start_nodes(nodes, log_dir, env=ros_env(domain))
 
     def alive(self) -> bool:
         return all(proc.poll() is None for _, proc in self.procs)

@@ -4,7 +4,9 @@ unconfigured and publishes nothing; configure opens the device, activate starts 
 hand's servos on) and the link's reports on /diagnostics, deactivate stops it (servos off; the
 link says once, STALE, that it is inactive), activate starts it again, cleanup closes
 the device, shutdown finalizes; a configure that cannot reach the device fails, says why, and
-leaves the node unconfigured; the end of the process leaves an active hand safe."""
+leaves the node unconfigured; with autostart (as launch starts every node at once) the driver
+waits up to connect_timeout for a hand that is not there yet; the end of the process leaves an
+active hand safe."""
 import contextlib
 import sys
 import time
@@ -68,9 +70,11 @@ def _quiet(node, received: list) -> bool:
     return len(received) == before
 
 
-def allegro_driver(host: str, port: int, domain: int, autostart: bool) -> OutputLines:
+def allegro_driver(host: str, port: int, domain: int, autostart: bool, *more: str
+                   ) -> OutputLines:
     params = ['interface:=socketcand', 'channel:=can0', f'host:={host}', f'port:={port}',
-              'rtr_requests:=false', 'control:=off', f'autostart:={str(autostart).lower()}']
+              'rtr_requests:=false', 'control:=off', f'autostart:={str(autostart).lower()}',
+              *more]
     return OutputLines(start([executable('allegro_driver'), '--ros-args', '--params-file',
                               params_file('allegro_driver'),
                               *[a for p in params for a in ('-p', p)]], domain))
@@ -199,3 +203,36 @@ def test_the_end_of_the_process_leaves_an_active_hand_safe():
             text = out.stop()
         assert out.proc.returncode == 0, text
         assert _soon(node, lambda: not hand.servo_on and hand.period_ms == 0), text
+
+
+def test_an_autostarting_driver_waits_for_a_hand_that_comes_up_later():
+    """launch starts the driver and the simulator together: the hand's port is closed at first,
+    and the driver takes the hand when it answers."""
+    domain = unique_domain_id(offset=65)
+    with AllegroEmulator(lambda: np.zeros(16), lambda tau: None) as gone:
+        host, port = gone.address          # free again once closed
+    with rclpy_node('lifecycle_test', domain) as node:
+        received: list = []
+        node.create_subscription(JointState, TOPIC_JOINTS, received.append,
+                                 subscriber_qos(TOPIC_JOINTS))
+        out = allegro_driver(host, port, domain, True, 'connect_timeout:=60.0')
+        try:
+            assert out.wait_for('waiting for the hand', 30.0) is not None, out.text()
+            assert not _arrives(node, received, 1.0)
+            with AllegroEmulator(lambda: np.zeros(16), lambda tau: None, port=port) as hand:
+                assert _arrives(node, received, 30.0), out.text()
+                assert _soon(node, lambda: hand.servo_on)
+                text = out.stop()
+        finally:
+            text = out.stop()
+    assert out.proc.returncode == 0, text
+
+
+def test_an_autostarting_driver_gives_up_after_connect_timeout():
+    domain = unique_domain_id(offset=66)
+    with AllegroEmulator(lambda: np.zeros(16), lambda tau: None) as gone:
+        host, port = gone.address
+    out = allegro_driver(host, port, domain, True, 'connect_timeout:=1.0')
+    assert out.proc.wait(timeout=60.0) == 2, out.stop()
+    text = out.stop()
+    assert 'hand not reachable' in text, text

@@ -1,6 +1,6 @@
 """The `session` tool, run as a user runs it, when sim_world cannot start: the session ends at
-once with an error naming the node, and no driver is started against devices that are not
-there."""
+once with an error naming the node, and stops the nodes started beside it (as launch's
+OnProcessExit -> Shutdown does)."""
 import socket
 import subprocess
 import sys
@@ -22,9 +22,9 @@ def test_a_simulator_that_cannot_listen_ends_the_session_naming_it(tmp_path):
              '--ports', str(can_port - 2), str(can_port - 1), str(can_port)],
             capture_output=True, text=True, timeout=120, env=ros_env(DOMAIN))
     assert done.returncode == 1, done.stdout[-2000:] + done.stderr[-2000:]
-    assert f'session: sim_world not ready on port {can_port} (it exited with 1)' in done.stderr, \
-        done.stderr[-2000:]
-    assert 'started sim_world (logs' in done.stdout, done.stdout[-2000:]   # and nothing else
+    assert 'session: sim_world exited early (code 1)' in done.stderr, done.stderr[-2000:]
+    stopped = done.stdout.split('session calibration: stopped after ')[1]
+    assert float(stopped.split(' s;')[0]) < 60.0, done.stdout[-2000:]     # not its --duration
+    assert 'xela_driver=' in stopped and 'sim_world=1' in stopped, stopped
     log = (tmp_path / 'out' / 'logs' / 'sim_world.log').read_text()
     assert 'Address already in use' in log
-    assert not (tmp_path / 'out' / 'logs' / 'xela_driver.log').exists()

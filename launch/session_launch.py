@@ -37,6 +37,8 @@ ARGUMENTS = {
     'compose': ('false', 'true: every node but the simulator in one tacforce_container process'),
     'namespace': ('', 'every node in this namespace (e.g. /left; in simulation its /clock too); '
                   'empty: the root namespace'),
+    'frame_prefix': ('', 'put in front of every frame id (e.g. left/), also in '
+                     'robot_state_publisher\'s TF; empty: the URDF\'s names'),
     'xela_port': (str(XELA_PORT), 'sim only: the simulated xela_server\'s port (another per hand)'),
     'netft_port': (str(NETFT_PORT), 'sim only: the simulated Net F/T box\'s UDP port'),
     'can_port': (str(CAN_PORT), 'sim only: the simulated hand\'s socketcand port'),
@@ -58,7 +60,7 @@ def _nodes(context, mode: str):
                        sim_duration=float(value['sim_duration']),
                        seed=int(value['seed']), compose=launch_bool('compose', value['compose']),
                        autostart=launch_bool('autostart', value['autostart']),
-                       namespace=value['namespace'],
+                       namespace=value['namespace'], frame_prefix=value['frame_prefix'],
                        xela_port=int(value['xela_port']), netft_port=int(value['netft_port']),
                        can_port=int(value['can_port']))
     # All nodes start together (as in `session`): the hand driver waits for the first /clock,
@@ -88,6 +90,7 @@ def _nodes(context, mode: str):
                             remappings=[('/clock', f'{args.namespace}/clock')]
                             if args.namespace and args.sim else [],
                             parameters=[{'robot_description': urdf.read_text(),
+                                         'frame_prefix': args.frame_prefix,
                                          'use_sim_time': args.sim}]))
     return actions
 

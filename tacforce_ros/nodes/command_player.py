@@ -15,8 +15,8 @@ from geometry_msgs.msg import Vector3Stamped
 from std_srvs.srv import Trigger
 
 from tacforce_ros.control.command_sequence import ForceSequence, SequenceError
-from tacforce_ros.nodes.common import (ParameterError, ParamSpec, TacforceNode, publisher_qos,
-                                      run_node)
+from tacforce_ros.nodes.common import (FRAME_PREFIX, ParameterError, ParamSpec, TacforceNode,
+                                       publisher_qos, run_node)
 from tacforce_ros.topics import TOPIC_DESIRED, relative
 
 
@@ -30,6 +30,7 @@ class CommandPlayer(TacforceNode):
                   'config/commands/'),
         ParamSpec('rate_hz', 100.0, 'publication rate (Hz)', range=(1.0, 1000.0)),
         ParamSpec('frame_id', '', 'frame of the published forces; empty = the sequence\'s own'),
+        FRAME_PREFIX,
         ParamSpec('loop', False, 'start over at the end of the sequence'),
         ParamSpec('autostart', True, 'start playing at start-up; else wait for ~/start'),
         ParamSpec('min_subscribers', 1, 'start the sequence once this many subscriptions '
@@ -42,7 +43,7 @@ class CommandPlayer(TacforceNode):
             self.sequence = ForceSequence.load(self.params['sequence'])
         except SequenceError as exc:
             raise ParameterError(f'sequence: {exc}') from None
-        self.frame_id = self.params['frame_id'] or self.sequence.frame_id
+        self.frame_id = self.frame(self.params['frame_id'] or self.sequence.frame_id)
         self.publisher = self.create_publisher(Vector3Stamped, relative(TOPIC_DESIRED),
                                                publisher_qos(TOPIC_DESIRED))
         self.create_service(Trigger, '~/start', self._on_start)

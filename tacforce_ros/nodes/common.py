@@ -108,6 +108,7 @@ class ParamSpec:
     description: str
     range: tuple[float, float] | None = None      # inclusive; numbers and number lists
     choices: tuple[str, ...] | None = None        # strings only
+    pattern: tuple[str, str] | None = None        # strings only: (regex, what it asks for)
     read_only: bool = True                        # most of ours are read once at start-up
 
     def descriptor(self) -> ParameterDescriptor:
@@ -148,6 +149,8 @@ class ParamSpec:
                                      f'[{self.range[0]}, {self.range[1]}]')
             if self.choices is not None and item not in self.choices:
                 raise ParameterError(f'{self.name}: {item!r} is not one of {list(self.choices)}')
+            if self.pattern is not None and not re.fullmatch(self.pattern[0], item):
+                raise ParameterError(f'{self.name}: {item!r} is not {self.pattern[1]}')
             out.append(item)
         return out if items is not None else out[0]
 
@@ -164,6 +167,12 @@ class ParamSpec:
 
 
 HAND_CONFIG = ParamSpec('hand_config', '', 'hand description YAML; empty = the default hand')
+# As robot_state_publisher's frame_prefix: two hands in one graph publish in their own frames
+# (left/uskin_index_tip) while the hand description and the URDF keep the bare names.
+FRAME_PREFIX = ParamSpec('frame_prefix', '', 'put in front of every frame id this node publishes '
+                         'or expects (e.g. left/ for a hand in /left); empty: the URDF names',
+                         pattern=(r'(?!/)[A-Za-z0-9_/]*', 'a frame-id prefix: letters, digits, _ '
+                                  'and /, not starting with / (tf2 frame ids do not)'))
 GRAVITY = ParamSpec('gravity', [0.0, 0.0, -9.81], 'gravity in the hand base frame (m/s^2), from '
                     'the mounting', range=(-20.0, 20.0))
 
@@ -271,6 +280,11 @@ class TacforceNode(Node):
             except ParameterError as exc:
                 return SetParametersResult(successful=False, reason=str(exc))
         return SetParametersResult(successful=True)
+
+    def frame(self, name: str) -> str:
+        """A frame of the hand description or URDF as this node publishes and expects it: with
+        its `frame_prefix` (FRAME_PREFIX) in front, for nodes that have one."""
+        return self.params.get(FRAME_PREFIX.name, '') + name
 
     def now_ns(self) -> int:
         """Node clock time (sim time when use_sim_time is true), integer nanoseconds."""

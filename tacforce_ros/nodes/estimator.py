@@ -53,7 +53,7 @@ except ImportError:     # Humble
 from tacforce_ros.estimation.causal_filter import FilterDesignError
 from tacforce_ros.estimation.model_set import ModelConfigError, load_model_set
 from tacforce_ros.estimation.preprocessing import SAMPLE_RATE_HZ
-from tacforce_ros.nodes.common import (HAND_CONFIG, REALTIME_PRIORITY, RELIABLE_QOS, ParamSpec,
+from tacforce_ros.nodes.common import (FRAME_PREFIX, HAND_CONFIG, REALTIME_PRIORITY, RELIABLE_QOS, ParamSpec,
                                        ParameterError, TacforceNode, events_executor,
                                        hand_parameter, publisher_qos, run_node, subscriber_qos)
 from tacforce_ros.nodes.messages import stamp
@@ -79,7 +79,7 @@ class Estimator(TacforceNode):
     PARAMETERS = (
         ParamSpec('model_config', '', 'YAML listing one model file per array; empty = '
                   'config/models/default.yaml'),
-        HAND_CONFIG,
+        HAND_CONFIG, FRAME_PREFIX,
         ParamSpec('stale_timeout', 0.025, 'input counted stale after this long without a '
                   'tactile frame (s, node clock)', range=(0.001, 10.0)),
         ParamSpec('stale_check_rate_hz', 200.0, 'invalid estimates per second while stale',
@@ -115,7 +115,7 @@ class Estimator(TacforceNode):
         except FilterDesignError as exc:
             raise ParameterError(f'lowpass_hz: {exc}') from None
         self.names = tuple(a.name for a in self.models.arrays)
-        self.frames = tuple(a.frame_id for a in self.models.arrays)
+        self.frames = tuple(self.frame(a.frame_id) for a in self.models.arrays)
         # rclpy's default QoS-event handlers (incompatible QoS or type: a log line) would add two
         # waitables per publisher, 38 of the 42 an executor polls per frame; subscribers of these
         # topics still report an incompatible QoS on their side.
@@ -204,7 +204,7 @@ class Estimator(TacforceNode):
             if len(self._estimate_layouts) >= 32:      # bounded, whatever the statuses
                 self._estimate_layouts.clear()
             layout = self._estimate_layouts[status] = serialized_estimates(
-                self.hand.base_frame, self.names, self.frames, self.models.kinds, status)
+                self.frame(self.hand.base_frame), self.names, self.frames, self.models.kinds, status)
         layout.set_stamp(stamp_ns)
         layout.set('force', force)
         layout.set('valid', valid)

@@ -33,7 +33,7 @@ from tacforce_msgs.msg import ControllerState, ForceEstimateArray
 from tacforce_ros.control.finger_session import FingerSession
 from tacforce_ros.control.force_controller import ControllerConfigError, ForceControllerConfig
 from tacforce_ros.devices.allegro import MAX_JOINT_RATE_HZ, N_JOINTS
-from tacforce_ros.nodes.common import (GRAVITY, HAND_CONFIG, REALTIME_PRIORITY, ParamSpec,
+from tacforce_ros.nodes.common import (FRAME_PREFIX, GRAVITY, HAND_CONFIG, REALTIME_PRIORITY, ParamSpec,
                                        ParameterError, TacforceNode, hand_parameter,
                                        kinematics_parameter, publisher_qos, run_node,
                                        subscriber_qos)
@@ -60,7 +60,7 @@ class ForceControllerNode(TacforceNode):
 
     NODE_NAME = 'force_controller'
     PARAMETERS = (
-        HAND_CONFIG,
+        HAND_CONFIG, FRAME_PREFIX,
         ParamSpec('control_rate_hz', 100.0, 'controller loop rate (Hz, node clock), up to the '
                   '333 Hz joint stream', range=(1.0, MAX_JOINT_RATE_HZ)),
         ParamSpec('estimate_array', 'index_tip', 'array whose estimate closes the loop'),
@@ -133,7 +133,7 @@ class ForceControllerNode(TacforceNode):
                         np.asarray(msg.velocity, np.float64), stamp_ns(msg.header.stamp))
 
     def _on_desired(self, msg: Vector3Stamped) -> None:
-        frame = self.session.config.force_frame
+        frame = self.frame(self.session.config.force_frame)
         if msg.header.frame_id not in ('', frame):
             self.refused_commands += 1
             self.get_logger().warn(f'desired force in {msg.header.frame_id!r} refused: the '
@@ -184,7 +184,7 @@ class ForceControllerNode(TacforceNode):
                               estimate_fresh=state.estimate_fresh,
                               joints_fresh=state.joints_fresh)
         msg.header.stamp = stamp(now)
-        msg.header.frame_id = self.session.config.force_frame
+        msg.header.frame_id = self.frame(self.session.config.force_frame)
         return msg
 
 

@@ -23,7 +23,8 @@ from std_srvs.srv import Trigger
 
 from tacforce_ros.devices.netft import (FORCE_UNITS_SI, TORQUE_UNITS_SI, NetFtClient, NetFtConfig,
                                         WrenchSample)
-from tacforce_ros.nodes.common import ParameterError, ParamSpec, publisher_qos, run_node
+from tacforce_ros.nodes.common import (FRAME_PREFIX, ParameterError, ParamSpec, publisher_qos,
+                                       run_node)
 from tacforce_ros.nodes.link_status import STATUS_PARAMETERS
 from tacforce_ros.nodes.managed_driver import AUTOSTART, ManagedDriver
 from tacforce_ros.nodes.messages import wrench_stamped
@@ -37,7 +38,7 @@ class FtBridge(ManagedDriver):
     PARAMETERS = (
         ParamSpec('host', '192.168.1.1', 'Net F/T box IP address (the box\'s default)'),
         ParamSpec('port', 49152, 'RDT UDP port', range=(1, 65535)),
-        ParamSpec('frame_id', 'ft_sensor', 'sensor frame {F} (URDF)'),
+        ParamSpec('frame_id', 'ft_sensor', 'sensor frame {F} (URDF)'), FRAME_PREFIX,
         ParamSpec('counts_per_force', 1_000_000.0, 'box setting cfgcpf', range=(1e-6, 1e12)),
         ParamSpec('counts_per_torque', 1_000_000.0, 'box setting cfgcpt', range=(1e-6, 1e12)),
         ParamSpec('force_unit', 'N', 'box setting scfgfu', choices=tuple(FORCE_UNITS_SI)),
@@ -73,7 +74,7 @@ class FtBridge(ManagedDriver):
         self.restart_timer = self.create_timer(p['restart_after'], self._restart_if_silent,
                                                clock=Clock(clock_type=ClockType.STEADY_TIME))
         self.get_logger().info(f'reading udp {p["host"]}:{p["port"]} -> {TOPIC_WRENCH} '
-                               f'in {p["frame_id"]} while active')
+                               f'in {self.frame(p["frame_id"])} while active')
 
     def close_device(self) -> None:
         if self.restart_timer is not None:
@@ -108,7 +109,8 @@ class FtBridge(ManagedDriver):
         if now is None:
             return      # no valid stamp yet, or the same instant as the previous record
         w = sample.wrench
-        self.publisher.publish(wrench_stamped(now, self.params['frame_id'], w[:3], w[3:]))
+        self.publisher.publish(wrench_stamped(now, self.frame(self.params['frame_id']), w[:3],
+                                              w[3:]))
 
     def _on_bias(self, request: Trigger.Request, response: Trigger.Response
                  ) -> Trigger.Response:

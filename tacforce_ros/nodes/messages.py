@@ -49,19 +49,19 @@ def wrench_stamped(ns: int, frame_id: str, force: Sequence[float],
 
 def tactile_hand(ns: int, hand: HandDescription, counts: np.ndarray,
                  temperatures: np.ndarray | None, server_time: float,
-                 server_sequence: int) -> TactileHand:
+                 server_sequence: int, frame_prefix: str = '') -> TactileHand:
     """Whole-hand message from XELA's flat (368, 3) counts; one TactileArray per hand array,
-    each stamped alike and framed in its array frame {S0}."""
+    each stamped alike and framed in its array frame {S0} (after `frame_prefix`)."""
     msg = TactileHand()
     msg.header.stamp = stamp(ns)
-    msg.header.frame_id = hand.base_frame
+    msg.header.frame_id = frame_prefix + hand.base_frame
     msg.server_time = float(server_time)
     msg.server_sequence = int(server_sequence) & 0xFFFFFFFF
     per_temp = (hand.split(np.asarray(temperatures)[:, None]) if temperatures is not None
                 and np.size(temperatures) else [None] * len(hand.arrays))
     for spec, block, temps in zip(hand.arrays, hand.split(np.asarray(counts)), per_temp):
         item = TactileArray()
-        item.header = Header(stamp=msg.header.stamp, frame_id=spec.frame_id)
+        item.header = Header(stamp=msg.header.stamp, frame_id=frame_prefix + spec.frame_id)
         item.name = spec.name
         item.x = _typed(block[:, 0], 'H', np.uint16)
         item.y = _typed(block[:, 1], 'H', np.uint16)

@@ -110,6 +110,7 @@ class SessionArgs:
     compose: bool = False              # the nodes (not the simulator) in one process
     autostart: bool = True             # the managed drivers configure and activate themselves
     namespace: str = ''                # every node in this namespace (e.g. /left); '': the root
+    frame_prefix: str = ''             # before every frame id the nodes publish (e.g. left/)
     seed: int = -1                     # simulator seed; -1: the scene's own
     xela_port: int = XELA_PORT
     netft_port: int = NETFT_PORT
@@ -202,6 +203,8 @@ def plan(args: SessionArgs) -> list[NodeLaunch]:
             raise PlanError(f'sequence: {exc}') from exc
     common: dict[str, Any] = {'use_sim_time': True} if args.sim else {}
     hand_param = {'hand_config': str(hand)}
+    # The nodes that publish or check frame ids (a prefix-less graph passes nothing).
+    framed = {'frame_prefix': args.frame_prefix} if args.frame_prefix else {}
     managed = {'autostart': args.autostart}     # the lifecycle drivers
     nodes: list[NodeLaunch] = []
     if args.sim:
@@ -210,7 +213,7 @@ def plan(args: SessionArgs) -> list[NodeLaunch]:
             'real_time_factor': float(args.real_time_factor), 'lockstep': args.lockstep,
             'stop_after': float(args.sim_duration),
             'xela_port': args.xela_port, 'netft_port': args.netft_port,
-            'can_port': args.can_port, **hand_param}))
+            'can_port': args.can_port, **hand_param, **framed}))
     sim_devices = ({'xela': {'url': f'ws://127.0.0.1:{args.xela_port}'},
                     'netft': {'host': '127.0.0.1', 'port': args.netft_port},
                     'allegro': {'interface': 'socketcand', 'channel': 'can0',
@@ -219,9 +222,10 @@ def plan(args: SessionArgs) -> list[NodeLaunch]:
                                 'silent_timeout': SIM_SILENT_TIMEOUT_S}}
                    if args.sim else {'xela': {}, 'netft': {}, 'allegro': {}})
     nodes.append(NodeLaunch('xela_driver', (params_file('xela_driver'),),
-                            {**common, **managed, **hand_param, **sim_devices['xela']}))
+                            {**common, **managed, **hand_param, **framed,
+                             **sim_devices['xela']}))
     nodes.append(NodeLaunch('ft_bridge', (params_file('ft_bridge'),),
-                            {**common, **managed, **sim_devices['netft']}))
+                            {**common, **managed, **framed, **sim_devices['netft']}))
     if args.mode == 'calibration':
         # The operator moves the hand: joint states only, no torque commands.
         nodes.append(NodeLaunch('allegro_driver', (params_file('allegro_driver'),),
@@ -229,7 +233,7 @@ def plan(args: SessionArgs) -> list[NodeLaunch]:
                                  **sim_devices['allegro'], 'control': 'off'}))
     else:
         nodes.append(NodeLaunch('estimator', (params_file('estimator'),), {
-            **common, **hand_param,
+            **common, **hand_param, **framed,
             'tare_file': str(tare_file(args.session_id, args.namespace)),
             **({'model_config': args.model_config} if args.model_config else {})}))
         # The hand, then the controller that sends it the finger's torques.
@@ -237,10 +241,11 @@ def plan(args: SessionArgs) -> list[NodeLaunch]:
                                 {**common, **managed, **hand_param,
                                  **sim_devices['allegro'], 'control': 'torque'}))
         nodes.append(NodeLaunch('force_controller', (params_file('force_controller'),),
-                                {**common, **hand_param, 'estimate_array': args.array}))
+                                {**common, **hand_param, **framed,
+                                 'estimate_array': args.array}))
         # The sequence starts once the controller and the recorder both listen.
         nodes.append(NodeLaunch('command_player', (params_file('command_player'),),
-                                {**common, 'min_subscribers': 2,
+                                {**common, **framed, 'min_subscribers': 2,
                                  **({'sequence': args.sequence} if args.sequence else {})}))
     # Both modes keep the raw streams (closed loop: the F/T reading is the reference). The
     # recorder starts before the streams it records (right after the simulator, as one starts

@@ -56,7 +56,7 @@ from std_srvs.srv import SetBool
 from sensor_msgs.msg import JointState
 from tacforce_msgs.msg import CalibrationSample, ControllerState
 
-from tacforce_ros.nodes.common import (HAND_CONFIG, RELIABLE_QOS, ParamSpec, ParameterError,
+from tacforce_ros.nodes.common import (FRAME_PREFIX, HAND_CONFIG, RELIABLE_QOS, ParamSpec, ParameterError,
                                        TacforceNode, hand_parameter, publisher_qos, run_node,
                                        subscriber_qos)
 from tacforce_ros.nodes.messages import stamp, wrench_stamped
@@ -119,7 +119,7 @@ class SimWorld(TacforceNode):
                   range=(0, 65535)),
         ParamSpec('can_port', 29536, 'socketcand (Allegro CAN) emulator TCP port on 127.0.0.1 '
                   '(0: any)', range=(0, 65535)),
-        HAND_CONFIG,
+        HAND_CONFIG, FRAME_PREFIX,
         ParamSpec('start_with_servos', True, 'closed-loop scenes: simulated time starts when '
                   'the hand\'s servos are first switched on (false: at start-up)'),
         ParamSpec('lockstep', True, 'simulated time waits for the nodes closing the loop '
@@ -280,7 +280,7 @@ class SimWorld(TacforceNode):
             if sample.tactile_fresh:
                 self.truth_publisher.publish(wrench_stamped(
                     now_ns if self.clock_publisher is not None else self.now_ns(),
-                    self.array.frame_id, sample.true_force))
+                    self.frame(self.array.frame_id), sample.true_force))
             if sample.t + dt >= stop_at - 0.5 * dt:
                 self._scene_done = True
                 self.get_logger().info(f'{SCENE_DONE_MARKER} {self._summary()}')

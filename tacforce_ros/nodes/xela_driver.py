@@ -22,8 +22,8 @@ from tacforce_msgs.msg import TactileHand
 
 from tacforce_ros.devices.device_clock import DEFAULT_MAX_SKEW, DeviceClock
 from tacforce_ros.devices.xela import XelaClient, XelaConfig, XelaFrame
-from tacforce_ros.nodes.common import (HAND_CONFIG, ParamSpec, ParameterError, hand_parameter,
-                                       publisher_qos, run_node)
+from tacforce_ros.nodes.common import (FRAME_PREFIX, HAND_CONFIG, ParamSpec, ParameterError,
+                                       hand_parameter, publisher_qos, run_node)
 from tacforce_ros.nodes.link_status import STATUS_PARAMETERS
 from tacforce_ros.nodes.managed_driver import AUTOSTART, ManagedDriver
 from tacforce_ros.nodes.messages import tactile_hand
@@ -44,7 +44,7 @@ class XelaDriver(ManagedDriver):
                   range=(0.005, 10.0)),
         ParamSpec('reconnect_max', 2.0, 'longest wait between reconnect attempts (s)',
                   range=(0.01, 60.0)),
-        HAND_CONFIG,
+        HAND_CONFIG, FRAME_PREFIX,
         ParamSpec('server_clock', 'node', 'node: the server\'s frame times are on the node '
                   'clock (server on this host, or the simulator\'s); own: a clock of its own, '
                   'mapped', choices=('node', 'own')),
@@ -104,7 +104,8 @@ class XelaDriver(ManagedDriver):
                 ' s off the node clock: a server with a clock of its own needs server_clock:=own',
                 throttle_duration_sec=10.0)
         self.publisher.publish(tactile_hand(stamp, self.hand, frame.counts, frame.temperatures,
-                                            frame.server_time, frame.sequence))
+                                            frame.server_time, frame.sequence,
+                                            self.params[FRAME_PREFIX.name]))
 
 
 def main(args: list[str] | None = None) -> None:

@@ -260,6 +260,9 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument('--namespace', default='',
                         help='every node in this ROS namespace (e.g. /left: /left/tactile/raw, '
                         'and in simulation /left/clock); default: the root namespace')
+    parser.add_argument('--frame-prefix', default='',
+                        help='put in front of every frame id the nodes publish (e.g. left/: '
+                        'left/uskin_index_tip), as robot_state_publisher\'s frame_prefix')
     parser.add_argument('--autostart', action=argparse.BooleanOptionalAction, default=True,
                         help='the drivers configure and activate themselves (default); '
                         '--no-autostart: they start unconfigured, for ros2 lifecycle set')
@@ -287,6 +290,7 @@ def main(argv: list[str] | None = None) -> None:
                              real_time_factor=a.real_time_factor, lockstep=a.lockstep,
                              sim_duration=a.sim_duration, seed=a.seed, compose=a.compose,
                              autostart=a.autostart, namespace=a.namespace,
+                             frame_prefix=a.frame_prefix,
                              xela_port=a.ports[0],
                              netft_port=a.ports[1], can_port=a.ports[2]),
                  a.duration, a.grace, crash))

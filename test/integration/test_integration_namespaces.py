@@ -2,8 +2,9 @@
 `namespace`, as `session --namespace` and the launch files' `namespace:=` start them): each
 simulator, its drivers and estimator (a model on every array) run in its hand's namespace, with its
 own /clock remapped into it, and each estimator publishes its own hand's 18 wrench topics under
-its namespace and nothing in the other's or in the root namespace; /diagnostics, shared, names
-each device link by its node's full name."""
+its namespace and nothing in the other's or in the root namespace; every frame id a hand's nodes
+publish carries its frame prefix (left/, right/); /diagnostics, shared, names each device link by
+its node's full name."""
 import sys
 from pathlib import Path
 
@@ -11,10 +12,12 @@ import pytest
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import WrenchStamped
+from tacforce_msgs.msg import TactileHand
 
 from tacforce_ros.hand.description import load_hand
 from tacforce_ros.nodes.common import subscriber_qos
-from tacforce_ros.topics import TOPIC_DIAGNOSTICS, TOPIC_ESTIMATES, array_wrench_topic
+from tacforce_ros.topics import (TOPIC_DIAGNOSTICS, TOPIC_ESTIMATES, TOPIC_TACTILE, TOPIC_WRENCH,
+                                 array_wrench_topic)
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from graph_support import (Graph, graph_nodes, session_args, synthetic_model_set,  # noqa: E402
@@ -23,8 +26,8 @@ from graph_support import (Graph, graph_nodes, session_args, synthetic_model_set
 pytestmark = pytest.mark.ros
 DOMAIN = unique_domain_id(offset=87)
 # The hand's driver too: simulated time starts when its servos are on.
-NODES = ('sim_world', 'xela_driver', 'estimator', 'allegro_driver')
-HANDS = ('/left', '/right')
+NODES = ('sim_world', 'xela_driver', 'ft_bridge', 'estimator', 'allegro_driver')
+HANDS = {'/left': 'left/', '/right': 'right/'}       # namespace: frame prefix
 TIMEOUT_S = 180.0
 
 
@@ -35,10 +38,17 @@ def test_two_hands_in_their_namespaces_publish_only_their_own_wrenches(tmp_path)
     rclpy.init(domain_id=DOMAIN)
     probe = rclpy.create_node('namespaces_probe')
     received = {(ns, a.name): 0 for ns in HANDS for a in hand.arrays}
+    frames: dict[str, set[str]] = {ns: set() for ns in HANDS}   # every frame id each hand sent
 
     def receiver(key):
-        def receive(_msg: WrenchStamped) -> None:
+        def receive(msg: WrenchStamped) -> None:
             received[key] += 1
+            frames[key[0]].add(msg.header.frame_id)
+        return receive
+
+    def tactile(ns):
+        def receive(msg: TactileHand) -> None:
+            frames[ns].update([msg.header.frame_id] + [a.header.frame_id for a in msg.arrays])
         return receive
 
     health: set[str] = set()
@@ -49,10 +59,17 @@ def test_two_hands_in_their_namespaces_publish_only_their_own_wrenches(tmp_path)
         topic = array_wrench_topic(name)
         probe.create_subscription(WrenchStamped, ns + topic, receiver((ns, name)),
                                   subscriber_qos(topic))
+    for ns in HANDS:
+        probe.create_subscription(TactileHand, ns + TOPIC_TACTILE, tactile(ns),
+                                  subscriber_qos(TOPIC_TACTILE))
+        probe.create_subscription(WrenchStamped, ns + TOPIC_WRENCH,
+                                  lambda msg, ns=ns: frames[ns].add(msg.header.frame_id),
+                                  subscriber_qos(TOPIC_WRENCH))
     try:
-        for offset, ns in enumerate(HANDS):
+        for offset, (ns, prefix) in enumerate(HANDS.items()):
             # Free-running: the graph has no controller for lockstep to wait for.
-            args = session_args('closed_loop', offset=7 + offset, namespace=ns, lockstep=False)
+            args = session_args('closed_loop', offset=7 + offset, namespace=ns, lockstep=False,
+                                frame_prefix=prefix)
             nodes = [n for n in graph_nodes(args) if n.executable in NODES]
             graphs.append(Graph(with_overrides(nodes, estimator={'model_config': str(models)}),
                                 DOMAIN, tmp_path / f'logs{offset}'))
@@ -68,6 +85,10 @@ def test_two_hands_in_their_namespaces_publish_only_their_own_wrenches(tmp_path)
                 assert [(p.node_name, p.node_namespace) for p in publishers] == \
                     [('estimator', ns)], publishers
         assert {'/left/clock', '/right/clock'} <= names
+        for ns, prefix in HANDS.items():
+            expected = {prefix + f for f in [hand.base_frame, hand.ft_frame]
+                        + [a.frame_id for a in hand.arrays]}
+            assert frames[ns] == expected, (ns, frames[ns] ^ expected)
         assert TOPIC_ESTIMATES not in names
         for ns in HANDS:
             publishers = probe.get_publishers_info_by_topic(ns + TOPIC_ESTIMATES)

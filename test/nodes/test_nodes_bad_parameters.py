@@ -26,6 +26,7 @@ CASES = [
     ('sim_world', ["scene:='no_such_scene'"], 'no_such_scene'),
     ('xela_driver', ["url:='http://127.0.0.1:5000'"], 'url: '),
     ('ft_bridge', ["force_unit:='furlong'"], "force_unit: 'furlong' is not one of"),
+    ('estimator', ["frame_prefix:='/left/'"], "frame_prefix: '/left/' is not a frame-id prefix"),
 ]
 
 

@@ -55,10 +55,12 @@ def inputs(k: int, rng: np.random.Generator):
     return q, qdot, estimate, f_d
 
 
-def test_the_node_and_the_in_process_session_give_the_same_torques():
-    config = ForceControllerConfig.from_yaml(params_file('force_controller'))
+def drive(ticks: int, *params: str, frame_of_tick=lambda k: ''):
+    """Runs the force_controller node for `ticks` ticks of inputs(k) (the test is its /clock);
+    returns what it published per tick (ControllerState, torques), what was sent, its output."""
     proc = start([executable('force_controller'), '--ros-args', '--params-file',
-                  params_file('force_controller'), '-p', 'use_sim_time:=true'], DOMAIN)
+                  params_file('force_controller'), '-p', 'use_sim_time:=true',
+                  *[a for p in params for a in ('-p', p)]], DOMAIN)
     states: dict[int, ControllerState] = {}
     torques: dict[int, np.ndarray] = {}
     sent: dict[int, tuple] = {}
@@ -83,11 +85,13 @@ def test_the_node_and_the_in_process_session_give_the_same_torques():
                 60.0)
             assert matched, 'the node never subscribed'
             rng = np.random.default_rng(0)
-            for k in range(TICKS):
+            for k in range(ticks):
                 now = START_NS + (k + 1) * TICK_NS
                 q, qdot, estimate, f_d = inputs(k, rng)
                 sent[now] = (q, qdot, estimate, f_d)
-                desired.publish(Vector3Stamped(vector=Vector3(x=f_d[0], y=f_d[1], z=f_d[2])))
+                command = Vector3Stamped(vector=Vector3(x=f_d[0], y=f_d[1], z=f_d[2]))
+                command.header.frame_id = frame_of_tick(k)
+                desired.publish(command)
                 msg = JointState(name=KIN.joint_names, position=q.tolist(),
                                  velocity=qdot.tolist())
                 msg.header.stamp = stamp(now - 2_000_000)
@@ -104,6 +108,12 @@ def test_the_node_and_the_in_process_session_give_the_same_torques():
     finally:
         output = stop(proc)
     assert proc.returncode == EXIT_OK, output[-2000:]
+    return states, torques, sent, output
+
+
+def test_the_node_and_the_in_process_session_give_the_same_torques():
+    config = ForceControllerConfig.from_yaml(params_file('force_controller'))
+    states, torques, sent, output = drive(TICKS)
     ticks = sorted(set(states) & set(torques))
     assert len(ticks) >= 0.9 * TICKS, (len(ticks), output[-2000:])
 
@@ -132,3 +142,20 @@ def test_the_node_and_the_in_process_session_give_the_same_torques():
     # The sequence went through: the law engaged, held the contact through the outage.
     assert {'closed_loop', 'hold'} <= set(modes), modes
     assert on_time >= 0.8 * len(ticks)
+
+
+def test_with_a_frame_prefix_the_controller_takes_and_names_its_own_frames():
+    """frame_prefix left/: commands in left/ft_sensor are taken, in the bare ft_sensor refused
+    (another hand's), and the controller's state is in left/ft_sensor."""
+    ticks = 40
+    states, _, sent, output = drive(ticks, "frame_prefix:='left/'",
+                                    frame_of_tick=lambda k: 'ft_sensor' if k < 20 else
+                                    'left/ft_sensor')
+    assert "desired force in 'ft_sensor' refused" in output, output[-2000:]
+    assert {m.header.frame_id for m in states.values()} == {'left/ft_sensor'}
+    taken = [t for t, m in states.items()
+             if np.allclose([m.desired_force.x, m.desired_force.y, m.desired_force.z],
+                            sent[t][3])]
+    first_taken = START_NS + 21 * TICK_NS        # the first prefixed command's tick
+    assert taken and min(taken) >= first_taken, (sorted(taken)[:3], first_taken)
+    assert len(taken) >= 0.8 * (ticks - 20), len(taken)

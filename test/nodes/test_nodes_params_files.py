@@ -71,3 +71,12 @@ def test_a_params_file_that_names_no_such_node_is_reported(tmp_path):
     warned, text = node_output('estimator', params, 'no entry for this node (/estimator)')
     assert warned, text[-1500:]
     assert "did you mean '/estimator' for '/estimatr'" in text and 'runs on defaults' in text
+
+
+def test_a_frame_prefix_is_one_tf2_can_use():
+    from tacforce_ros.nodes.common import FRAME_PREFIX
+    for good in ('', 'left/', 'rig_2/left/', 'left_'):
+        assert FRAME_PREFIX.coerce(good) == good
+    for bad in ('/left/', 'left hand/', 'left:'):
+        with pytest.raises(ParameterError, match='is not a frame-id prefix'):
+            FRAME_PREFIX.coerce(bad)

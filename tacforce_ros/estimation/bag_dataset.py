@@ -85,6 +85,10 @@ def dataset_from_bag(path: str | Path, hand: HandDescription,
     from tacforce_ros.bagio import read_session_metadata
 
     meta = read_session_metadata(path)
+    side = meta.get('hand_side') or 'right'      # not stated: the right hand, the first one
+    if side != hand.side:
+        raise DatasetError(f'{path}: a bag of the {side} hand, read with the {hand.side} hand\'s '
+                           'description')
     array = hand.array(meta.get('array', ''))
     streams = read_streams(path, array.name, array.n_taxels, list(kinematics.joint_names))
     for name, samples in (('tactile', streams.tactile), ('wrench', streams.force),

@@ -4,8 +4,8 @@ A bundle is everything needed to turn raw counts of one array into newtons in {S
 the input/output standardisation, the default tare (taxel offsets) and the provenance.
 
 File layout (np.savez, loaded with allow_pickle=False):
-  header          0-d unicode array: JSON with format, array, n_taxels, module_code, kind,
-                  hyperparameters, provenance and the sha256 of every other entry
+  header          0-d unicode array: JSON with format, array, hand_side, n_taxels, module_code,
+                  kind, hyperparameters, provenance and the sha256 of every other entry
   x_mean x_std x_dead f_mean f_std f_dead x_offset   standardisation and tare
   state.<name>    the model's state_arrays()
 """
@@ -72,7 +72,8 @@ def save_model(path: str | Path, bundle: ModelBundle) -> Path:
     }
     arrays.update({_STATE_PREFIX + k: np.asarray(v) for k, v in bundle.model.state_arrays().items()})
     header = {
-        'format': FORMAT, 'array': array.name, 'n_taxels': int(array.n_taxels),
+        'format': FORMAT, 'array': array.name, 'hand_side': array.hand_side,
+        'n_taxels': int(array.n_taxels),
         'module_code': array.module_code, 'kind': bundle.model.kind,
         'hyperparameters': bundle.model.hyperparameters(), 'provenance': bundle.provenance,
         'sha256': {key: _sha256(value) for key, value in arrays.items()},
@@ -119,6 +120,12 @@ def load_model(path: str | Path, array: TaxelArray) -> ModelBundle:
     if header['array'] != array.name:
         raise ModelFileError(f'{path}: model is for array {header["array"]!r}, '
                              f'not {array.name!r}')
+    # Files written before the left hand was described have no hand_side: right-hand models.
+    side = header.get('hand_side', 'right')
+    if side != array.hand_side:
+        raise ModelFileError(f'{path}: model is for the {side} hand\'s {header["array"]}, not '
+                             f'the {array.hand_side} hand\'s (a mirror image: its taxels are '
+                             'elsewhere)')
     if header['n_taxels'] != array.n_taxels:
         raise ModelFileError(f'{path}: model has {header["n_taxels"]} taxels, array '
                              f'{array.name!r} has {array.n_taxels}')

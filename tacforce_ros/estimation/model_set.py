@@ -23,6 +23,7 @@ from tacforce_ros.estimation.model_io import ModelFileError, load_model, save_mo
 from tacforce_ros.estimation.npz import read_npz
 from tacforce_ros.estimation.runtime import HandEstimate, RuntimeEstimator
 from tacforce_ros.hand.description import HandDescription
+from tacforce_ros.paths import config_dir
 
 
 class ModelConfigError(ValueError):
@@ -92,6 +93,13 @@ def model_files(path: str | Path) -> dict[str, Path]:
     files = {str(name): Path(str(file)) for name, file in models.items()}
     return {name: file if file.is_absolute() else path.parent / file
             for name, file in files.items()}
+
+
+def default_model_config(hand: HandDescription) -> Path:
+    """The shipped models YAML of a hand: config/models/default.yaml for the right hand,
+    config/models/<side>/default.yaml for another (its models are trained on that hand)."""
+    models = config_dir() / 'models'
+    return models / 'default.yaml' if hand.side == 'right' else models / hand.side / 'default.yaml'
 
 
 def load_model_set(path: str | Path, hand: HandDescription) -> ModelSet:

@@ -15,9 +15,15 @@ import yaml
 
 from tacforce_ros.paths import config_dir
 
-DEFAULT_HAND = Path('hand') / 'allegro_right_uskin.yaml'
 KINDS = ('fingertip', 'phalanx', 'palm')
 FINGERS = ('index', 'middle', 'ring', 'thumb')
+SIDES = ('right', 'left')
+
+
+def hand_config(side: str = 'right') -> Path:
+    """The shipped description of the `side` hand (the right one is the default hand)."""
+    return config_dir() / 'hand' / f'allegro_{side}_uskin.yaml'
+
 _ORTHONORMAL_TOL = 1e-9
 
 
@@ -41,6 +47,7 @@ class TaxelArray:
     rotations: np.ndarray      # (n, 3, 3) float64, R_i^0: taxel frame {S_i} -> {S0}
     flat_indices: np.ndarray   # (n,) int64, index of each taxel in the flat 368-taxel order
     neighbours: tuple[str, ...]
+    hand_side: str             # 'right' | 'left': the right hand's index_tip is not the left's
 
 
 @dataclass(frozen=True, eq=False)
@@ -101,7 +108,7 @@ class HandDescription:
 
 def load_hand(path: str | Path | None = None) -> HandDescription:
     """Read and validate a hand YAML (default: config/hand/allegro_right_uskin.yaml)."""
-    path = Path(path) if path is not None else config_dir() / DEFAULT_HAND
+    path = Path(path) if path is not None else hand_config()
     try:
         doc = yaml.safe_load(path.read_text())
     except yaml.YAMLError as exc:
@@ -120,12 +127,16 @@ def _build(doc: dict, path: Path) -> HandDescription:
     modules = _require(doc, 'modules', dict, 'modules')
     raw_arrays = _require(doc, 'arrays', list, 'arrays')
     layouts = {name: _module_layout(spec, f'modules.{name}') for name, spec in modules.items()}
-    arrays = tuple(_array(raw, layouts, f'arrays[{i}]') for i, raw in enumerate(raw_arrays))
+    side = _require(doc, 'side', str, 'side')
+    if side not in SIDES:
+        raise HandConfigError(f'side: {side!r} is not one of {list(SIDES)}')
+    arrays = tuple(_array(raw, layouts, f'arrays[{i}]', side)
+                   for i, raw in enumerate(raw_arrays))
     _check_cross_array(arrays)
     config_root = path.resolve().parent.parent   # <config>/hand/<file>.yaml -> <config>
     urdf_rel = _require(doc, 'urdf', str, 'urdf')
     return HandDescription(
-        side=_require(doc, 'side', str, 'side'),
+        side=side,
         arrays=arrays,
         urdf_path=(config_root / urdf_rel).resolve(),
         base_frame=_require(doc, 'base_frame', str, 'base_frame'),
@@ -199,7 +210,7 @@ def _frames(tangents: np.ndarray, normals: np.ndarray) -> np.ndarray:
     return np.stack([tangents, y, normals], axis=-1)
 
 
-def _array(raw: Any, layouts: dict[str, _Layout], where: str) -> TaxelArray:
+def _array(raw: Any, layouts: dict[str, _Layout], where: str, side: str) -> TaxelArray:
     if not isinstance(raw, dict):
         raise HandConfigError(f'{where}: must be a mapping')
     name = _require(raw, 'name', str, f'{where}.name')
@@ -238,6 +249,7 @@ def _array(raw: Any, layouts: dict[str, _Layout], where: str) -> TaxelArray:
         rotations=_read_only(layout.rotations.astype(np.float64)),
         flat_indices=_read_only(flat.astype(np.int64)),
         neighbours=tuple(str(n) for n in neighbours),
+        hand_side=side,
     )
 
 

@@ -165,6 +165,11 @@ class AllegroDriver(ManagedDriver):
         elif self.get_parameter('use_sim_time').value and self.now_ns() <= 0:
             raise RuntimeError('no /clock yet (use_sim_time is true: is the simulator running?)')
         self.driver = self._open_hand(p['connect_timeout'] if self.autostarting else 0.0)
+        side = self.driver.hand_info.side
+        if side != self.hand.side:
+            self.driver.close()
+            raise ParameterError(f'hand_config: {self.hand.side} hand\'s description, but the '
+                                 f'hand on the bus is a {side} hand (HAND_INFO)')
         self.driver.add_callback(self._on_joints)
         self.report_link(
             self.driver, f'Allegro {self.driver.serial}',

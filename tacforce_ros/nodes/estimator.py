@@ -51,15 +51,14 @@ except ImportError:     # Humble
     from rclpy.qos_event import PublisherEventCallbacks
 
 from tacforce_ros.estimation.causal_filter import FilterDesignError
-from tacforce_ros.estimation.model_set import ModelConfigError, load_model_set
+from tacforce_ros.estimation.model_set import ModelConfigError, default_model_config, load_model_set
 from tacforce_ros.estimation.preprocessing import SAMPLE_RATE_HZ
-from tacforce_ros.nodes.common import (FRAME_PREFIX, HAND_CONFIG, REALTIME_PRIORITY, RELIABLE_QOS, ParamSpec,
-                                       ParameterError, TacforceNode, events_executor,
+from tacforce_ros.nodes.common import (FRAME_PREFIX, HAND_CONFIG, REALTIME_PRIORITY, RELIABLE_QOS,
+                                       ParamSpec, ParameterError, TacforceNode, events_executor,
                                        hand_parameter, publisher_qos, run_node, subscriber_qos)
 from tacforce_ros.nodes.messages import stamp
 from tacforce_ros.nodes.serialized import (SerializedMessages, TactileHandDecoder,
                                            serialized_estimates, serialized_wrenches)
-from tacforce_ros.paths import config_dir
 from tacforce_ros.topics import (TOPIC_ESTIMATES, TOPIC_MARKERS, TOPIC_TACTILE,
                                  array_wrench_topic, relative)
 
@@ -78,7 +77,7 @@ class Estimator(TacforceNode):
     NODE_NAME = 'estimator'
     PARAMETERS = (
         ParamSpec('model_config', '', 'YAML listing one model file per array; empty = '
-                  'config/models/default.yaml'),
+                  'config/models/default.yaml (the left hand: config/models/left/default.yaml)'),
         HAND_CONFIG, FRAME_PREFIX,
         ParamSpec('stale_timeout', 0.025, 'input counted stale after this long without a '
                   'tactile frame (s, node clock)', range=(0.001, 10.0)),
@@ -105,8 +104,8 @@ class Estimator(TacforceNode):
         p = self.params
         self.hand = hand_parameter(p)
         try:
-            self.models = load_model_set(p['model_config']
-                                         or config_dir() / 'models' / 'default.yaml', self.hand)
+            self.models = load_model_set(p['model_config'] or default_model_config(self.hand),
+                                         self.hand)
         except (ModelConfigError, OSError) as exc:
             raise ParameterError(f'model_config: {exc}') from None
         try:
@@ -204,7 +203,8 @@ class Estimator(TacforceNode):
             if len(self._estimate_layouts) >= 32:      # bounded, whatever the statuses
                 self._estimate_layouts.clear()
             layout = self._estimate_layouts[status] = serialized_estimates(
-                self.frame(self.hand.base_frame), self.names, self.frames, self.models.kinds, status)
+                self.frame(self.hand.base_frame), self.names, self.frames, self.models.kinds,
+                status)
         layout.set_stamp(stamp_ns)
         layout.set('force', force)
         layout.set('valid', valid)

@@ -15,12 +15,12 @@ from pathlib import Path
 from typing import Any
 
 from tacforce_ros.control.command_sequence import ForceSequence, SequenceError
+from tacforce_ros.hand.description import SIDES, hand_config
 from tacforce_ros.paths import config_dir, ros_home
 from tacforce_ros.sim.scene import SceneError, load_scene
 
 MODES = ('calibration', 'closed_loop')
 NAMESPACE = re.compile(r'(/[A-Za-z_][A-Za-z0-9_]*)+')
-HAND_SIDES = ('right', 'left')
 
 # Default device ports of the hardware; in simulation sim_world serves the emulators on these
 # (or on the ports a test chose) on 127.0.0.1.
@@ -160,10 +160,6 @@ def shipped_parameters(name: str) -> dict[str, Any]:
     return yaml.safe_load(params_file(name).read_text())[params_node_key(name)]['ros__parameters']
 
 
-def hand_config(side: str) -> Path:
-    return config_dir() / 'hand' / f'allegro_{side}_uskin.yaml'
-
-
 def _ros_literal(value: Any) -> str:
     if isinstance(value, bool):
         return 'true' if value else 'false'
@@ -184,8 +180,8 @@ def plan(args: SessionArgs) -> list[NodeLaunch]:
     if args.namespace and not NAMESPACE.fullmatch(args.namespace):
         raise PlanError(f'namespace: {args.namespace!r} is not a ROS namespace (/name or '
                         '/name/name, letters, digits and _, not starting with a digit)')
-    if args.hand_side not in HAND_SIDES:
-        raise PlanError(f'hand_side: {args.hand_side!r} is not one of {list(HAND_SIDES)}')
+    if args.hand_side not in SIDES:
+        raise PlanError(f'hand_side: {args.hand_side!r} is not one of {list(SIDES)}')
     hand = hand_config(args.hand_side)
     if not hand.is_file():
         raise PlanError(f'hand_side {args.hand_side!r}: no hand description {hand}')

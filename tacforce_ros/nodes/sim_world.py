@@ -44,6 +44,7 @@ from __future__ import annotations
 
 import sys
 import threading
+from dataclasses import replace
 
 import numpy as np
 from geometry_msgs.msg import WrenchStamped
@@ -63,7 +64,7 @@ from tacforce_ros.nodes.messages import stamp, wrench_stamped
 from tacforce_ros.nodes.serialized import header_stamp_ns
 from tacforce_ros.nodes.session_plan import SCENE_DONE_MARKER
 from tacforce_ros.sim import SceneError, make_simulator
-from tacforce_ros.sim.emulators.allegro import AllegroEmulator
+from tacforce_ros.sim.emulators.allegro import V4_HAND_INFO, AllegroEmulator
 from tacforce_ros.sim.emulators.base import Pacer
 from tacforce_ros.sim.emulators.netft import NetFtEmulator
 from tacforce_ros.sim.emulators.xela_server import XelaServerEmulator
@@ -166,7 +167,8 @@ class SimWorld(TacforceNode):
         self.netft = NetFtEmulator(self._wrench_record, port=p['netft_port'],
                                    rate_hz=p['ft_rate_hz'] * rtf)
         self.allegro = AllegroEmulator(lambda: self._latest.q, self._take_torques,
-                                       port=p['can_port'])
+                                       port=p['can_port'],
+                                       hand_info=replace(V4_HAND_INFO, side=self.hand.side))
         self.create_service(SetBool, '~/pause_tactile', self._on_pause_tactile)
         self.gate = self._lockstep_gate() if p['lockstep'] else None
         self._scene_done = False

@@ -18,7 +18,7 @@ import numpy as np
 from tqdm import tqdm
 
 from tacforce_ros import bagio, topics
-from tacforce_ros.hand.description import HandDescription, load_hand
+from tacforce_ros.hand.description import SIDES, HandDescription, hand_config, load_hand
 from tacforce_ros.paths import output_folder
 from tacforce_ros.sim import load_scene, make_simulator
 from tacforce_ros.sim.scene import session_seed
@@ -74,10 +74,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--sessions', type=int, default=4, help='sessions per plate and array')
     parser.add_argument('--seconds', type=float, default=100.0, help='length of each session')
     parser.add_argument('--seed', type=int, default=0, help='base seed of all sessions')
+    parser.add_argument('--hand-side', choices=SIDES, default='right',
+                        help='the simulated hand (its description config/hand/allegro_<side>_uskin'
+                        '.yaml)')
     args = parser.parse_args(argv)
     if args.sessions < 1 or args.seconds <= 0:
         parser.error('--sessions must be >= 1 and --seconds > 0')
-    hand = load_hand()
+    hand = load_hand(hand_config(args.hand_side))
     jobs = [(a, p, s) for a in args.arrays for p in args.plates for s in range(args.sessions)]
     steps = sum(int(round(args.seconds * load_scene(f'calibration_{a}_{p}').tactile_rate))
                 for a, p, _ in jobs)

@@ -1,9 +1,10 @@
 """train: calibration bags or processed datasets -> one model file per array and kind + report.
 
 Inputs are rosbag2 calibration bags (folders, docs/CONTRACTS.md) and/or processed dataset .npz
-files (estimation/dataset.py). Per array: offsets from static segments per session, optional
-leave-one-plate-out cross-validation (metrics go into the model's provenance), then a final fit on
-all plates.
+files (estimation/dataset.py), all of one hand: the bags name theirs (session metadata
+hand_side), `--hand-side` names it for datasets (default right); the models are that hand's.
+Per array: offsets from static segments per session, optional leave-one-plate-out
+cross-validation (metrics go into the model's provenance), then a final fit on all plates.
 """
 from __future__ import annotations
 
@@ -24,6 +25,7 @@ from tacforce_ros.estimation.model_io import save_model
 from tacforce_ros.estimation.preprocessing import StaticSegmentError
 from tacforce_ros.estimation.registry import MODEL_KINDS
 from tacforce_ros.estimation.training import fit_bundle
+from tacforce_ros.hand.description import SIDES, HandDescription, hand_config, load_hand
 from tacforce_ros.paths import output_folder
 
 RANDOM_KINDS = ('M4', 'M5')     # trained from a random initialisation: they take a seed
@@ -52,16 +54,31 @@ def model_hyper(kind: str, seed: int, lambda_cv: bool, lam: float) -> dict:
     return {}
 
 
-def load_inputs(paths: list[Path]) -> tuple[dict[str, list[CalibrationDataset]], int]:
+def input_hand(paths: list[Path], side: str | None) -> HandDescription:
+    """The hand the inputs are of: the one their bags name (all the same), or `side`."""
+    from tacforce_ros.bagio import read_session_metadata
+    sides = {str(read_session_metadata(p).get('hand_side') or 'right')    # not stated: right
+             for p in paths if p.is_dir()}
+    if side is not None:
+        sides.add(side)
+    if len(sides) > 1:
+        raise ValueError(f'inputs of more than one hand ({sorted(sides)}): train each hand '
+                         'on its own (--hand-side names the hand of .npz datasets)')
+    side = sides.pop() if sides else 'right'
+    if side not in SIDES:
+        raise ValueError(f'hand_side {side!r} is not one of {list(SIDES)}')
+    return load_hand(hand_config(side))
+
+
+def load_inputs(paths: list[Path], hand: HandDescription
+                ) -> tuple[dict[str, list[CalibrationDataset]], int]:
     """Datasets by array name, from bags and .npz files; also the malformed messages dropped."""
     by_array: dict[str, list[CalibrationDataset]] = defaultdict(list)
     dropped = 0
     bags = [p for p in paths if p.is_dir()]
     if bags:
         from tacforce_ros.estimation.bag_dataset import dataset_from_bag
-        from tacforce_ros.hand.description import load_hand
         from tacforce_ros.hand.kinematics import HandKinematics
-        hand = load_hand()
         kinematics = HandKinematics(hand.urdf_path)
         for bag in tqdm(bags, desc='bags', unit='bag'):
             dataset, n_dropped = dataset_from_bag(bag, hand, kinematics)
@@ -103,6 +120,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--kinds', nargs='+', default=['M3-lambda'], choices=sorted(MODEL_KINDS),
                         help='model kinds to train (default: M3-lambda)')
     parser.add_argument('--arrays', nargs='+', help='only these arrays (default: all found)')
+    parser.add_argument('--hand-side', choices=SIDES, default=None,
+                        help='the hand of the inputs (default: the one their bags name, right '
+                        'for datasets alone)')
     parser.add_argument('--lam', type=float, default=33.0, help='M3-lambda damping (paper: 33)')
     parser.add_argument('--lambda-cv', action='store_true',
                         help='choose the M3-lambda damping by CV nested in the training plates')
@@ -123,8 +143,9 @@ def main(argv: list[str] | None = None) -> int:
     if missing:
         parser.error(f'inputs not found: {missing}')
     try:
-        by_array, dropped = load_inputs(args.inputs)
-    except (DatasetError, ValueError, RuntimeError) as exc:
+        hand = input_hand(args.inputs, args.hand_side)
+        by_array, dropped = load_inputs(args.inputs, hand)
+    except (DatasetError, ValueError, RuntimeError, OSError) as exc:
         print(f'train: {exc}', file=sys.stderr)
         return 2
     if dropped:
@@ -135,8 +156,6 @@ def main(argv: list[str] | None = None) -> int:
         print(f'train: no data for arrays {unknown}; found {sorted(by_array)}', file=sys.stderr)
         return 2
 
-    from tacforce_ros.hand.description import load_hand
-    hand = load_hand()
     version, date = code_version(), time.strftime('%Y-%m-%dT%H:%M:%S%z')
     report = {'code_version': version, 'date': date, 'seed': args.seed,
               'inputs': [str(p) for p in args.inputs], 'dropped_messages': dropped, 'models': []}

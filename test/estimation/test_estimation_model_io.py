@@ -41,6 +41,20 @@ def test_wrong_array_is_refused(saved, hand):
         load_model(path, hand.array('middle_tip'))
 
 
+def test_a_right_hand_model_is_refused_for_the_left_hands_array(saved, tip, tmp_path):
+    from tacforce_ros.hand.description import hand_config, load_hand
+    _, path, _ = saved
+    assert read_header(path)['hand_side'] == 'right'
+    left_tip = load_hand(hand_config('left')).array('index_tip')
+    with pytest.raises(ModelFileError, match="for the right hand's index_tip, not the left"):
+        load_model(path, left_tip)
+    # A file from before the left hand existed (no hand_side) is a right-hand model.
+    older = rewrite(path, tmp_path, lambda h, a: h.pop('hand_side'))
+    load_model(older, tip)
+    with pytest.raises(ModelFileError, match="for the right hand's index_tip"):
+        load_model(older, left_tip)
+
+
 def rewrite(path, tmp_path, edit):
     """Copy of a model file with its entries edited by edit(header, arrays)."""
     with np.load(path, allow_pickle=False) as npz:

@@ -9,7 +9,7 @@ import pytest
 from tacforce_ros import bagio, topics
 from tacforce_ros.estimation.bag_dataset import dataset_from_bag
 from tacforce_ros.estimation.dataset import CalibrationDataset, DatasetError, concatenate
-from tacforce_ros.estimation.model_io import load_model
+from tacforce_ros.estimation.model_io import load_model, read_header
 from tacforce_ros.estimation.synthetic import synthetic_dataset
 from tacforce_ros.hand.kinematics import HandKinematics
 from tacforce_ros.tools import bench, bench_train, train
@@ -52,7 +52,8 @@ def write_bag(path, hand, array, data, rows, q, kinematics, plate):
     100 Hz (offset by half a period), joints at 50 Hz; one malformed tactile frame."""
     rotation = kinematics.rotation_between(q, hand.ft_frame, array.frame_id)   # R^0_F
     others = hand.merge([np.full((a.n_taxels, 3), 20000.0) for a in hand.arrays])
-    meta = bagio.session_metadata(array=array.name, plate=plate, source='sim', seed=0)
+    meta = bagio.session_metadata(array=array.name, plate=plate, source='sim', seed=0,
+                                  hand_side=hand.side)
     t0 = 1_700_000_000 * 10**9
     with bagio.CalibrationBagWriter(path, meta) as writer:
         for i, row in enumerate(rows):
@@ -121,6 +122,32 @@ def test_train_from_bags_writes_loadable_models_and_report(hand, bags, tmp_path)
     assert bundle.provenance['metrics']['folds'] == 3
     assert (out / 'report.md').read_text().count('index_middle') >= 2
     assert CalibrationDataset.load(out / 'index_middle.npz').array == 'index_middle'
+
+
+def test_bags_train_the_hand_they_name(bags, tmp_path, capsys):
+    """A left hand's bag trains the left hand's model (its own flat order and frames); bags of
+    both hands, or a bag read with the other hand's description, are refused."""
+    from tacforce_ros.hand.description import hand_config, load_hand
+    right_paths, data, right_array, _ = bags
+    left = load_hand(hand_config('left'))
+    array = left.array(right_array.name)
+    kinematics = HandKinematics(left.urdf_path)
+    q = np.zeros(16)
+    q[1], q[2] = 0.4, 0.3
+    paths = []
+    for plate in data.plate_names():
+        paths.append(tmp_path / f'left_{plate}')
+        write_bag(paths[-1], left, array, data, np.flatnonzero(data.plates == plate), q,
+                  kinematics, plate)
+    out = tmp_path / 'models'
+    assert train.main([*map(str, paths), '--out', str(out), '--kinds', 'M3-lambda']) == 0
+    bundle = load_model(out / f'{array.name}_M3-lambda.npz', array)
+    assert read_header(out / f'{array.name}_M3-lambda.npz')['hand_side'] == 'left'
+    assert bundle.provenance['metrics']['e_hat_mean'] < 0.5
+    with pytest.raises(DatasetError, match="a bag of the left hand, read with the right"):
+        dataset_from_bag(paths[0], load_hand(), HandKinematics(load_hand().urdf_path))
+    assert train.main([str(paths[0]), str(right_paths[1]), '--out', str(tmp_path / 'o')]) == 2
+    assert "more than one hand (['left', 'right'])" in capsys.readouterr().err
 
 
 def test_train_refuses_unknown_arrays_and_missing_inputs(phalanx, tmp_path, capsys):

@@ -185,6 +185,7 @@ BROKEN = {
     'duplicate name': (lambda d: d['arrays'][1].update(name='index_tip'), r'name: duplicates'),
     'bad pitch': (lambda d: d['modules']['uSCuAH'].update(pitch=0), r'modules\.uSCuAH\.pitch'),
     'missing top-level': (lambda d: d.pop('ft_frame'), r'ft_frame: missing key'),
+    'unknown side': (lambda d: d.update(side='both'), r"side: 'both' is not one of"),
 }
 
 

@@ -8,9 +8,8 @@ import mujoco
 import numpy as np
 import pytest
 
-from tacforce_ros.hand.description import load_hand
+from tacforce_ros.hand.description import hand_config, load_hand
 from tacforce_ros.hand.kinematics import HandKinematics
-from tacforce_ros.nodes.session_plan import hand_config
 
 RIGHT = load_hand(hand_config('right'))
 LEFT = load_hand(hand_config('left'))

@@ -55,12 +55,33 @@ def test_string_overrides_survive_yaml():
 
 
 @pytest.mark.parametrize('field, value, message', [
-    ('mode', 'teleop', 'mode'), ('hand_side', 'middle', 'hand_side'),
-    ('hand_side', 'left', 'no hand description')])
+    ('mode', 'teleop', 'mode'), ('hand_side', 'middle', 'hand_side')])
 def test_bad_choices_are_refused(field, value, message):
     args = {'mode': 'calibration', field: value}
     with pytest.raises(PlanError, match=message):
         plan(SessionArgs(**args))
+
+
+def test_a_side_without_a_description_is_refused(monkeypatch, tmp_path):
+    from tacforce_ros.nodes import session_plan
+    monkeypatch.setattr(session_plan, 'hand_config', lambda side: tmp_path / f'{side}.yaml')
+    with pytest.raises(PlanError, match='no hand description'):
+        plan(SessionArgs(mode='calibration', hand_side='left'))
+
+
+def test_the_left_hand_gives_every_node_its_description_and_a_frame_prefix_its_nodes():
+    from tacforce_ros.hand.description import hand_config
+    nodes = plan(SessionArgs(mode='closed_loop', hand_side='left', frame_prefix='left/'))
+    described = {n.executable: n.overrides['hand_config'] for n in nodes
+                 if 'hand_config' in n.overrides}
+    assert set(described) == {'sim_world', 'xela_driver', 'estimator', 'allegro_driver',
+                              'force_controller', 'sync_recorder'}
+    assert set(described.values()) == {str(hand_config('left'))}
+    prefixed = {n.executable for n in nodes if n.overrides.get('frame_prefix') == 'left/'}
+    assert prefixed == {'sim_world', 'xela_driver', 'ft_bridge', 'estimator',
+                        'force_controller', 'command_player'}
+    # No prefix asked: none passed (the parameter files' empty default).
+    assert not any('frame_prefix' in n.overrides for n in plan(SessionArgs(mode='closed_loop')))
 
 
 def test_seed_reaches_the_simulator_and_the_session_metadata():

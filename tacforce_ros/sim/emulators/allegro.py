@@ -28,14 +28,17 @@ JointSource = Callable[[], np.ndarray]       # -> q (16,) rad, Allegro joint ord
 TorqueSink = Callable[[np.ndarray], None]    # <- tau (16,) Nm after every SET_TORQUE frame
 
 
+# A right V4 hand at 30 C, servos off, no faults (sim_world makes it the scene hand's side).
+V4_HAND_INFO = HandInfo(0x0400, 0x0100, 'right', 30, False, False, False)
+
+
 class AllegroEmulator:
     """The hand behind a socketcand server. ``sent_log`` keeps (cycle, monotonic time of the
     cycle's first FINGER_POSE send); fault hooks: :meth:`inject`, :meth:`pause_stream`."""
 
     def __init__(self, joint_source: JointSource, torque_sink: TorqueSink,
                  host: str = LOOPBACK, port: int = 0, channel: str = 'can0',
-                 hand_info: HandInfo = HandInfo(0x0400, 0x0100, 'right', 30, False, False,
-                                                False),
+                 hand_info: HandInfo = V4_HAND_INFO,
                  serial: str = 'SAH040X1', pwm_per_nm: float = PWM_PER_NM_V4,
                  device_id: int = 0, log_length: int = 100_000) -> None:
         if len(serial.encode('ascii')) != 8:

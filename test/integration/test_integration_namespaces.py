@@ -1,10 +1,10 @@
-"""Two simulated hands in one ROS graph, in the namespaces /left and /right (session_plan's
-`namespace`, as `session --namespace` and the launch files' `namespace:=` start them): each
-simulator, its drivers and estimator (a model on every array) run in its hand's namespace, with its
-own /clock remapped into it, and each estimator publishes its own hand's 18 wrench topics under
-its namespace and nothing in the other's or in the root namespace; every frame id a hand's nodes
-publish carries its frame prefix (left/, right/); /diagnostics, shared, names each device link by
-its node's full name."""
+"""Two simulated hands in one ROS graph, the left hand in /left and the right in /right
+(session_plan's `hand_side` and `namespace`, as `session --hand-side --namespace` and the launch
+files' `hand_side:=`, `namespace:=` start them): each simulator, its drivers and estimator (a
+model of that hand on every array) run in its hand's namespace, with its own /clock remapped into
+it, and each estimator publishes its own hand's 18 wrench topics under its namespace and nothing
+in the other's or in the root namespace; every frame id a hand's nodes publish carries its frame
+prefix (left/, right/); /diagnostics, shared, names each device link by its node's full name."""
 import sys
 from pathlib import Path
 
@@ -14,7 +14,7 @@ from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import WrenchStamped
 from tacforce_msgs.msg import TactileHand
 
-from tacforce_ros.hand.description import load_hand
+from tacforce_ros.hand.description import hand_config, load_hand
 from tacforce_ros.nodes.common import subscriber_qos
 from tacforce_ros.topics import (TOPIC_DIAGNOSTICS, TOPIC_ESTIMATES, TOPIC_TACTILE, TOPIC_WRENCH,
                                  array_wrench_topic)
@@ -27,13 +27,13 @@ pytestmark = pytest.mark.ros
 DOMAIN = unique_domain_id(offset=87)
 # The hand's driver too: simulated time starts when its servos are on.
 NODES = ('sim_world', 'xela_driver', 'ft_bridge', 'estimator', 'allegro_driver')
-HANDS = {'/left': 'left/', '/right': 'right/'}       # namespace: frame prefix
+HANDS = {'/left': 'left', '/right': 'right'}       # namespace: hand side (and frame prefix)
 TIMEOUT_S = 180.0
 
 
 def test_two_hands_in_their_namespaces_publish_only_their_own_wrenches(tmp_path):
-    hand = load_hand()
-    models = synthetic_model_set(tmp_path / 'models', hand)
+    hands = {ns: load_hand(hand_config(side)) for ns, side in HANDS.items()}
+    hand = hands['/right']            # both hands have the same arrays and frame names
     graphs = []
     rclpy.init(domain_id=DOMAIN)
     probe = rclpy.create_node('namespaces_probe')
@@ -66,10 +66,11 @@ def test_two_hands_in_their_namespaces_publish_only_their_own_wrenches(tmp_path)
                                   lambda msg, ns=ns: frames[ns].add(msg.header.frame_id),
                                   subscriber_qos(TOPIC_WRENCH))
     try:
-        for offset, (ns, prefix) in enumerate(HANDS.items()):
+        for offset, (ns, side) in enumerate(HANDS.items()):
+            models = synthetic_model_set(tmp_path / f'models_{side}', hands[ns])
             # Free-running: the graph has no controller for lockstep to wait for.
             args = session_args('closed_loop', offset=7 + offset, namespace=ns, lockstep=False,
-                                frame_prefix=prefix)
+                                hand_side=side, frame_prefix=f'{side}/')
             nodes = [n for n in graph_nodes(args) if n.executable in NODES]
             graphs.append(Graph(with_overrides(nodes, estimator={'model_config': str(models)}),
                                 DOMAIN, tmp_path / f'logs{offset}'))
@@ -85,8 +86,8 @@ def test_two_hands_in_their_namespaces_publish_only_their_own_wrenches(tmp_path)
                 assert [(p.node_name, p.node_namespace) for p in publishers] == \
                     [('estimator', ns)], publishers
         assert {'/left/clock', '/right/clock'} <= names
-        for ns, prefix in HANDS.items():
-            expected = {prefix + f for f in [hand.base_frame, hand.ft_frame]
+        for ns, side in HANDS.items():
+            expected = {f'{side}/' + f for f in [hand.base_frame, hand.ft_frame]
                         + [a.frame_id for a in hand.arrays]}
             assert frames[ns] == expected, (ns, frames[ns] ^ expected)
         assert TOPIC_ESTIMATES not in names

@@ -228,6 +228,19 @@ def test_an_autostarting_driver_waits_for_a_hand_that_comes_up_later():
     assert out.proc.returncode == 0, text
 
 
+def test_a_hand_of_the_other_side_is_refused():
+    """The left hand's description against a hand that says (HAND_INFO) it is a right hand."""
+    from tacforce_ros.hand.description import hand_config
+    domain = unique_domain_id(offset=67)
+    with AllegroEmulator(lambda: np.zeros(16), lambda tau: None) as hand:
+        host, port = hand.address
+        out = allegro_driver(host, port, domain, True, f"hand_config:='{hand_config('left')}'")
+        assert out.proc.wait(timeout=60.0) == 2, out.stop()
+        text = out.stop()
+        assert not hand.servo_on
+    assert "left hand's description, but the hand on the bus is a right hand" in text, text
+
+
 def test_an_autostarting_driver_gives_up_after_connect_timeout():
     domain = unique_domain_id(offset=66)
     with AllegroEmulator(lambda: np.zeros(16), lambda tau: None) as gone:

@@ -201,7 +201,8 @@ def test_the_two_hands_example_includes_the_closed_loop_in_two_namespaces_on_dis
     ports = [p for triple in hands.values() for p in triple]
     assert len(set(ports)) == len(ports)
     shared = (LAUNCH / 'session_launch.py').read_text()
-    for argument in ('namespace', 'xela_port', 'netft_port', 'can_port'):
+    for argument in ('namespace', 'hand_side', 'frame_prefix', 'xela_port', 'netft_port',
+                     'can_port'):
         assert f"'{argument}': (" in shared
 
 

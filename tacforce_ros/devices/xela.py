@@ -37,6 +37,7 @@ class XelaMessage:
     server_time: float            # server 'time', Unix s
     counts: np.ndarray            # (n, 3) uint16, flat order
     temperatures: np.ndarray      # (n,) float64 K, NaN when the server sends none
+    model: str = ''               # the sensor's model string (XR23AHRCPP: right Allegro hand)
 
 
 def _parse_counts(raw: object, n_taxels: int) -> np.ndarray:
@@ -101,7 +102,8 @@ def parse_message(text: str | bytes, sensor_key: str = '1',
     if type(sequence) is not int or not isinstance(server_time, (int, float)):
         raise XelaFormatError('frame lacks an integer "message" counter or a numeric "time"')
     return XelaMessage(sequence, float(server_time), _parse_counts(sensor.get('data'), n_taxels),
-                       _parse_temperatures(sensor.get('temp'), n_taxels))
+                       _parse_temperatures(sensor.get('temp'), n_taxels),
+                       str(sensor.get('model', '')))
 
 
 def welcome_message(version: str = '1.8.0') -> str:
@@ -136,6 +138,7 @@ class XelaFrame:
     temperatures: np.ndarray
     stamp: ArrivalStamp
     arrays: dict[str, np.ndarray] = field(default_factory=dict)
+    model: str = ''               # the sensor's model string, as the server reports it
 
 
 @dataclass(frozen=True)
@@ -248,7 +251,7 @@ class XelaClient(PollingDriver[XelaFrame]):
         arrays = (dict(zip(self._names, self.hand.split(message.counts)))
                   if self.hand is not None else {})
         return XelaFrame(message.sequence, message.server_time, message.counts,
-                         message.temperatures, stamp, arrays)
+                         message.temperatures, stamp, arrays, message.model)
 
     def _shutdown(self) -> None:
         if self._connection is not None:

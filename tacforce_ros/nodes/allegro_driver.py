@@ -47,8 +47,9 @@ from tacforce_ros.devices.allegro import (MAX_JOINT_RATE_HZ, N_JOINTS, AllegroCo
                                           AllegroV4Driver, JointSample)
 from tacforce_ros.devices.polling import LinkLost
 from tacforce_ros.nodes.common import (GRAVITY, HAND_CONFIG, REALTIME_PRIORITY, ParamSpec,
-                                       ParameterError, hand_parameter, kinematics_parameter,
-                                       publisher_qos, run_node, subscriber_qos)
+                                       ParameterError, StopRequested, hand_parameter,
+                                       kinematics_parameter, publisher_qos, run_node,
+                                       subscriber_qos)
 from tacforce_ros.nodes.link_status import STATUS_PARAMETERS
 from tacforce_ros.nodes.managed_driver import AUTOSTART, ManagedDriver
 from tacforce_ros.nodes.messages import stamp
@@ -166,8 +167,7 @@ class AllegroDriver(ManagedDriver):
             raise RuntimeError('no /clock yet (use_sim_time is true: is the simulator running?)')
         self.driver = self._open_hand(p['connect_timeout'] if self.autostarting else 0.0)
         side = self.driver.hand_info.side
-        if side != self.hand.side:
-            self.driver.close()
+        if side != self.hand.side:      # (a failed configure closes the driver)
             raise ParameterError(f'hand_config: {self.hand.side} hand\'s description, but the '
                                  f'hand on the bus is a {side} hand (HAND_INFO)')
         self.driver.add_callback(self._on_joints)
@@ -215,13 +215,16 @@ class AllegroDriver(ManagedDriver):
         while True:
             try:
                 return AllegroV4Driver(self._driver_config(), servos_on=False)
-            except (AllegroError, can.CanError, OSError, ValueError) as exc:
+            except ValueError as exc:          # the configuration, not the hand: no retry
+                raise ParameterError(f'interface/channel/host/port: {exc}') from None
+            except (AllegroError, can.CanError, OSError) as exc:
                 if time.monotonic() >= deadline:
                     raise ParameterError(f'interface/channel/host/port: hand not reachable: '
                                          f'{exc}') from None
                 self.get_logger().info(f'waiting for the hand: {exc}',
                                        throttle_duration_sec=5.0)
-            time.sleep(CONNECT_RETRY_S)
+            if self.stop_event.wait(CONNECT_RETRY_S):
+                raise StopRequested('stopped while waiting for the hand')
 
     def _driver_config(self) -> AllegroConfig:
         p = self.params

@@ -56,7 +56,8 @@ from rclpy.utilities import remove_ros_args
 from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy,
                        qos_profile_sensor_data)
 
-from tacforce_ros.hand.description import HandConfigError, HandDescription, load_hand
+from tacforce_ros.hand.description import (FRAME_PREFIX_PATTERN, HandConfigError, HandDescription,
+                                           load_hand)
 from tacforce_ros.topics import PUBLISHER_DEPTH, SENSOR, qos_kind
 
 EXIT_OK = 0
@@ -89,6 +90,11 @@ def subscriber_qos(topic: str, depth: int | None = None) -> QoSProfile:
 
 class ParameterError(ValueError):
     """Parameter values a node refuses; the message names every offending parameter."""
+
+
+class StopRequested(Exception):
+    """SIGINT or SIGTERM came while the node was still starting (waiting for its clock or its
+    device): the process ends cleanly instead of finishing the wait."""
 
 
 # Words ROS parameter YAML (rcl_yaml_param_parser, YAML 1.1) reads as booleans when unquoted:
@@ -171,8 +177,7 @@ HAND_CONFIG = ParamSpec('hand_config', '', 'hand description YAML; empty = the d
 # (left/uskin_index_tip) while the hand description and the URDF keep the bare names.
 FRAME_PREFIX = ParamSpec('frame_prefix', '', 'put in front of every frame id this node publishes '
                          'or expects (e.g. left/ for a hand in /left); empty: the URDF names',
-                         pattern=(r'(?!/)[A-Za-z0-9_/]*', 'a frame-id prefix: letters, digits, _ '
-                                  'and /, not starting with / (tf2 frame ids do not)'))
+                         pattern=FRAME_PREFIX_PATTERN)
 GRAVITY = ParamSpec('gravity', [0.0, 0.0, -9.81], 'gravity in the hand base frame (m/s^2), from '
                     'the mounting', range=(-20.0, 20.0))
 
@@ -230,6 +235,8 @@ class TacforceNode(Node):
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(self.NODE_NAME, **kwargs)
+        # Set by SIGINT/SIGTERM (run_nodes shares its own): waits at start-up give up on it.
+        self.stop_event = threading.Event()
         self.samples_before_clock = 0
         self._clock_seen = False
         self.same_stamp: dict[str, int] = {}
@@ -330,6 +337,8 @@ class TacforceNode(Node):
         deadline = time.monotonic() + timeout
         try:
             while self.now_ns() <= 0:
+                if self.stop_event.is_set():
+                    raise StopRequested('stopped while waiting for /clock')
                 if time.monotonic() > deadline:
                     raise RuntimeError(f'no /clock within {timeout:g} s (use_sim_time is true: '
                                        'is the simulator running?)')
@@ -471,10 +480,14 @@ def run_nodes(parts: Sequence[tuple[type[TacforceNode], Sequence[str] | None]],
                     node = (node_cls() if node_args is None else
                             node_cls(cli_args=list(node_args), use_global_arguments=False))
                     nodes.append(node)
+                    node.stop_event = stop
                     node.on_built()
                 except ParameterError as exc:
                     logger.fatal(f'refusing to start: {exc}')
                     code = EXIT_BAD_PARAMETERS
+                    return code
+                except StopRequested as exc:
+                    logger.info(f'{exc}: not started')
                     return code
                 for message in unmatched_params_files(node, args if node_args is None
                                                       else node_args):

@@ -26,7 +26,7 @@ from collections.abc import Callable
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
 
 from tacforce_ros.devices.polling import PollingDriver
-from tacforce_ros.nodes.common import ParameterError, ParamSpec, TacforceNode
+from tacforce_ros.nodes.common import ParameterError, ParamSpec, StopRequested, TacforceNode
 from tacforce_ros.nodes.link_status import LinkStatusReporter
 
 AUTOSTART = ParamSpec('autostart', True, 'configure and activate at start-up; false: start '
@@ -163,7 +163,7 @@ class ManagedDriver(TacforceNode, LifecycleNode):
                                      ('activate', self.trigger_activate)):
                 if transition() != SUCCESS:
                     error = self.transition_error
-                    if isinstance(error, ParameterError):
+                    if isinstance(error, (ParameterError, StopRequested)):
                         raise error
                     raise RuntimeError(f'autostart: {name} failed: '
                                        + (f'{type(error).__name__}: {error}' if error

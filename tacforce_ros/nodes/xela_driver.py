@@ -8,8 +8,10 @@ mapped onto the node clock by the minimum-delay offset with `server_clock` = own
 another computer, its clock within `max_clock_skew` of this one's rate). A frame whose server
 time repeats the previous one's is the same reading and is not published (counted as same_stamp
 in the link report); under use_sim_time, frames that arrive before the first /clock are dropped
-and counted. Each TactileArray carries its array frame {S0} as frame_id.
-The client reconnects on its own; malformed frames are counted and dropped. The link's health
+and counted. Each TactileArray carries its array frame {S0} as frame_id (after `frame_prefix`).
+Frames of a sensor other than the hand description's (the server's model string: XR23AHRCPP is
+the right hand, XR23AHLCPP the left) are dropped, counted and reported: their taxel order is not
+the description's. The client reconnects on its own; malformed frames are counted and dropped. The link's health
 goes to /diagnostics every `diagnostics_period` s (wall time; nodes/link_status.py).
 A managed (lifecycle) node (nodes/managed_driver.py): configure connects to xela_server, activate
 publishes, deactivate stops publishing (the connection stays), cleanup disconnects.
@@ -63,6 +65,8 @@ class XelaDriver(ManagedDriver):
                                                          publisher_qos(TOPIC_TACTILE))
         self.device_clock = DeviceClock(p['server_clock'] == 'node', p['max_clock_skew'])
         self.client: XelaClient | None = None
+        self.wrong_sensor = ''           # the model the server reports, when not the hand's
+        self.wrong_sensor_frames = 0
 
     def open_device(self) -> None:
         p = self.params
@@ -73,7 +77,11 @@ class XelaDriver(ManagedDriver):
         self.client.add_callback(self._publish)
         self.report_link(self.client, f'xela_server {p["url"]}', node_counters=lambda: {
             'clock_resets': self.device_clock.counts.resets,
-            'stamps_moved': self.device_clock.counts.moved})
+            'stamps_moved': self.device_clock.counts.moved,
+            'wrong_sensor_frames': self.wrong_sensor_frames},
+            failure=lambda: (f'the server reports sensor {self.wrong_sensor}, hand_config is '
+                             f'{self.hand.sensor_model}: nothing published'
+                             if self.wrong_sensor else ''))
         self.client.start()     # connects, and reconnects on its own
         self.get_logger().info(f'reading {p["url"]} ({self.hand.n_taxels} taxels, '
                                f'{len(self.hand.arrays)} arrays) -> {TOPIC_TACTILE} while active')
@@ -86,6 +94,17 @@ class XelaDriver(ManagedDriver):
         # Called from the client's thread; rclpy publishers are thread-safe.
         if not self.active:
             return
+        if frame.model and self.hand.sensor_model and frame.model != self.hand.sensor_model:
+            # The other hand's taxel order (or another sensor): its frames would put every
+            # reading on the wrong taxel, so none is published.
+            self.wrong_sensor = frame.model
+            self.wrong_sensor_frames += 1
+            self.get_logger().error(
+                f'xela_server reports sensor {frame.model}, but hand_config describes '
+                f'{self.hand.sensor_model} (the {self.hand.side} hand): frames dropped',
+                throttle_duration_sec=5.0)
+            return
+        self.wrong_sensor = ''
         now = self.stamp_ns()
         if now is None:
             return      # before the first /clock under use_sim_time: no valid stamp yet

@@ -172,6 +172,41 @@ def test_xela_driver_publishes_only_while_active():
     assert out.proc.returncode == 0, text
 
 
+def test_xela_driver_publishes_nothing_from_the_other_hands_sensor():
+    """A left hand's uSkin (XR23AHLCPP) read with the right hand's description: its frames would
+    put every reading on the wrong taxel; none is published, the log and /diagnostics say why."""
+    domain = unique_domain_id(offset=69)
+    hand = load_hand()
+    counts = np.full((hand.n_taxels, 3), 30000, np.uint16)
+    temperatures = np.full(hand.n_taxels, 300.0)
+    server = XelaServerEmulator(lambda: (counts, temperatures, time.time()), model='XR23AHLCPP')
+    try:
+        with rclpy_node('lifecycle_test', domain) as node:
+            received: list = []
+            errors: list = []
+            node.create_subscription(TactileHand, TOPIC_TACTILE, received.append,
+                                     subscriber_qos(TOPIC_TACTILE))
+            node.create_subscription(
+                DiagnosticArray, TOPIC_DIAGNOSTICS,
+                lambda msg: errors.extend(s.message for s in msg.status
+                                          if s.level == DiagnosticStatus.ERROR),
+                subscriber_qos(TOPIC_DIAGNOSTICS))
+            out = OutputLines(start([
+                executable('xela_driver'), '--ros-args', '--params-file',
+                params_file('xela_driver'), '-p', f'url:=ws://127.0.0.1:{server.address[1]}'],
+                domain))
+            try:
+                assert out.wait_for('frames dropped', 30.0) is not None, out.text()
+                assert spin_until(node, lambda: any('XR23AHLCPP' in e for e in errors), 10.0), \
+                    errors
+                assert not received
+            finally:
+                text = out.stop()
+    finally:
+        server.close()
+    assert 'reports sensor XR23AHLCPP, but hand_config describes XR23AHRCPP' in text, text
+
+
 def test_a_configure_that_cannot_reach_the_hand_fails_and_says_why():
     domain = unique_domain_id(offset=63)
     with AllegroEmulator(lambda: np.zeros(16), lambda tau: None) as hand:
@@ -239,6 +274,20 @@ def test_a_hand_of_the_other_side_is_refused():
         text = out.stop()
         assert not hand.servo_on
     assert "left hand's description, but the hand on the bus is a right hand" in text, text
+
+
+def test_a_driver_waiting_for_its_hand_stops_at_once_on_sigint():
+    domain = unique_domain_id(offset=68)
+    with AllegroEmulator(lambda: np.zeros(16), lambda tau: None) as gone:
+        host, port = gone.address
+    out = allegro_driver(host, port, domain, True, 'connect_timeout:=60.0')
+    try:
+        assert out.wait_for('waiting for the hand', 30.0) is not None, out.text()
+        out.proc.send_signal(2)
+        assert out.proc.wait(timeout=5.0) == 0, out.text()
+    finally:
+        text = out.stop()
+    assert 'stopped while waiting for the hand: not started' in text, text
 
 
 def test_an_autostarting_driver_gives_up_after_connect_timeout():

@@ -1,8 +1,8 @@
-"""ros2 launch tacforce_ros closed_loop.launch.py [sim:=true|false] [hand_side:=right]
+"""ros2 launch tacforce_ros closed_loop.launch.py [sim:=true|false] [hand_side:=right|left]
 [array:=index_tip] [plate:=spherical] [scene:=...] [model:=...] [sequence:=paper_70s]
 [out:=bags] [real_time_factor:=1.0] [lockstep:=true] [sim_duration:=0.0] [seed:=-1]
-[compose:=false] [namespace:=] [autostart:=true] [xela_port:=5000] [netft_port:=49152]
-[can_port:=29536]
+[compose:=false] [namespace:=] [frame_prefix:=] [autostart:=true] [xela_port:=5000]
+[netft_port:=49152] [can_port:=29536]
 
 The node graph is tacforce_ros.nodes.session_plan's, shared with `session closed_loop`."""
 import sys

@@ -5,25 +5,25 @@ The node list, parameter files and overrides come from tacforce_ros.nodes.sessio
 same source the `session` tool reads. robot_state_publisher publishes the package URDF on /tf
 for RViz; our nodes compute frames from the URDF in-process and do not need /tf.
 """
-from pathlib import Path
-
 from launch import LaunchDescription
 from launch.actions import DeclareLaunchArgument, OpaqueFunction, RegisterEventHandler, Shutdown
 from launch.event_handlers import OnProcessExit, OnProcessIO
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
+from tacforce_ros.hand.description import hand_config, load_hand
 from tacforce_ros.nodes.session_plan import (CAN_PORT, NETFT_PORT, SCENE_DONE_MARKER, XELA_PORT,
-                                             SessionArgs, hand_config, launch_bool, plan)
-from tacforce_ros.paths import config_dir
+                                             SessionArgs, launch_bool, plan)
 
 ARGUMENTS = {
     'sim': ('true', 'true: sim_world and its device emulators; false: the hardware'),
-    'hand_side': ('right', 'hand description config/hand/allegro_<side>_uskin.yaml'),
+    'hand_side': ('right', 'right or left: the hand description '
+                  'config/hand/allegro_<side>_uskin.yaml (and its models)'),
     'array': ('index_tip', 'array pressed on the plate (calibration) or controlled'),
     'plate': ('spherical', 'push-plate (calibration) or object (closed loop)'),
     'scene': ('', 'sim scene; empty: derived from the mode, array and plate'),
-    'model': ('', 'estimator models YAML; empty: config/models/default.yaml'),
+    'model': ('', 'estimator models YAML; empty: config/models/default.yaml (the left hand: '
+              'config/models/left/default.yaml)'),
     'sequence': ('', 'closed loop: force command sequence, a name in config/commands/ or a '
                  'path; empty: paper_70s'),
     'out': ('bags', 'folder for the recorded bags'),
@@ -83,15 +83,14 @@ def _nodes(context, mode: str):
             actions.append(RegisterEventHandler(OnProcessIO(
                 target_action=action, on_stdout=_shutdown_when_done,
                 on_stderr=_shutdown_when_done)))
-    urdf = Path(config_dir() / 'urdf' / f'allegro_{args.hand_side}_uskin.urdf')
-    if hand_config(args.hand_side).is_file() and urdf.is_file():
-        actions.append(Node(package='robot_state_publisher', executable='robot_state_publisher',
-                            namespace=args.namespace or None,
-                            remappings=[('/clock', f'{args.namespace}/clock')]
-                            if args.namespace and args.sim else [],
-                            parameters=[{'robot_description': urdf.read_text(),
-                                         'frame_prefix': args.frame_prefix,
-                                         'use_sim_time': args.sim}]))
+    urdf = load_hand(hand_config(args.hand_side)).urdf_path    # plan() checked it exists
+    actions.append(Node(package='robot_state_publisher', executable='robot_state_publisher',
+                        namespace=args.namespace or None,
+                        remappings=[('/clock', f'{args.namespace}/clock')]
+                        if args.namespace and args.sim else [],
+                        parameters=[{'robot_description': urdf.read_text(),
+                                     'frame_prefix': args.frame_prefix,
+                                     'use_sim_time': args.sim}]))
     return actions
 
 

@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from tacforce_ros.estimation.dataset import CalibrationDataset, DatasetError
+from tacforce_ros.hand.description import side_of
 from tacforce_ros.estimation.preprocessing import common_span, lowpass, project_force, resample
 
 if TYPE_CHECKING:
@@ -85,7 +86,7 @@ def dataset_from_bag(path: str | Path, hand: HandDescription,
     from tacforce_ros.bagio import read_session_metadata
 
     meta = read_session_metadata(path)
-    side = meta.get('hand_side') or 'right'      # not stated: the right hand, the first one
+    side = side_of(meta.get('hand_side'))
     if side != hand.side:
         raise DatasetError(f'{path}: a bag of the {side} hand, read with the {hand.side} hand\'s '
                            'description')
@@ -111,5 +112,5 @@ def dataset_from_bag(path: str | Path, hand: HandDescription,
     dataset = CalibrationDataset(
         array=array.name, X=tactile[inside], F=project_force(force, rotations),
         plates=np.full(n, str(meta.get('plate', ''))), sessions=np.zeros(n, dtype=np.int64),
-        time=base - base[0], source=str(meta.get('source', 'lab')))
+        time=base - base[0], source=str(meta.get('source', 'lab')), hand_side=hand.side)
     return dataset, streams.dropped

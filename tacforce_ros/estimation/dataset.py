@@ -14,6 +14,7 @@ import numpy as np
 
 from tacforce_ros.estimation.npz import read_npz
 from tacforce_ros.estimation.preprocessing import remove_offsets
+from tacforce_ros.hand.description import DEFAULT_SIDE, side_of
 
 DATASET_FORMAT = 'tacforce-dataset/1'
 
@@ -31,6 +32,7 @@ class CalibrationDataset:
     sessions: np.ndarray    # (N,) int64
     time: np.ndarray        # (N,) float64 s
     source: str = 'lab'     # 'lab' | 'sim' | 'synthetic'
+    hand_side: str = DEFAULT_SIDE   # the hand whose array this is (its taxel order, frames)
 
     def __post_init__(self) -> None:
         n = self.X.shape[0]
@@ -59,7 +61,8 @@ class CalibrationDataset:
     def save(self, path: str | Path) -> Path:
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
-        header = {'format': DATASET_FORMAT, 'array': self.array, 'source': self.source}
+        header = {'format': DATASET_FORMAT, 'array': self.array, 'source': self.source,
+                  'hand_side': self.hand_side}
         with path.open('wb') as stream:
             np.savez_compressed(stream, header=np.array(json.dumps(header)), X=self.X, F=self.F,
                                 plates=self.plates.astype(str), sessions=self.sessions,
@@ -84,7 +87,8 @@ class CalibrationDataset:
         return cls(array=header['array'], X=data['X'].astype(np.float64),
                    F=data['F'].astype(np.float64), plates=data['plates'].astype(str),
                    sessions=data['sessions'].astype(np.int64),
-                   time=data['time'].astype(np.float64), source=header.get('source', 'lab'))
+                   time=data['time'].astype(np.float64), source=header.get('source', 'lab'),
+                   hand_side=side_of(header.get('hand_side')))
 
 
 def concatenate(parts: list[CalibrationDataset]) -> CalibrationDataset:
@@ -94,6 +98,9 @@ def concatenate(parts: list[CalibrationDataset]) -> CalibrationDataset:
     names = {p.array for p in parts}
     if len(names) != 1:
         raise DatasetError(f'recordings of different arrays cannot be joined: {sorted(names)}')
+    sides = {p.hand_side for p in parts}
+    if len(sides) != 1:
+        raise DatasetError(f'recordings of both hands cannot be joined: {sorted(sides)}')
     sessions, next_id = [], 0
     for part in parts:
         _, ids = np.unique(part.sessions, return_inverse=True)
@@ -104,4 +111,4 @@ def concatenate(parts: list[CalibrationDataset]) -> CalibrationDataset:
         array=parts[0].array, X=np.concatenate([p.X for p in parts]),
         F=np.concatenate([p.F for p in parts]), plates=np.concatenate([p.plates for p in parts]),
         sessions=np.concatenate(sessions), time=np.concatenate([p.time for p in parts]),
-        source=sources.pop() if len(sources) == 1 else 'mixed')
+        source=sources.pop() if len(sources) == 1 else 'mixed', hand_side=sides.pop())

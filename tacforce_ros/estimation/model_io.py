@@ -111,6 +111,7 @@ def _open(path: Path) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
 def load_model(path: str | Path, array: TaxelArray) -> ModelBundle:
     """Load a bundle for `array`; every mismatch is refused with what differs."""
     from tacforce_ros.estimation.registry import model_class
+    from tacforce_ros.hand.description import side_of
 
     path = Path(path)
     header, arrays = _open(path)
@@ -120,8 +121,7 @@ def load_model(path: str | Path, array: TaxelArray) -> ModelBundle:
     if header['array'] != array.name:
         raise ModelFileError(f'{path}: model is for array {header["array"]!r}, '
                              f'not {array.name!r}')
-    # Files written before the left hand was described have no hand_side: right-hand models.
-    side = header.get('hand_side', 'right')
+    side = side_of(header.get('hand_side'))     # none: written before the left hand existed
     if side != array.hand_side:
         raise ModelFileError(f'{path}: model is for the {side} hand\'s {header["array"]}, not '
                              f'the {array.hand_side} hand\'s (a mirror image: its taxels are '

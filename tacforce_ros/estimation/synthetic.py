@@ -49,7 +49,8 @@ def synthetic_dataset(array: TaxelArray, plates: Sequence[str] = PLATES,
                       np.full(n, index, dtype=np.int64), np.arange(n) / SAMPLE_RATE_HZ))
     X, F, labels, sessions, time = (np.concatenate(column) for column in zip(*parts))
     return CalibrationDataset(array=array.name, X=X, F=F, plates=labels.astype(str),
-                              sessions=sessions, time=time, source='synthetic')
+                              sessions=sessions, time=time, source='synthetic',
+                              hand_side=array.hand_side)
 
 
 def _presses(array: TaxelArray, rng: np.random.Generator, n: int

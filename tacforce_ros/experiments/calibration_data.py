@@ -67,7 +67,7 @@ def simulate_calibration(hand: HandDescription, kinematics: HandKinematics, scen
                               F=project_force(force, rotations),
                               plates=np.full(n, scene.plate.name),
                               sessions=np.zeros(n, dtype=np.int64), time=base - base[0],
-                              source='sim')
+                              source='sim', hand_side=hand.side)
 
 
 def simulate_session(hand: HandDescription, kinematics: HandKinematics, array: str, plate: str,

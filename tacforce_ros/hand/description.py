@@ -18,13 +18,24 @@ from tacforce_ros.paths import config_dir
 KINDS = ('fingertip', 'phalanx', 'palm')
 FINGERS = ('index', 'middle', 'ring', 'thumb')
 SIDES = ('right', 'left')
+DEFAULT_SIDE = 'right'     # the first hand described: a file that names no hand is of it
+# A prefix to the frame ids (robot_state_publisher's frame_prefix), and what it may be.
+FRAME_PREFIX_PATTERN = (r'(?!/)[A-Za-z0-9_/]*', 'a frame-id prefix: letters, digits, _ and /, '
+                        'not starting with / (tf2 frame ids do not)')
+_ORTHONORMAL_TOL = 1e-9
 
 
-def hand_config(side: str = 'right') -> Path:
-    """The shipped description of the `side` hand (the right one is the default hand)."""
+def hand_config(side: str = DEFAULT_SIDE) -> Path:
+    """The shipped description of the `side` hand."""
     return config_dir() / 'hand' / f'allegro_{side}_uskin.yaml'
 
-_ORTHONORMAL_TOL = 1e-9
+
+def side_of(value: object) -> str:
+    """The hand side a bag, dataset or model file names (empty or None: DEFAULT_SIDE)."""
+    side = str(value or DEFAULT_SIDE)
+    if side not in SIDES:
+        raise ValueError(f'hand side {side!r} is not one of {list(SIDES)}')
+    return side
 
 
 class HandConfigError(ValueError):

@@ -33,8 +33,8 @@ from tacforce_msgs.msg import ControllerState, ForceEstimateArray
 from tacforce_ros.control.finger_session import FingerSession
 from tacforce_ros.control.force_controller import ControllerConfigError, ForceControllerConfig
 from tacforce_ros.devices.allegro import MAX_JOINT_RATE_HZ, N_JOINTS
-from tacforce_ros.nodes.common import (FRAME_PREFIX, GRAVITY, HAND_CONFIG, REALTIME_PRIORITY, ParamSpec,
-                                       ParameterError, TacforceNode, hand_parameter,
+from tacforce_ros.nodes.common import (FRAME_PREFIX, GRAVITY, HAND_CONFIG, REALTIME_PRIORITY,
+                                       ParamSpec, ParameterError, TacforceNode, hand_parameter,
                                        kinematics_parameter, publisher_qos, run_node,
                                        subscriber_qos)
 from tacforce_ros.nodes.messages import stamp, stamp_ns, vector3

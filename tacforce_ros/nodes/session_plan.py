@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from tacforce_ros.control.command_sequence import ForceSequence, SequenceError
-from tacforce_ros.hand.description import SIDES, hand_config
+from tacforce_ros.hand.description import DEFAULT_SIDE, FRAME_PREFIX_PATTERN, SIDES, hand_config
 from tacforce_ros.paths import config_dir, ros_home
 from tacforce_ros.sim.scene import SceneError, load_scene
 
@@ -96,7 +96,7 @@ class SessionArgs:
 
     mode: str
     sim: bool = True
-    hand_side: str = 'right'
+    hand_side: str = DEFAULT_SIDE
     array: str = 'index_tip'
     plate: str = 'spherical'           # push-plate (calibration) or object (closed loop)
     scene: str = ''                    # empty: derived from mode, array and plate
@@ -180,6 +180,8 @@ def plan(args: SessionArgs) -> list[NodeLaunch]:
     if args.namespace and not NAMESPACE.fullmatch(args.namespace):
         raise PlanError(f'namespace: {args.namespace!r} is not a ROS namespace (/name or '
                         '/name/name, letters, digits and _, not starting with a digit)')
+    if not re.fullmatch(FRAME_PREFIX_PATTERN[0], args.frame_prefix):
+        raise PlanError(f'frame_prefix: {args.frame_prefix!r} is not {FRAME_PREFIX_PATTERN[1]}')
     if args.hand_side not in SIDES:
         raise PlanError(f'hand_side: {args.hand_side!r} is not one of {list(SIDES)}')
     hand = hand_config(args.hand_side)
@@ -243,11 +245,11 @@ def plan(args: SessionArgs) -> list[NodeLaunch]:
         nodes.append(NodeLaunch('command_player', (params_file('command_player'),),
                                 {**common, **framed, 'min_subscribers': 2,
                                  **({'sequence': args.sequence} if args.sequence else {})}))
-    # Both modes keep the raw streams (closed loop: the F/T reading is the reference). The
-    # recorder starts before the streams it records (right after the simulator, as one starts
-    # `ros2 bag record` first): it has their start-up to discover them. Started last, it missed
-    # the first 0.56 s of simulated F/T readings once on a loaded host (DDS discovery), which a
-    # closed-loop run needs to zero the F/T before the controller engages.
+    # Both modes keep the raw streams (closed loop: the F/T reading is the reference). Listed
+    # right after the simulator, as one starts `ros2 bag record` first; what makes a closed-loop
+    # bag whole is that the recorder listens to the command topic only once it records every
+    # input, and the player waits for it (a recorder started last once missed the first 0.56 s
+    # of simulated F/T readings on a loaded host: DDS discovery).
     recorder = NodeLaunch('sync_recorder', (params_file('sync_recorder'),), {
         **common, **hand_param, 'output_dir': args.out, 'array': args.array,
         'plate': args.plate, 'source': 'sim' if args.sim else 'lab', 'autostart': True,

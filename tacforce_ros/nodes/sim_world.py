@@ -57,9 +57,9 @@ from std_srvs.srv import SetBool
 from sensor_msgs.msg import JointState
 from tacforce_msgs.msg import CalibrationSample, ControllerState
 
-from tacforce_ros.nodes.common import (FRAME_PREFIX, HAND_CONFIG, RELIABLE_QOS, ParamSpec, ParameterError,
-                                       TacforceNode, hand_parameter, publisher_qos, run_node,
-                                       subscriber_qos)
+from tacforce_ros.nodes.common import (FRAME_PREFIX, HAND_CONFIG, RELIABLE_QOS, ParamSpec,
+                                       ParameterError, TacforceNode, hand_parameter,
+                                       publisher_qos, run_node, subscriber_qos)
 from tacforce_ros.nodes.messages import stamp, wrench_stamped
 from tacforce_ros.nodes.serialized import header_stamp_ns
 from tacforce_ros.nodes.session_plan import SCENE_DONE_MARKER

@@ -121,14 +121,15 @@ def main(argv: list[str] | None = None) -> int:
     except ValueError as exc:
         parser.error(f'--lowpass-hz: {exc}')
 
-    from tacforce_ros.hand.description import load_hand
-    hand = load_hand()
+    from tacforce_ros.hand.description import hand_config, load_hand
     try:
         if args.synthetic:
+            hand = load_hand()
             array = hand.array(args.array)
             dataset = synthetic_dataset(array, seconds=args.seconds, seed=args.seed)
         else:
             dataset = CalibrationDataset.load(args.dataset)
+            hand = load_hand(hand_config(dataset.hand_side))     # the dataset's own hand
             array = hand.array(dataset.array)
         X, F, offset = dataset.without_offsets()
     except (DatasetError, ValueError, KeyError) as exc:

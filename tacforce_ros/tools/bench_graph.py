@@ -30,13 +30,14 @@ import numpy as np
 from tacforce_ros import bagio, topics
 from tacforce_ros.control.command_sequence import ForceSequence
 from tacforce_ros.control.force_controller import MODE_HOLD, MODE_SAFE
-from tacforce_ros.estimation.model_set import ModelConfigError, load_model_set, model_files
+from tacforce_ros.estimation.model_set import (ModelConfigError, default_model_config,
+                                               load_model_set, model_files)
 from tacforce_ros.experiments import node_path
 from tacforce_ros.experiments.pipeline import Settings, controller_config, tare_frames
 from tacforce_ros.hand.description import load_hand
 from tacforce_ros.hand.kinematics import TIP_LINKS, HandKinematics
 from tacforce_ros.nodes.session_plan import SCENE_DONE_MARKER
-from tacforce_ros.paths import config_dir, output_folder
+from tacforce_ros.paths import output_folder
 from tacforce_ros.sim.closed_loop import FRICTION
 from tacforce_ros.sim.scene import load_scene
 from tacforce_ros.tools.session import CPU_REPORT
@@ -360,7 +361,7 @@ def main(argv: list[str] | None = None) -> None:
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument('--runs', type=int, default=3, help='closed-loop runs (default 3)')
     parser.add_argument('--sequence', default='paper_70s', help='force command sequence')
-    parser.add_argument('--model', type=Path, default=config_dir() / 'models' / 'default.yaml',
+    parser.add_argument('--model', type=Path, default=default_model_config(load_hand()),
                         help='estimator models YAML (index_tip closes the loop)')
     parser.add_argument('--calibration-seconds', type=float, default=40.0,
                         help='simulated seconds of the calibration session; 0: none')

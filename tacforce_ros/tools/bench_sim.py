@@ -76,14 +76,13 @@ def loop_factors(scene_name: str, hand, seconds: float, repeats: int) -> dict:
     import mujoco
 
     from tacforce_ros.control.command_sequence import ForceSequence
-    from tacforce_ros.estimation.model_set import load_model_set
+    from tacforce_ros.estimation.model_set import default_model_config, load_model_set
     from tacforce_ros.experiments.closed_loop import SETTLE_SECONDS, run_closed_loop
     from tacforce_ros.experiments.pipeline import controller_config, tare_frames
     from tacforce_ros.hand.kinematics import HandKinematics
-    from tacforce_ros.paths import config_dir
 
     kinematics = HandKinematics.for_hand(hand)
-    models = load_model_set(config_dir() / 'models' / 'default.yaml', hand)
+    models = load_model_set(default_model_config(hand), hand)
     sequence = ForceSequence.load(LOOP_SEQUENCE).until(seconds)
     config = controller_config(LOOP_CONTROLLER)
     with warnings.catch_warnings():

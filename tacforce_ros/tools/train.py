@@ -1,8 +1,8 @@
 """train: calibration bags or processed datasets -> one model file per array and kind + report.
 
 Inputs are rosbag2 calibration bags (folders, docs/CONTRACTS.md) and/or processed dataset .npz
-files (estimation/dataset.py), all of one hand: the bags name theirs (session metadata
-hand_side), `--hand-side` names it for datasets (default right); the models are that hand's.
+files (estimation/dataset.py), all of one hand: the one they name (the bags' session metadata,
+the datasets' headers; none named: the right hand), or `--hand-side`; the models are its.
 Per array: offsets from static segments per session, optional leave-one-plate-out
 cross-validation (metrics go into the model's provenance), then a final fit on all plates.
 """
@@ -25,7 +25,8 @@ from tacforce_ros.estimation.model_io import save_model
 from tacforce_ros.estimation.preprocessing import StaticSegmentError
 from tacforce_ros.estimation.registry import MODEL_KINDS
 from tacforce_ros.estimation.training import fit_bundle
-from tacforce_ros.hand.description import SIDES, HandDescription, hand_config, load_hand
+from tacforce_ros.hand.description import (DEFAULT_SIDE, SIDES, HandDescription, hand_config,
+                                           load_hand, side_of)
 from tacforce_ros.paths import output_folder
 
 RANDOM_KINDS = ('M4', 'M5')     # trained from a random initialisation: they take a seed
@@ -54,28 +55,21 @@ def model_hyper(kind: str, seed: int, lambda_cv: bool, lam: float) -> dict:
     return {}
 
 
-def input_hand(paths: list[Path], side: str | None) -> HandDescription:
-    """The hand the inputs are of: the one their bags name (all the same), or `side`."""
+def load_inputs(paths: list[Path], side: str | None
+                ) -> tuple[HandDescription, dict[str, list[CalibrationDataset]], int]:
+    """The hand the inputs are of (the one their bags and datasets name, all the same, or
+    `side`), their datasets by array name, and the malformed messages dropped."""
     from tacforce_ros.bagio import read_session_metadata
-    sides = {str(read_session_metadata(p).get('hand_side') or 'right')    # not stated: right
-             for p in paths if p.is_dir()}
-    if side is not None:
-        sides.add(side)
+    bags = [p for p in paths if p.is_dir()]
+    datasets = [CalibrationDataset.load(p) for p in paths if not p.is_dir()]
+    sides = ({side_of(read_session_metadata(p).get('hand_side')) for p in bags}
+             | {d.hand_side for d in datasets} | ({side} if side is not None else set()))
     if len(sides) > 1:
         raise ValueError(f'inputs of more than one hand ({sorted(sides)}): train each hand '
-                         'on its own (--hand-side names the hand of .npz datasets)')
-    side = sides.pop() if sides else 'right'
-    if side not in SIDES:
-        raise ValueError(f'hand_side {side!r} is not one of {list(SIDES)}')
-    return load_hand(hand_config(side))
-
-
-def load_inputs(paths: list[Path], hand: HandDescription
-                ) -> tuple[dict[str, list[CalibrationDataset]], int]:
-    """Datasets by array name, from bags and .npz files; also the malformed messages dropped."""
+                         'on its own')
+    hand = load_hand(hand_config(sides.pop() if sides else DEFAULT_SIDE))
     by_array: dict[str, list[CalibrationDataset]] = defaultdict(list)
     dropped = 0
-    bags = [p for p in paths if p.is_dir()]
     if bags:
         from tacforce_ros.estimation.bag_dataset import dataset_from_bag
         from tacforce_ros.hand.kinematics import HandKinematics
@@ -84,11 +78,9 @@ def load_inputs(paths: list[Path], hand: HandDescription
             dataset, n_dropped = dataset_from_bag(bag, hand, kinematics)
             by_array[dataset.array].append(dataset)
             dropped += n_dropped
-    for path in paths:
-        if not path.is_dir():
-            dataset = CalibrationDataset.load(path)
-            by_array[dataset.array].append(dataset)
-    return by_array, dropped
+    for dataset in datasets:
+        by_array[dataset.array].append(dataset)
+    return hand, by_array, dropped
 
 
 def markdown_report(report: dict) -> str:
@@ -121,8 +113,7 @@ def main(argv: list[str] | None = None) -> int:
                         help='model kinds to train (default: M3-lambda)')
     parser.add_argument('--arrays', nargs='+', help='only these arrays (default: all found)')
     parser.add_argument('--hand-side', choices=SIDES, default=None,
-                        help='the hand of the inputs (default: the one their bags name, right '
-                        'for datasets alone)')
+                        help='the hand of the inputs (default: the one they name)')
     parser.add_argument('--lam', type=float, default=33.0, help='M3-lambda damping (paper: 33)')
     parser.add_argument('--lambda-cv', action='store_true',
                         help='choose the M3-lambda damping by CV nested in the training plates')
@@ -143,8 +134,7 @@ def main(argv: list[str] | None = None) -> int:
     if missing:
         parser.error(f'inputs not found: {missing}')
     try:
-        hand = input_hand(args.inputs, args.hand_side)
-        by_array, dropped = load_inputs(args.inputs, hand)
+        hand, by_array, dropped = load_inputs(args.inputs, args.hand_side)
     except (DatasetError, ValueError, RuntimeError, OSError) as exc:
         print(f'train: {exc}', file=sys.stderr)
         return 2

@@ -123,3 +123,17 @@ def test_a_model_for_another_array_is_refused(full_set, hand, tmp_path):
                                                                 / 'middle_tip_M3.npz')}}))
     with pytest.raises(ModelConfigError, match="models.index_tip: .*'middle_tip'"):
         load_model_set(path, hand)
+
+
+def test_each_hand_starts_with_its_own_shipped_models_and_refuses_the_other_hands():
+    from tacforce_ros.estimation.model_set import default_model_config
+    from tacforce_ros.hand.description import hand_config
+    left = load_hand(hand_config('left'))
+    right = load_hand()
+    for one, other in ((right, left), (left, right)):
+        models = load_model_set(default_model_config(one), one)
+        assert [a.name for a in models.arrays] == ['index_tip']
+        assert {a.hand_side for a in models.arrays} == {one.side}
+        with pytest.raises(ModelConfigError, match=f"for the {one.side} hand's index_tip, not "
+                           f"the {other.side} hand's"):
+            load_model_set(default_model_config(one), other)

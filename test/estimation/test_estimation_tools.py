@@ -140,10 +140,18 @@ def test_bags_train_the_hand_they_name(bags, tmp_path, capsys):
         write_bag(paths[-1], left, array, data, np.flatnonzero(data.plates == plate), q,
                   kinematics, plate)
     out = tmp_path / 'models'
-    assert train.main([*map(str, paths), '--out', str(out), '--kinds', 'M3-lambda']) == 0
+    assert train.main([*map(str, paths), '--out', str(out), '--kinds', 'M3-lambda',
+                       '--save-dataset']) == 0
     bundle = load_model(out / f'{array.name}_M3-lambda.npz', array)
     assert read_header(out / f'{array.name}_M3-lambda.npz')['hand_side'] == 'left'
     assert bundle.provenance['metrics']['e_hat_mean'] < 0.5
+    # The dataset it saved says whose it is: trained again alone, it makes the left hand's model.
+    saved = out / f'{array.name}.npz'
+    assert CalibrationDataset.load(saved).hand_side == 'left'
+    assert train.main([str(saved), '--out', str(tmp_path / 'again'), '--no-cv']) == 0
+    assert read_header(tmp_path / 'again' / f'{array.name}_M3-lambda.npz')['hand_side'] == 'left'
+    with pytest.raises(DatasetError, match='both hands'):
+        concatenate([CalibrationDataset.load(saved), data])
     with pytest.raises(DatasetError, match="a bag of the left hand, read with the right"):
         dataset_from_bag(paths[0], load_hand(), HandKinematics(load_hand().urdf_path))
     assert train.main([str(paths[0]), str(right_paths[1]), '--out', str(tmp_path / 'o')]) == 2

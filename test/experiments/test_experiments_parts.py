@@ -157,14 +157,13 @@ def test_an_estimator_outage_keeps_the_press_and_tracking_returns(hand, kinemati
     """Issue 13's fault run in-process: no estimate for 2 s while a force with shear is held.
     The contact hold keeps the press (the law with its last force command), the tip does not
     slide (shear inside the friction cone), and the law tracks again once estimates return."""
-    from tacforce_ros.estimation.model_set import load_model_set
-    from tacforce_ros.paths import config_dir
+    from tacforce_ros.estimation.model_set import default_model_config, load_model_set
     from tacforce_ros.sim.closed_loop import FRICTION
     sequence = ForceSequence.from_mapping({'frame_id': 'ft_sensor', 'segments': [
         {'duration': 0.5, 'force': [0.0, 0.0, 0.0]},
         {'duration': 1.0, 'force': [0.3, 0.0, -1.0], 'shape': 'ramp'},
         {'duration': 7.5, 'force': [0.3, 0.0, -1.0]}]})
-    models = load_model_set(config_dir() / 'models' / 'default.yaml', hand)
+    models = load_model_set(default_model_config(hand), hand)
     run = run_closed_loop(hand, kinematics, 'closed_loop_spherical', 0,
                           controller_config('M3-lambda'), sequence, models,
                           estimator_outage=(4.0, 6.0))

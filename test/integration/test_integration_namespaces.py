@@ -74,9 +74,13 @@ def test_two_hands_in_their_namespaces_publish_only_their_own_wrenches(tmp_path)
             nodes = [n for n in graph_nodes(args) if n.executable in NODES]
             graphs.append(Graph(with_overrides(nodes, estimator={'model_config': str(models)}),
                                 DOMAIN, tmp_path / f'logs{offset}'))
-        assert wait_until(lambda: all(count >= 20 for count in received.values()), TIMEOUT_S,
+        expected = {ns: {f'{side}/' + f for f in [hand.base_frame, hand.ft_frame]
+                         + [a.frame_id for a in hand.arrays]} for ns, side in HANDS.items()}
+        assert wait_until(lambda: all(count >= 20 for count in received.values())
+                          and all(expected[ns] <= frames[ns] for ns in HANDS), TIMEOUT_S,
                           lambda: rclpy.spin_once(probe, timeout_sec=0.05)), (
             sorted(k for k, v in received.items() if v < 20),
+            {ns: expected[ns] - frames[ns] for ns in HANDS},
             '\n'.join(g.logs() for g in graphs))
         names = {name for name, _ in probe.get_topic_names_and_types()}
         for a in hand.arrays:
@@ -86,10 +90,8 @@ def test_two_hands_in_their_namespaces_publish_only_their_own_wrenches(tmp_path)
                 assert [(p.node_name, p.node_namespace) for p in publishers] == \
                     [('estimator', ns)], publishers
         assert {'/left/clock', '/right/clock'} <= names
-        for ns, side in HANDS.items():
-            expected = {f'{side}/' + f for f in [hand.base_frame, hand.ft_frame]
-                        + [a.frame_id for a in hand.arrays]}
-            assert frames[ns] == expected, (ns, frames[ns] ^ expected)
+        for ns in HANDS:        # and nothing else: no bare frame, none of the other hand's
+            assert frames[ns] == expected[ns], (ns, frames[ns] ^ expected[ns])
         assert TOPIC_ESTIMATES not in names
         for ns in HANDS:
             publishers = probe.get_publishers_info_by_topic(ns + TOPIC_ESTIMATES)

@@ -55,7 +55,8 @@ def test_string_overrides_survive_yaml():
 
 
 @pytest.mark.parametrize('field, value, message', [
-    ('mode', 'teleop', 'mode'), ('hand_side', 'middle', 'hand_side')])
+    ('mode', 'teleop', 'mode'), ('hand_side', 'middle', 'hand_side'),
+    ('frame_prefix', '/left/', 'frame_prefix: .* is not a frame-id prefix')])
 def test_bad_choices_are_refused(field, value, message):
     args = {'mode': 'calibration', field: value}
     with pytest.raises(PlanError, match=message):
@@ -80,7 +81,7 @@ def test_the_left_hand_gives_every_node_its_description_and_a_frame_prefix_its_n
     prefixed = {n.executable for n in nodes if n.overrides.get('frame_prefix') == 'left/'}
     assert prefixed == {'sim_world', 'xela_driver', 'ft_bridge', 'estimator',
                         'force_controller', 'command_player'}
-    # No prefix asked: none passed (the parameter files' empty default).
+    # No prefix asked: none passed (the nodes' own default is empty).
     assert not any('frame_prefix' in n.overrides for n in plan(SessionArgs(mode='closed_loop')))
 
 
@@ -200,9 +201,15 @@ def test_the_two_hands_example_includes_the_closed_loop_in_two_namespaces_on_dis
     assert set(hands) == {'/left', '/right'}
     ports = [p for triple in hands.values() for p in triple]
     assert len(set(ports)) == len(ports)
+    # Each hand's include passes these (its side, prefix, ports), and the shared launch file
+    # declares them.
+    passed = next(n for n in ast.walk(tree) if isinstance(n, ast.keyword)
+                  and n.arg == 'launch_arguments').value.func.value
+    keys = {k.value for k in passed.keys}
     shared = (LAUNCH / 'session_launch.py').read_text()
     for argument in ('namespace', 'hand_side', 'frame_prefix', 'xela_port', 'netft_port',
                      'can_port'):
+        assert argument in keys
         assert f"'{argument}': (" in shared
 
 

@@ -70,6 +70,12 @@ def _quiet(node, received: list) -> bool:
     return len(received) == before
 
 
+def closed_port() -> tuple[str, int]:
+    """A loopback port an emulated hand served and no longer does."""
+    with AllegroEmulator(lambda: np.zeros(16), lambda tau: None) as gone:
+        return gone.address
+
+
 def allegro_driver(host: str, port: int, domain: int, autostart: bool, *more: str
                    ) -> OutputLines:
     params = ['interface:=socketcand', 'channel:=can0', f'host:={host}', f'port:={port}',
@@ -209,8 +215,7 @@ def test_xela_driver_publishes_nothing_from_the_other_hands_sensor():
 
 def test_a_configure_that_cannot_reach_the_hand_fails_and_says_why():
     domain = unique_domain_id(offset=63)
-    with AllegroEmulator(lambda: np.zeros(16), lambda tau: None) as hand:
-        host, port = hand.address          # a port that was served, and is closed now
+    host, port = closed_port()
     with rclpy_node('lifecycle_test', domain) as node:
         out = allegro_driver(host, port, domain, autostart=False)
         life = Lifecycle(node, 'allegro_driver')
@@ -244,8 +249,7 @@ def test_an_autostarting_driver_waits_for_a_hand_that_comes_up_later():
     """launch starts the driver and the simulator together: the hand's port is closed at first,
     and the driver takes the hand when it answers."""
     domain = unique_domain_id(offset=65)
-    with AllegroEmulator(lambda: np.zeros(16), lambda tau: None) as gone:
-        host, port = gone.address          # free again once closed
+    host, port = closed_port()
     with rclpy_node('lifecycle_test', domain) as node:
         received: list = []
         node.create_subscription(JointState, TOPIC_JOINTS, received.append,
@@ -278,8 +282,7 @@ def test_a_hand_of_the_other_side_is_refused():
 
 def test_a_driver_waiting_for_its_hand_stops_at_once_on_sigint():
     domain = unique_domain_id(offset=68)
-    with AllegroEmulator(lambda: np.zeros(16), lambda tau: None) as gone:
-        host, port = gone.address
+    host, port = closed_port()
     out = allegro_driver(host, port, domain, True, 'connect_timeout:=60.0')
     try:
         assert out.wait_for('waiting for the hand', 30.0) is not None, out.text()
@@ -292,8 +295,7 @@ def test_a_driver_waiting_for_its_hand_stops_at_once_on_sigint():
 
 def test_an_autostarting_driver_gives_up_after_connect_timeout():
     domain = unique_domain_id(offset=66)
-    with AllegroEmulator(lambda: np.zeros(16), lambda tau: None) as gone:
-        host, port = gone.address
+    host, port = closed_port()
     out = allegro_driver(host, port, domain, True, 'connect_timeout:=1.0')
     assert out.proc.wait(timeout=60.0) == 2, out.stop()
     text = out.stop()

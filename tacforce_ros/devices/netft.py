@@ -12,6 +12,7 @@ from __future__ import annotations
 import logging
 import socket
 import struct
+import time
 from collections import deque
 from dataclasses import dataclass
 
@@ -28,6 +29,8 @@ CMD_START_BUFFERED = 0x0003
 CMD_RESET_LATCH = 0x0041
 CMD_SET_BIAS = 0x0042
 STATUS_MONITOR_WARNING = 0x80010000
+# A start request refused (ICMP port unreachable: no box there yet) is sent again this often, s.
+REFUSED_RETRY_S = 0.1
 
 REQUEST = struct.Struct('>HHI')
 RECORD = struct.Struct('>III6i')
@@ -148,6 +151,8 @@ class NetFtClient(PollingDriver[WrenchSample]):
         self._withholding = 0       # serious-status records withheld since the last good one
         self._sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self._sock.connect((config.host, config.port))
+        self._requested = time.monotonic()      # when the start request last went out
+        self._refused = False                   # ... and was refused
         self._send(CMD_START_REALTIME)
 
     def _send(self, command: int, sample_count: int = 0) -> None:
@@ -168,6 +173,13 @@ class NetFtClient(PollingDriver[WrenchSample]):
         self._host_bias = np.zeros(6, dtype=np.float64)
 
     def _receive(self, timeout: float) -> list[WrenchSample]:
+        if self._refused and time.monotonic() - self._requested >= REFUSED_RETRY_S:
+            self._refused = False
+            self._requested = time.monotonic()
+            try:
+                self._send(CMD_START_REALTIME)
+            except OSError:
+                self._refused = True        # still nobody there
         self._sock.settimeout(timeout if timeout > 0 else 0.0)
         samples: list[WrenchSample] = []
         while True:
@@ -176,8 +188,11 @@ class NetFtClient(PollingDriver[WrenchSample]):
             except (BlockingIOError, TimeoutError, socket.timeout):
                 return samples
             except ConnectionRefusedError:
-                # ICMP port unreachable from a previous send: the box is not (yet) there.
+                # ICMP port unreachable from a previous send: the box is not (yet) there. RDT
+                # streams only when asked, so ask again: a box coming up (a simulator started
+                # beside us) streams within REFUSED_RETRY_S of listening.
                 self.diagnostics.last_error = 'connection refused by the F/T address'
+                self._refused = True
                 return samples
             stamp = ArrivalStamp.now()
             self.diagnostics.note_received(stamp.monotonic)

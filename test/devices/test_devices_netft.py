@@ -206,6 +206,23 @@ def test_stale_when_the_box_stops_sending():
         client.close()
 
 
+def test_a_box_that_comes_up_after_the_request_streams_without_a_restart():
+    """The start request went to a port nobody listened on (ICMP port unreachable): the client
+    asks again, so a box that comes up later streams (launch starts the simulator and the bridge
+    together)."""
+    with NetFtEmulator(CountingSource(), rate_hz=500) as gone:
+        host, port = gone.address
+    client = NetFtClient(NetFtConfig(host=host, port=port))
+    client.start()
+    try:
+        assert wait_until(lambda: 'refused' in (client.diagnostics.last_error or ''),
+                          EVENT_TIMEOUT)
+        with NetFtEmulator(CountingSource(), port=port, rate_hz=500):
+            assert client.wait_for_samples(5, timeout=EVENT_TIMEOUT)
+    finally:
+        client.close()
+
+
 def test_poll_from_the_callers_own_thread_without_a_background_thread():
     with NetFtEmulator(CountingSource(), rate_hz=500) as emulator:
         host, port = emulator.address

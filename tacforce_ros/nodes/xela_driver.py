@@ -11,8 +11,9 @@ in the link report); under use_sim_time, frames that arrive before the first /cl
 and counted. Each TactileArray carries its array frame {S0} as frame_id (after `frame_prefix`).
 Frames of a sensor other than the hand description's (the server's model string: XR23AHRCPP is
 the right hand, XR23AHLCPP the left) are dropped, counted and reported: their taxel order is not
-the description's. The client reconnects on its own; malformed frames are counted and dropped. The link's health
-goes to /diagnostics every `diagnostics_period` s (wall time; nodes/link_status.py).
+the description's. The client reconnects on its own; malformed frames are counted and dropped.
+The link's health goes to /diagnostics every `diagnostics_period` s (wall time;
+nodes/link_status.py).
 A managed (lifecycle) node (nodes/managed_driver.py): configure connects to xela_server, activate
 publishes, deactivate stops publishing (the connection stays), cleanup disconnects.
 """

@@ -19,6 +19,7 @@ TOOLS = {
     'bench_messages': 'bench_messages',  # what the estimator's serialized fast path saves
     'bench_train': 'bench_train',   # cross-validation folds trained one at a time vs together
     'sim_record': 'sim_record',     # simulated calibration sessions -> rosbag2 (mcap)
+    'campaign': 'campaign',         # whole-hand calibration campaign: plan, verdicts, resume
     'bag_repair': 'bag_repair',     # bags cut off by a crash -> whole bags (complete chunks kept)
     'session': 'session',           # start a calibration or closed-loop session without ros2 launch
     'reproduce': 'reproduce',       # the main job: the paper's experiments in simulation + report

@@ -125,7 +125,7 @@ def static_mask(force: np.ndarray, taxels: np.ndarray, fs: float = SAMPLE_RATE_H
     min_len = max(1, int(round(min_duration * fs)))
     trim = int(round(margin * fs))
     mask = np.zeros_like(candidate)
-    for start, stop in _runs(candidate):
+    for start, stop in true_runs(candidate):
         if stop - start - 2 * trim >= min_len:
             mask[start + trim:stop - trim] = True
     return mask
@@ -140,7 +140,7 @@ def _released(compression: np.ndarray, share: float) -> np.ndarray:
     return compression >= high_edge
 
 
-def _runs(flags: np.ndarray) -> list[tuple[int, int]]:
+def true_runs(flags: np.ndarray) -> list[tuple[int, int]]:
     """[start, stop) index pairs of the True runs of a 1-D bool array."""
     edges = np.diff(np.concatenate(([0], flags.astype(np.int8), [0])))
     return list(zip(np.flatnonzero(edges == 1).tolist(), np.flatnonzero(edges == -1).tolist()))

@@ -14,7 +14,7 @@ import numpy as np
 from tacforce_ros.estimation.dataset import CalibrationDataset, DatasetError
 from tacforce_ros.estimation.preprocessing import common_span, lowpass, project_force, resample
 from tacforce_ros.sim import load_scene, make_simulator
-from tacforce_ros.sim.scene import session_seed
+from tacforce_ros.sim.scene import calibration_scene_name, session_seed
 
 if TYPE_CHECKING:
     from tacforce_ros.hand.description import HandDescription
@@ -73,5 +73,5 @@ def simulate_calibration(hand: HandDescription, kinematics: HandKinematics, scen
 def simulate_session(hand: HandDescription, kinematics: HandKinematics, array: str, plate: str,
                      session: int, seconds: float, base_seed: int) -> CalibrationDataset:
     """One operator session of `array` on `plate`, seeded exactly as sim_record seeds it."""
-    return simulate_calibration(hand, kinematics, f'calibration_{array}_{plate}',
+    return simulate_calibration(hand, kinematics, calibration_scene_name(array, plate),
                                 session_seed(base_seed, array, plate, session), seconds)

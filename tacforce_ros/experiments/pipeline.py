@@ -44,7 +44,7 @@ from tacforce_ros.hand.kinematics import HandKinematics
 from tacforce_ros.nodes.session_plan import shipped_parameters
 from tacforce_ros.paths import config_dir
 from tacforce_ros.sim import load_scene
-from tacforce_ros.sim.scene import session_seed
+from tacforce_ros.sim.scene import calibration_scene_name, session_seed
 from tacforce_ros.timing import time_interleaved
 
 PLATES = ('button', 'flat', 'fillet', 'convex', 'edge')      # training plates (paper Fig. 2d)
@@ -235,7 +235,7 @@ def run_units(ctx: Context, title: str, units: list[tuple[str, Callable, tuple]]
 def calibration_unit(ctx: Context, array: str, plate: str, session: int, seconds: float,
                      zero_phase_tactile: bool = True) -> tuple[str, tuple | None]:
     """(dataset path, job unit to run, or None when the cache has it) of one session."""
-    scene = f'calibration_{array}_{plate}'
+    scene = calibration_scene_name(array, plate)
     seed = session_seed(ctx.settings.seed, array, plate, session)
     key = digest({'scene': scene_digest(scene), 'seed': seed, 'seconds': seconds,
                   'code': source_digest(simulate_calibration, load_hand, HandKinematics),

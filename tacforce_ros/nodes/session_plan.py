@@ -17,7 +17,7 @@ from typing import Any
 from tacforce_ros.control.command_sequence import ForceSequence, SequenceError
 from tacforce_ros.hand.description import DEFAULT_SIDE, FRAME_PREFIX_PATTERN, SIDES, hand_config
 from tacforce_ros.paths import config_dir, ros_home
-from tacforce_ros.sim.scene import SceneError, load_scene
+from tacforce_ros.sim.scene import SceneError, calibration_scene_name, load_scene
 
 MODES = ('calibration', 'closed_loop')
 NAMESPACE = re.compile(r'(/[A-Za-z_][A-Za-z0-9_]*)+')
@@ -124,7 +124,7 @@ class SessionArgs:
         if self.scene:
             return self.scene
         if self.mode == 'calibration':
-            return f'calibration_{self.array}_{self.plate}'
+            return calibration_scene_name(self.array, self.plate)
         return f'closed_loop_{self.plate}'
 
 

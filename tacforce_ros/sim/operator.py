@@ -30,6 +30,9 @@ class OperatorParams:
     pose_sigma: float = 0.12          # rad, per-press variation of the finger's joints
     rest_pose: tuple[float, ...] = (0.0, 0.3, 0.3, 0.3) * 3 + (0.8, 0.3, 0.3, 0.3)
     press_pose: tuple[float, float, float, float] = (0.0, 0.8, 0.7, 0.5)
+    # The thumb's first joint turns it towards the palm; 0 is outside its range (URDF: 0.263 to
+    # 1.396 rad), so its press pose is its own (estimate, inside every thumb joint's range).
+    thumb_press_pose: tuple[float, float, float, float] = (0.9, 0.5, 0.6, 0.5)
 
     @classmethod
     def from_dict(cls, raw: dict) -> OperatorParams:
@@ -71,7 +74,10 @@ def draw_schedule(params: OperatorParams, array: TaxelArray, n_steps: int, dt: f
     normal = np.zeros((n_steps, 3))
     axis = np.zeros((n_steps, 3))
     rest = np.asarray(params.rest_pose, np.float64)
-    joints = FINGER_JOINTS.get(array.finger or '', slice(0, 0))
+    # Palm arrays: the operator moves the hand, not a finger; the fingers keep their rest pose.
+    joints = FINGER_JOINTS.get(array.finger or '')
+    press_pose = np.asarray(params.thumb_press_pose if array.finger == 'thumb'
+                            else params.press_pose)
     pose_keys: list[tuple[float, np.ndarray]] = [(0.0, rest if start_q is None else start_q)]
     normals = array.rotations[:, :, 2]
     # Operators press near the middle of the pad more often than on its rim.
@@ -106,7 +112,9 @@ def draw_schedule(params: OperatorParams, array: TaxelArray, n_steps: int, dt: f
         axis_angle = rng.uniform(0, np.pi)
         axis[k] = np.cos(axis_angle) * e1 + np.sin(axis_angle) * e2
         pose = rest.copy()
-        pose[joints] = np.asarray(params.press_pose) + rng.normal(0.0, params.pose_sigma, 4)
+        pose_noise = rng.normal(0.0, params.pose_sigma, 4)
+        if joints is not None:
+            pose[joints] = press_pose + pose_noise
         pose_keys += [(start, pose), (end, pose)]
         start = end + rng.uniform(*params.pause_seconds)
     pose_keys.append((t[-1], pose_keys[-1][1]))

@@ -3,6 +3,10 @@
 A scene file may name another with `extends: <stem>`; the two are deep-merged (the child wins,
 and `null` deletes an inherited key, e.g. `effects: {noise: null}` switches one effect off).
 Files whose stem starts with `_` hold shared defaults and are not scenes on their own.
+
+A calibration scene needs no file: `calibration_<array>_<plate>` is `_calibration` with that
+array and plate (any array of the hand, any plate of the plates library), so a campaign over
+all 18 arrays has one home for what a calibration session is. A file of that name wins.
 """
 from __future__ import annotations
 
@@ -73,8 +77,32 @@ def scenes_dir() -> Path:
     return config_dir() / 'scenes'
 
 
+CALIBRATION_PREFIX = 'calibration_'
+CALIBRATION_DEFAULTS = '_calibration'
+
+
 def list_scenes() -> list[str]:
+    """The scene files; calibration scenes are also named without one (calibration_scene_name)."""
     return sorted(p.stem for p in scenes_dir().glob('*.yaml') if not p.stem.startswith('_'))
+
+
+def calibration_scene_name(array: str, plate: str) -> str:
+    return f'{CALIBRATION_PREFIX}{array}_{plate}'
+
+
+def _generated_calibration(path: Path) -> dict | None:
+    """`calibration_<array>_<plate>` under scenes_dir() without a file: `_calibration` with
+    that array and plate; None for any other name or an unknown plate."""
+    stem = path.stem
+    if path.parent != scenes_dir() or not stem.startswith(CALIBRATION_PREFIX):
+        return None
+    array, _, plate = stem[len(CALIBRATION_PREFIX):].rpartition('_')
+    if not array:
+        return None
+    plates = _load_raw(scenes_dir() / f'{CALIBRATION_DEFAULTS}.yaml').get('plates') or {}
+    if plate not in plates:
+        return None
+    return {'extends': CALIBRATION_DEFAULTS, 'array': array, 'plate': plate}
 
 
 def _deep_merge(base: dict, child: dict) -> dict:
@@ -96,16 +124,24 @@ def _resolve_path(name_or_path: str | Path) -> Path:
     return scenes_dir() / f'{name_or_path}.yaml'
 
 
+def _read_yaml(path: Path) -> dict:
+    if not path.is_file():
+        known = ', '.join(list_scenes()) if scenes_dir().is_dir() else 'none'
+        raise SceneError(f'scene file {path} not found (known scenes: {known}; and '
+                         f'{calibration_scene_name("<array>", "<plate>")} for any array and '
+                         'plate)')
+    try:
+        return yaml.safe_load(path.read_text(encoding='utf8')) or {}
+    except yaml.YAMLError as exc:
+        raise SceneError(f'{path}: not valid YAML: {exc}') from exc
+
+
 def _load_raw(path: Path, chain: tuple[Path, ...] = ()) -> dict:
     if path in chain:
         raise SceneError(f'{path}: field "extends" forms a cycle ({" -> ".join(map(str, chain))})')
-    if not path.is_file():
-        known = ', '.join(list_scenes()) if scenes_dir().is_dir() else 'none'
-        raise SceneError(f'scene file {path} not found (known scenes: {known})')
-    try:
-        raw = yaml.safe_load(path.read_text(encoding='utf8')) or {}
-    except yaml.YAMLError as exc:
-        raise SceneError(f'{path}: not valid YAML: {exc}') from exc
+    raw = None if path.is_file() else _generated_calibration(path)
+    if raw is None:
+        raw = _read_yaml(path)
     if not isinstance(raw, dict):
         raise SceneError(f'{path}: top level must be a mapping')
     parent = raw.pop('extends', None)
@@ -116,7 +152,7 @@ def _load_raw(path: Path, chain: tuple[Path, ...] = ()) -> dict:
     # A parent next to the file wins; else the shared scenes folder (so a scene kept elsewhere
     # can still extend the project defaults).
     parent_path = path.parent / f'{parent}.yaml'
-    if not parent_path.is_file():
+    if not parent_path.is_file() and _generated_calibration(parent_path) is None:
         parent_path = scenes_dir() / f'{parent}.yaml'
     return _deep_merge(_load_raw(parent_path, chain + (path,)), raw)
 

@@ -7,7 +7,9 @@ input low-pass (`--lowpass-hz`; its group delay is in the JSON), all timed round
 model sees the same machine load. Writes bench.json, bench.md and bench.png.
 
 Full-hand models are fitted on short synthetic recordings of every array: the cost of a tick does
-not depend on the weights' values, only on the shapes.
+not depend on the weights' values, only on the shapes. `--model-sets` also times the tick of
+model lists as the estimator node loads them (e.g. the shipped config/models/default.yaml), in
+the same round-robin.
 """
 from __future__ import annotations
 
@@ -73,6 +75,31 @@ def table(rows: list[dict], title: str) -> str:
     return '\n'.join(lines) + '\n'
 
 
+def model_set_call(path: Path, hand) -> tuple[dict, Callable[[], object]]:
+    """A models YAML as the estimator node loads it: its row, and its full-hand tick on a frame
+    at every modelled array's rest reading."""
+    from tacforce_ros.estimation.model_set import load_model_set
+    models = load_model_set(path, hand)
+    frame = np.zeros((hand.n_taxels, 3))
+    for array, bundle in zip(models.arrays, models.estimator.bundles):
+        frame[array.flat_indices] = bundle.x_offset
+    frame = np.clip(np.round(frame), 0, 65535).astype(np.uint16)
+    kinds = sorted(set(models.kinds))
+    row = {'file': str(path), 'arrays': len(models.arrays), 'skipped': list(models.skipped),
+           'kinds': kinds}
+    return row, lambda: models.estimate(frame)
+
+
+def model_set_table(rows: list[dict]) -> str:
+    lines = ['## Model lists as the estimator loads them', '',
+             '| file | arrays | kinds | full hand [us] median (p99) |', '|---|---|---|---|']
+    for r in rows:
+        tick = r['full_hand_tick']
+        lines.append(f"| {r['file']} | {r['arrays']} | {', '.join(r['kinds'])} | "
+                     f"{tick['median_us']:.1f} ({tick['p99_us']:.1f}) |")
+    return '\n'.join(lines) + '\n'
+
+
 def lowpass_cell(row: dict) -> str:
     filtered = row['full_hand_tick_lowpass']['median_us']
     plain = row['full_hand_tick']['median_us']
@@ -111,6 +138,9 @@ def main(argv: list[str] | None = None) -> int:
                         'cut-off (Hz, XELA frames at 100 Hz; default: the training data\'s); '
                         '0 = not')
     parser.add_argument('--lowpass-order', type=int, default=2)
+    parser.add_argument('--model-sets', nargs='+', type=Path, default=[],
+                        help='models YAML files (estimation/model_set.py) whose full-hand tick '
+                        'is timed too, e.g. config/models/default.yaml')
     parser.add_argument('--seed', type=int, default=0)
     parser.add_argument('--out', type=output_folder, default='bench_out')
     args = parser.parse_args(argv)
@@ -132,7 +162,8 @@ def main(argv: list[str] | None = None) -> int:
             hand = load_hand(hand_config(dataset.hand_side))     # the dataset's own hand
             array = hand.array(dataset.array)
         X, F, offset = dataset.without_offsets()
-    except (DatasetError, ValueError, KeyError) as exc:
+        model_sets = [model_set_call(path, hand) for path in args.model_sets]
+    except (DatasetError, ValueError, KeyError, OSError) as exc:
         print(f'bench: {exc}', file=sys.stderr)
         return 2
     configs = paper_configurations(args.seed, args.epochs)
@@ -143,7 +174,10 @@ def main(argv: list[str] | None = None) -> int:
                                  args.seed, lowpass)
         rows.append(row)
         calls.update({(label, key): call for key, call in timed.items()})
+    calls.update({('model_set', k): call for k, (_, call) in enumerate(model_sets)})
     timings = time_interleaved(calls, args.repeats)
+    set_rows = [{**row, 'full_hand_tick': timings[('model_set', k)]}
+                for k, (row, _) in enumerate(model_sets)]
     for row in rows:
         row.update({key: timing for (label, key), timing in timings.items()
                     if label == row['label']})
@@ -151,13 +185,13 @@ def main(argv: list[str] | None = None) -> int:
              f"{len(dataset.plate_names())}-fold leave-one-plate-out")
     result = {'array': array.name, 'n_taxels': array.n_taxels, 'source': dataset.source,
               'samples': int(X.shape[0]), 'plates': dataset.plate_names(), 'seed': args.seed,
-              'repeats': args.repeats, 'models': rows,
+              'repeats': args.repeats, 'models': rows, 'model_sets': set_rows,
               'lowpass': None if design is None else {
                   'cutoff_hz': design.cutoff_hz, 'order': design.order,
                   'frame_rate_hz': design.rate_hz,
                   'group_delay_ms': design.group_delay_s() * 1e3}}
     (args.out / 'bench.json').write_text(json.dumps(result, indent=2))
-    text = table(rows, title)
+    text = table(rows, title) + ('\n' + model_set_table(set_rows) if set_rows else '')
     (args.out / 'bench.md').write_text(text)
     plot(rows, array.name, dataset.source.upper(), args.out / 'bench.png')
     print(text)

@@ -3,8 +3,13 @@
 Inputs are rosbag2 calibration bags (folders, docs/CONTRACTS.md) and/or processed dataset .npz
 files (estimation/dataset.py), all of one hand: the one they name (the bags' session metadata,
 the datasets' headers; none named: the right hand), or `--hand-side`; the models are its.
+A campaign folder (`campaign`) stands for the bags of it that count (coverage verdict passed).
 Per array: offsets from static segments per session, optional leave-one-plate-out
 cross-validation (metrics go into the model's provenance), then a final fit on all plates.
+Writes `<array>_<kind>.npz`, a models list per kind for the estimator (`models_<kind>.yaml`),
+report.md/json (arrays grouped by type: curved fingertips, flat phalanx pads, palm pads) and,
+with cross-validation, a picture of the hand coloured by each array's held-out error
+(`hand_<kind>.png`).
 """
 from __future__ import annotations
 
@@ -16,6 +21,7 @@ import time
 from collections import defaultdict
 from pathlib import Path
 
+import yaml
 from tqdm import tqdm
 
 from tacforce_ros.estimation.cross_validation import cross_validate
@@ -30,6 +36,8 @@ from tacforce_ros.hand.description import (DEFAULT_SIDE, SIDES, HandDescription,
 from tacforce_ros.paths import output_folder
 
 RANDOM_KINDS = ('M4', 'M5')     # trained from a random initialisation: they take a seed
+ARRAY_GROUPS = {'fingertip': 'curved fingertips', 'phalanx': 'flat phalanx pads',
+                'palm': 'palm pads'}
 
 
 def code_version() -> str:
@@ -53,6 +61,27 @@ def model_hyper(kind: str, seed: int, lambda_cv: bool, lam: float) -> dict:
     if kind == 'M3-lambda':
         return {'lam': lam, 'lambda_grid': list(DEFAULT_GRID) if lambda_cv else None}
     return {}
+
+
+def expand_campaigns(paths: list[Path]) -> list[Path]:
+    """Each campaign folder replaced by the bags of it that count; other paths kept."""
+    from tacforce_ros.hand.kinematics import HandKinematics
+    from tacforce_ros.recording.campaign import Campaign, is_campaign
+
+    expanded = []
+    for path in paths:
+        if not is_campaign(path):
+            expanded.append(path)
+            continue
+        campaign = Campaign(path)
+        hand = load_hand(hand_config(campaign.plan.hand_side))
+        records = campaign.check(hand, HandKinematics(hand.urdf_path))
+        due = campaign.due(records)
+        if due:
+            print(f'train: campaign {path} is missing {len(due)} sessions (`campaign status '
+                  f'{path}`); training on what it has', file=sys.stderr)
+        expanded += campaign.counted_bags(records)
+    return expanded
 
 
 def load_inputs(paths: list[Path], side: str | None
@@ -85,28 +114,51 @@ def load_inputs(paths: list[Path], side: str | None
 
 def markdown_report(report: dict) -> str:
     lines = ['# Training report', '', f"code {report['code_version']}, {report['date']}, "
-             f"seed {report['seed']}", '',
+             f"seed {report['seed']}, {report['hand_side']} hand; held-out errors from the "
+             'leave-one-plate-out benchmark', '',
              '| array | kind | plates | samples | e_r [%] | e_hat [N] | MAE x/y/z [N] | file |',
              '|---|---|---|---|---|---|---|---|']
-    for entry in report['models']:
-        cv = entry['cross_validation']
-        if cv:
-            e_r = '-' if cv['e_r_mean'] is None else \
-                f"{100 * cv['e_r_mean']:.1f} ± {100 * cv['e_r_std']:.1f}"
-            e_hat = f"{cv['e_hat_mean']:.3f} ± {cv['e_hat_std']:.3f}"
-            axes = ' / '.join(f'{v:.3f}' for v in cv['mae_axis'])
-        else:
-            e_r = e_hat = axes = 'not run'
-        lines.append(f"| {entry['array']} | {entry['kind']} | {', '.join(entry['plates'])} | "
-                     f"{entry['samples']} | {e_r} | {e_hat} | {axes} | {entry['file']} |")
+    for group, title in ARRAY_GROUPS.items():
+        entries = [e for e in report['models'] if e['array_type'] == group]
+        if entries:
+            lines.append(f'| **{title}** ({len({e["array"] for e in entries})}) '
+                         '| | | | | | | |')
+        lines += [_report_row(entry) for entry in entries]
     return '\n'.join(lines) + '\n'
+
+
+def write_model_lists(folder: Path, report: dict) -> list[Path]:
+    """models_<kind>.yaml per kind: the estimator's model list (estimation/model_set.py)."""
+    paths = []
+    for kind in sorted({e['kind'] for e in report['models']}):
+        models = {e['array']: e['file'] for e in report['models'] if e['kind'] == kind}
+        path = folder / f'models_{kind}.yaml'
+        path.write_text(f"# {kind} for {len(models)} arrays of the {report['hand_side']} hand: "
+                        f"train, code {report['code_version']}, {report['date']}\n"
+                        + yaml.safe_dump({'models': models}, sort_keys=False))
+        paths.append(path)
+    return paths
+
+
+def _report_row(entry: dict) -> str:
+    cv = entry['cross_validation']
+    if cv:
+        e_r = '-' if cv['e_r_mean'] is None else \
+            f"{100 * cv['e_r_mean']:.1f} ± {100 * cv['e_r_std']:.1f}"
+        e_hat = f"{cv['e_hat_mean']:.3f} ± {cv['e_hat_std']:.3f}"
+        axes = ' / '.join(f'{v:.3f}' for v in cv['mae_axis'])
+    else:
+        e_r = e_hat = axes = 'not run'
+    return (f"| {entry['array']} | {entry['kind']} | {', '.join(entry['plates'])} | "
+            f"{entry['samples']} | {e_r} | {e_hat} | {axes} | {entry['file']} |")
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog='train', description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument('inputs', nargs='+', type=Path,
-                        help='calibration bag folders and/or processed dataset .npz files')
+                        help='calibration bag folders, campaign folders and/or processed dataset '
+                        '.npz files')
     parser.add_argument('--out', type=output_folder, required=True,
                         help='folder for model files + report')
     parser.add_argument('--kinds', nargs='+', default=['M3-lambda'], choices=sorted(MODEL_KINDS),
@@ -134,7 +186,7 @@ def main(argv: list[str] | None = None) -> int:
     if missing:
         parser.error(f'inputs not found: {missing}')
     try:
-        hand, by_array, dropped = load_inputs(args.inputs, args.hand_side)
+        hand, by_array, dropped = load_inputs(expand_campaigns(args.inputs), args.hand_side)
     except (DatasetError, ValueError, RuntimeError, OSError) as exc:
         print(f'train: {exc}', file=sys.stderr)
         return 2
@@ -147,7 +199,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
 
     version, date = code_version(), time.strftime('%Y-%m-%dT%H:%M:%S%z')
-    report = {'code_version': version, 'date': date, 'seed': args.seed,
+    report = {'code_version': version, 'date': date, 'seed': args.seed, 'hand_side': hand.side,
               'inputs': [str(p) for p in args.inputs], 'dropped_messages': dropped, 'models': []}
     jobs = [(name, kind) for name in names for kind in args.kinds]
     prepared = {}
@@ -179,11 +231,19 @@ def main(argv: list[str] | None = None) -> int:
         bundle = fit_bundle(array, kind, hyper, X, F, dataset.plates, x_offset=x_offset,
                             provenance=provenance)
         path = save_model(args.out / f"{name}_{kind}.npz", bundle)
-        report['models'].append({'array': name, 'kind': kind, 'file': path.name,
+        report['models'].append({'array': name, 'array_type': array.kind, 'kind': kind,
+                                 'file': path.name,
                                  'plates': provenance['plates'], 'samples': provenance['samples'],
                                  'hyperparameters': bundle.model.hyperparameters(),
                                  'n_parameters': bundle.model.n_parameters(),
                                  'cross_validation': cv})
+    write_model_lists(args.out, report)
+    if not args.no_cv:
+        from tacforce_ros.experiments.plots import hand_errors
+        for kind in args.kinds:
+            hand_errors(hand, {e['array']: e['cross_validation']['e_hat_mean']
+                               for e in report['models'] if e['kind'] == kind},
+                        f'{kind}: held-out e_hat per array [N]', args.out / f'hand_{kind}.png')
     (args.out / 'report.json').write_text(json.dumps(report, indent=2))
     (args.out / 'report.md').write_text(markdown_report(report))
     print(markdown_report(report))

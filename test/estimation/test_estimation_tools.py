@@ -10,8 +10,10 @@ from tacforce_ros import bagio, topics
 from tacforce_ros.estimation.bag_dataset import dataset_from_bag
 from tacforce_ros.estimation.dataset import CalibrationDataset, DatasetError, concatenate
 from tacforce_ros.estimation.model_io import load_model, read_header
+from tacforce_ros.estimation.model_set import load_model_set, model_files
 from tacforce_ros.estimation.synthetic import synthetic_dataset
 from tacforce_ros.hand.kinematics import HandKinematics
+from tacforce_ros.paths import config_dir
 from tacforce_ros.tools import bench, bench_train, train
 
 
@@ -121,7 +123,12 @@ def test_train_from_bags_writes_loadable_models_and_report(hand, bags, tmp_path)
     assert bundle.provenance['plates'] == ['flat', 'edge', 'button']
     assert bundle.provenance['metrics']['folds'] == 3
     assert (out / 'report.md').read_text().count('index_middle') >= 2
+    assert '**flat phalanx pads** (1)' in (out / 'report.md').read_text()
     assert CalibrationDataset.load(out / 'index_middle.npz').array == 'index_middle'
+    for kind in ('M1', 'M3-lambda'):          # the estimator's model lists, one per kind
+        models = load_model_set(out / f'models_{kind}.yaml', hand)
+        assert [a.name for a in models.arrays] == ['index_middle'] and models.kinds == (kind,)
+        assert (out / f'hand_{kind}.png').read_bytes()[:8] == b'\x89PNG\r\n\x1a\n'
 
 
 def test_bags_train_the_hand_they_name(bags, tmp_path, capsys):
@@ -169,11 +176,17 @@ def test_train_refuses_unknown_arrays_and_missing_inputs(phalanx, tmp_path, caps
 
 def test_bench_synthetic_writes_json_table_and_plot(tmp_path):
     out = tmp_path / 'bench'
+    shipped = config_dir() / 'models' / 'default.yaml'
     code = bench.main(['--synthetic', '--array', 'index_middle', '--seconds', '6',
-                       '--models', 'M1', 'M3-lambda', '--repeats', '50', '--out', str(out)])
+                       '--models', 'M1', 'M3-lambda', '--repeats', '50', '--model-sets',
+                       str(shipped), '--out', str(out)])
     assert code == 0
     result = json.loads((out / 'bench.json').read_text())
     assert [m['label'] for m in result['models']] == ['M1', 'M3-lambda']
+    (shipped_row,) = result['model_sets']
+    assert shipped_row['arrays'] == len(model_files(shipped))
+    tick = shipped_row['full_hand_tick']
+    assert 0.0 < tick['median_us'] <= tick['p99_us']
     for row in result['models']:
         for key in ('predict_one', 'batch_one', 'full_hand_tick', 'full_hand_tick_lowpass'):
             assert 0.0 < row[key]['median_us'] <= row[key]['p99_us']
@@ -208,7 +221,7 @@ def test_bench_train_refuses_an_unwritable_output_before_training(tmp_path, caps
     assert exc.value.code == 2
 
 
-@pytest.mark.parametrize('tool', ['train', 'bench', 'bench_train'])
+@pytest.mark.parametrize('tool', ['train', 'bench', 'bench_train', 'campaign'])
 def test_tools_have_help(tool):
     out = subprocess.run([sys.executable, '-m', f'tacforce_ros.tools.{tool}', '--help'],
                          capture_output=True, text=True, timeout=60)

@@ -113,6 +113,37 @@ def test_operator_pauses_and_force_ranges(run_scene):
     assert shear.max() > 0.1 * normal.max()
 
 
+@pytest.mark.parametrize('array', ['thumb_distal', 'palm_center', 'ring_tip'])
+def test_every_array_is_pressed_with_its_own_finger_in_range(run_scene, hand, array):
+    """Any array has a calibration scene; the operator bends only the finger carrying it (none
+    for a palm pad), inside the URDF's joint limits, and only that array's taxels respond."""
+    from tacforce_ros.hand.kinematics import HandKinematics
+    samples = run_scene(f'calibration_{array}_convex', effects={}, steps=3000)
+    q = stack(samples, 'q')
+    taxel_array = hand.array(array)
+    moved = np.flatnonzero(np.ptp(q, axis=0) > 1e-9)
+    if taxel_array.finger is None:
+        assert moved.size == 0
+    else:
+        joints = HandKinematics(hand.urdf_path).finger_joints(taxel_array.finger)
+        assert set(moved) <= set(range(16)[joints]) and moved.size > 0
+    lower, upper = _joint_limits(hand)
+    assert np.all(q >= lower - 1e-9) and np.all(q <= upper + 1e-9)
+    counts = stack(samples, 'taxel_counts').astype(float)
+    others = np.setdiff1d(np.arange(hand.n_taxels), taxel_array.flat_indices)
+    assert np.ptp(counts[:, taxel_array.flat_indices], axis=0).max() > 100
+    assert np.ptp(counts[:, others], axis=0).max() == 0
+
+
+def _joint_limits(hand):
+    import xml.etree.ElementTree as ElementTree
+    joints = {j.get('name'): j.find('limit') for j in
+              ElementTree.parse(hand.urdf_path).getroot().iter('joint') if j.get('type') != 'fixed'}
+    names = [f'joint_{i}.0' for i in range(16)]
+    return (np.array([float(joints[n].get('lower')) for n in names]),
+            np.array([float(joints[n].get('upper')) for n in names]))
+
+
 def test_sessions_share_the_hand_and_a_sensor_seed_makes_another(hand):
     """Per-taxel parameters belong to the physical sensor (sensor_seed), not to the session."""
     def hand_parameters(scene, seed):

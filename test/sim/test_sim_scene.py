@@ -14,11 +14,14 @@ def write(tmp_path, text, name='scene.yaml'):
     return path
 
 
-def test_every_shipped_scene_loads():
+def test_every_shipped_scene_loads(hand):
     names = list_scenes()
     plates = {'button', 'flat', 'fillet', 'convex', 'edge', 'spherical'}
-    for array in ('index_tip', 'index_middle'):
-        assert {load_scene(f'calibration_{array}_{p}').plate.name for p in plates} == plates
+    for array in (a.name for a in hand.arrays):    # a calibration scene needs no file
+        scenes = [load_scene(f'calibration_{array}_{p}') for p in plates]
+        assert {s.plate.name for s in scenes} == plates
+        assert {(s.array, s.kind, s.duration) for s in scenes} == {(array, 'calibration', 100.0)}
+        assert scenes[0].name == f'calibration_{array}_{scenes[0].plate.name}'
     objects = {load_scene(n).soft_object.name for n in names
                if n.startswith('closed_loop_') and load_scene(n).soft_object}
     assert objects == {'foam_brick', 'softball', 'abrasive_sponge', 'bleach_cleanser'}
@@ -57,8 +60,10 @@ def test_bad_scene_names_the_field(tmp_path, body, field):
 
 
 def test_unknown_scene_lists_the_known_ones():
-    with pytest.raises(SceneError, match='calibration_index_tip_flat'):
+    with pytest.raises(SceneError, match='closed_loop_spherical.*calibration_<array>_<plate>'):
         load_scene('no_such_scene')
+    with pytest.raises(SceneError, match='calibration_index_tip_banana'):   # no such plate
+        load_scene('calibration_index_tip_banana')
 
 
 def test_every_effect_has_a_distinct_registered_name():

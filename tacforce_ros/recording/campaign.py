@@ -1,0 +1,269 @@
+"""A calibration campaign: which array is pressed on which plate, how often, what is still missing.
+
+The paper calibrated the index fingertip and intermediate phalanx arrays on six 3-D printed
+push-plates, 4 x 100 s per plate ("data collection is repeated for each fingertip and
+intermediate phalanx array"). A campaign extends that to every array of the hand: the plate
+stands on the F/T sensor and the operator brings the hand to it, so every plate reaches every
+array on the rig (the palm pads too, with the fingers open); the plates are what differs in
+shape, not in reach. The order is plate by plate (a plate change means unscrewing it from the
+sensor; moving the hand to the next array does not), array by array within a plate.
+
+A campaign is a folder: `campaign.yaml` (the plan) and the session bags, found by their session
+metadata (array, plate), so bags from the lab recorder and from `sim_record` count alike. A
+session counts when its bag reads and its coverage verdict passes; a bag whose coverage is poor
+is moved to `rejected/` (kept, not counted) and its session is due again. Pure Python over numpy.
+"""
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from tacforce_ros.estimation.dataset import CalibrationDataset
+from tacforce_ros.estimation.preprocessing import static_mask, true_runs
+
+PLAN_FILE = 'campaign.yaml'
+VERDICTS_FILE = 'verdicts.json'
+REJECTED = 'rejected'
+# Operator time per session besides the pressing, and per plate change: our estimates.
+SESSION_OVERHEAD_S = 20.0
+PLATE_CHANGE_S = 120.0
+
+
+class CampaignError(ValueError):
+    """A campaign folder or plan that cannot be used; the message says why."""
+
+
+@dataclass(frozen=True)
+class CoverageLimits:
+    """What a session must contain to be worth training on (estimates, from what the training
+    needs: force up to the range the models must cover, shear in most directions, and rests
+    for the per-session offsets)."""
+    min_peak_force: float = 2.0         # N, largest |F| pressed
+    shear_force: float = 0.1            # N, tangential force that counts for a direction
+    shear_sectors: int = 8              # directions around the normal ...
+    min_shear_sectors: int = 6          # ... of which this many must be pressed
+    min_rests: int = 3                  # static no-contact segments (offset estimation)
+
+
+@dataclass(frozen=True)
+class Coverage:
+    peak_force: float
+    shear_sectors: int
+    rests: int
+    samples: int
+    problems: tuple[str, ...]
+
+    @property
+    def ok(self) -> bool:
+        return not self.problems
+
+
+def session_coverage(dataset: CalibrationDataset, limits: CoverageLimits = CoverageLimits(),
+                     **static_kw) -> Coverage:
+    """Force range, shear directions and rests of one session (force in the array frame)."""
+    force = np.asarray(dataset.F, np.float64)
+    rests = len(true_runs(static_mask(force, dataset.X, **static_kw)))
+    pressed = force - np.median(force, axis=0)
+    peak = float(np.linalg.norm(pressed, axis=1).max(initial=0.0))
+    tangential = pressed[:, :2]
+    shearing = np.linalg.norm(tangential, axis=1) >= limits.shear_force
+    angles = np.arctan2(tangential[shearing, 1], tangential[shearing, 0])
+    sectors = np.unique(np.floor((angles + np.pi) / (2 * np.pi) * limits.shear_sectors)
+                        .astype(int) % limits.shear_sectors).size
+    problems = []
+    if peak < limits.min_peak_force:
+        problems.append(f'press harder: peak force {peak:.2f} N < {limits.min_peak_force} N')
+    if sectors < limits.min_shear_sectors:
+        problems.append(f'vary the push direction: shear in {sectors} of {limits.shear_sectors}'
+                        f' directions < {limits.min_shear_sectors}')
+    if rests < limits.min_rests:
+        problems.append(f'let go between presses: {rests} rests < {limits.min_rests}')
+    return Coverage(peak, int(sectors), rests, int(force.shape[0]), tuple(problems))
+
+
+@dataclass(frozen=True)
+class SessionSlot:
+    array: str
+    plate: str
+    index: int          # 0 .. sessions-1 of its (array, plate)
+
+    @property
+    def name(self) -> str:
+        return f'{self.array}_{self.plate}_s{self.index}'
+
+
+@dataclass(frozen=True)
+class CampaignPlan:
+    hand_side: str
+    arrays: tuple[str, ...]
+    plates: tuple[str, ...]
+    sessions: int               # per (array, plate)
+    seconds: float              # per session
+    seed: int = 0               # simulated campaigns: base seed of the sessions
+    limits: CoverageLimits = field(default_factory=CoverageLimits)
+
+    def __post_init__(self) -> None:
+        if not self.arrays or not self.plates:
+            raise CampaignError('a campaign needs at least one array and one plate')
+        if self.sessions < 1 or not self.seconds > 0:
+            raise CampaignError(f'sessions ({self.sessions}) must be >= 1 and seconds '
+                                f'({self.seconds}) > 0')
+
+    def slots(self) -> list[SessionSlot]:
+        """Every session, in the order the operator records them (plate by plate)."""
+        return [SessionSlot(a, p, k) for p in self.plates for a in self.arrays
+                for k in range(self.sessions)]
+
+    def duration_s(self, slots: list[SessionSlot] | None = None) -> float:
+        """Operator time for `slots` (default: all), with the overheads we estimate."""
+        slots = self.slots() if slots is None else slots
+        plates = len({s.plate for s in slots})
+        return len(slots) * (self.seconds + SESSION_OVERHEAD_S) + plates * PLATE_CHANGE_S
+
+    def save(self, folder: Path) -> Path:
+        folder.mkdir(parents=True, exist_ok=True)
+        raw = asdict(self)
+        raw['arrays'], raw['plates'] = list(self.arrays), list(self.plates)
+        path = folder / PLAN_FILE
+        path.write_text('# Calibration campaign (tacforce_ros.recording.campaign)\n'
+                        + yaml.safe_dump(raw, sort_keys=False))
+        return path
+
+    @classmethod
+    def load(cls, folder: Path) -> CampaignPlan:
+        path = Path(folder) / PLAN_FILE
+        if not path.is_file():
+            raise CampaignError(f'{folder}: not a campaign (no {PLAN_FILE}; make one with '
+                                '`campaign plan`)')
+        try:
+            raw = yaml.safe_load(path.read_text()) or {}
+            limits = CoverageLimits(**(raw.pop('limits', None) or {}))
+            return cls(**{**raw, 'arrays': tuple(raw['arrays']), 'plates': tuple(raw['plates']),
+                          'limits': limits})
+        except (yaml.YAMLError, KeyError, TypeError) as exc:
+            raise CampaignError(f'{path}: not a campaign plan ({exc})') from None
+
+
+@dataclass
+class SessionRecord:
+    bag: str            # folder name, relative to the campaign
+    array: str
+    plate: str
+    coverage: dict
+
+    @property
+    def ok(self) -> bool:
+        return not self.coverage['problems']
+
+
+class Campaign:
+    """A campaign folder: its plan, the bags it holds, and what is still due."""
+
+    def __init__(self, folder: str | Path) -> None:
+        self.folder = Path(folder)
+        self.plan = CampaignPlan.load(self.folder)
+        self._verdicts: dict[str, dict] = {}
+        verdicts = self.folder / VERDICTS_FILE
+        if verdicts.is_file():
+            self._verdicts = json.loads(verdicts.read_text())
+
+    @classmethod
+    def create(cls, folder: str | Path, plan: CampaignPlan) -> Campaign:
+        folder = Path(folder)
+        if (folder / PLAN_FILE).is_file():
+            existing = CampaignPlan.load(folder)
+            if existing != plan:
+                raise CampaignError(f'{folder} holds another campaign plan; resume it with '
+                                    '`campaign run`/`status`, or choose another folder')
+        else:
+            plan.save(folder)
+        return cls(folder)
+
+    def bags(self) -> list[Path]:
+        """Bag folders directly inside the campaign folder (in progress ones excluded)."""
+        return sorted(p for p in self.folder.iterdir()
+                      if p.is_dir() and (p / 'metadata.yaml').is_file())
+
+    def check(self, hand, kinematics, progress=None) -> list[SessionRecord]:
+        """Read every bag not yet judged, judge its coverage, move a poor one to rejected/.
+        Returns the records of the bags that count."""
+        from tacforce_ros.estimation.bag_dataset import dataset_from_bag
+
+        records = []
+        for bag in self.bags():
+            verdict = self._verdicts.get(bag.name)
+            if verdict is None:
+                dataset, _ = dataset_from_bag(bag, hand, kinematics)
+                if dataset.hand_side != self.plan.hand_side:
+                    raise CampaignError(f'{bag}: a bag of the {dataset.hand_side} hand in a '
+                                        f'campaign of the {self.plan.hand_side} hand')
+                coverage = session_coverage(dataset, self.plan.limits)
+                verdict = {'array': dataset.array, 'plate': dataset.plate_names()[0],
+                           'coverage': asdict(coverage)}
+                if progress is not None:
+                    progress(bag.name, coverage)
+            record = SessionRecord(bag.name, verdict['array'], verdict['plate'],
+                                   verdict['coverage'])
+            if record.ok:
+                self._verdicts[bag.name] = verdict
+                records.append(record)
+            else:
+                self._reject(bag, verdict)
+        self._save_verdicts()
+        return records
+
+    def _reject(self, bag: Path, verdict: dict) -> None:
+        rejected = self.folder / REJECTED
+        rejected.mkdir(exist_ok=True)
+        target = rejected / bag.name
+        if target.exists():
+            target = rejected / f'{bag.name}_{len(list(rejected.iterdir()))}'
+        bag.rename(target)
+        (target.parent / f'{target.name}.verdict.json').write_text(json.dumps(verdict, indent=2))
+        self._verdicts.pop(bag.name, None)
+
+    def _save_verdicts(self) -> None:
+        path = self.folder / VERDICTS_FILE
+        partial = path.with_name(path.name + '.partial')
+        partial.write_text(json.dumps(self._verdicts, indent=2, sort_keys=True))
+        partial.replace(path)
+
+    def due(self, records: list[SessionRecord]) -> list[SessionSlot]:
+        """The planned sessions no counted bag covers yet, in recording order; each takes the
+        lowest session index whose bag name is free (rejected bags keep theirs)."""
+        done: dict[tuple[str, str], int] = {}
+        for record in records:
+            key = (record.array, record.plate)
+            done[key] = done.get(key, 0) + 1
+        taken = {p.name for p in self.folder.iterdir()}
+        if (self.folder / REJECTED).is_dir():
+            taken |= {p.name for p in (self.folder / REJECTED).iterdir()}
+        due = []
+        for plate in self.plan.plates:
+            for array in self.plan.arrays:
+                missing = self.plan.sessions - done.get((array, plate), 0)
+                index = 0
+                while missing > 0:
+                    slot = SessionSlot(array, plate, index)
+                    index += 1
+                    if slot.name not in taken:
+                        due.append(slot)
+                        missing -= 1
+        return due
+
+    def counted_bags(self, records: list[SessionRecord]) -> list[Path]:
+        """The bags to train on: counted, and at most `sessions` per (array, plate)."""
+        kept: dict[tuple[str, str], list[str]] = {}
+        for record in records:
+            kept.setdefault((record.array, record.plate), []).append(record.bag)
+        return [self.folder / bag for key in sorted(kept)
+                for bag in sorted(kept[key])[:self.plan.sessions]
+                if key[0] in self.plan.arrays and key[1] in self.plan.plates]
+
+
+def is_campaign(path: Path) -> bool:
+    return (Path(path) / PLAN_FILE).is_file()

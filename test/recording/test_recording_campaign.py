@@ -1,0 +1,92 @@
+"""A calibration campaign: plan, coverage verdicts, resuming an interrupted simulated campaign."""
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+
+from tacforce_ros.recording.campaign import (Campaign, CampaignError, CampaignPlan,
+                                             CoverageLimits, SessionSlot)
+from tacforce_ros.estimation.model_set import load_model_set
+from tacforce_ros.hand.description import load_hand
+from tacforce_ros.tools import campaign as campaign_tool
+from tacforce_ros.tools import train
+
+ARRAYS = ('index_middle', 'palm_center')    # a flat phalanx pad and a palm pad
+PLATES = ('flat', 'edge')
+
+
+def make(folder, limits=CoverageLimits(min_peak_force=1.0, min_shear_sectors=4, min_rests=2),
+         **kw):
+    plan = CampaignPlan(**{'hand_side': 'right', 'arrays': ARRAYS, 'plates': PLATES,
+                           'sessions': 1, 'seconds': 20.0, 'seed': 4, 'limits': limits, **kw})
+    return Campaign.create(folder, plan)
+
+
+def test_the_plan_goes_plate_by_plate_and_refuses_another_plan_in_its_folder(tmp_path):
+    campaign = make(tmp_path / 'c', sessions=2)
+    assert [s.name for s in campaign.plan.slots()[:4]] == [
+        'index_middle_flat_s0', 'index_middle_flat_s1', 'palm_center_flat_s0',
+        'palm_center_flat_s1']
+    assert Campaign(tmp_path / 'c').plan == campaign.plan          # read back as written
+    with pytest.raises(CampaignError, match='another campaign plan'):
+        make(tmp_path / 'c', sessions=3)
+    with pytest.raises(CampaignError, match='not a campaign'):
+        Campaign(tmp_path)
+
+
+def test_an_interrupted_campaign_resumes_and_records_only_what_is_missing(tmp_path):
+    folder = tmp_path / 'c'
+    make(folder)
+    command = [sys.executable, '-m', 'tacforce_ros.tools.campaign', 'run', str(folder), '--sim']
+    first = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.monotonic() + 120.0
+    try:
+        # Killed (no chance to clean up) while its second session records.
+        while time.monotonic() < deadline and not (folder / 'index_middle_edge_s0.partial'
+                                                   ).is_dir():
+            time.sleep(0.02)
+    finally:
+        first.send_signal(signal.SIGKILL)
+        first.wait(timeout=30)
+    assert (folder / 'index_middle_edge_s0.partial').is_dir(), 'never reached the 2nd session'
+    finished = {p.name: os.stat(p / 'metadata.yaml').st_mtime_ns
+                for p in Campaign(folder).bags()}
+    assert 1 <= len(finished) < 4
+
+    assert campaign_tool.main(['run', str(folder), '--sim']) == 0
+    campaign = Campaign(folder)
+    bags = {p.name: os.stat(p / 'metadata.yaml').st_mtime_ns for p in campaign.bags()}
+    assert sorted(bags) == sorted(SessionSlot(a, p, 0).name for a in ARRAYS for p in PLATES)
+    assert all(bags[name] == stamp for name, stamp in finished.items())    # not recorded again
+    assert not list(folder.glob('*.partial'))
+    records = campaign.check(*campaign_tool._hand_and_kinematics('right'))
+    assert campaign.due(records) == [] and len(campaign.counted_bags(records)) == 4
+    verdicts = json.loads((folder / 'verdicts.json').read_text())
+    assert {v['array'] for v in verdicts.values()} == set(ARRAYS)
+
+    # train CAMPAIGN: every array of it, one model list for the estimator
+    models = tmp_path / 'models'
+    assert train.main([str(folder), '--out', str(models), '--kinds', 'M3-lambda']) == 0
+    report = json.loads((models / 'report.json').read_text())
+    assert {(m['array'], m['array_type']) for m in report['models']} == {
+        ('index_middle', 'phalanx'), ('palm_center', 'palm')}
+    assert all(m['cross_validation']['folds'] == 2 for m in report['models'])
+    model_set = load_model_set(models / 'models_M3-lambda.yaml', load_hand())
+    assert [a.name for a in model_set.arrays] == list(ARRAYS)
+
+
+def test_a_session_with_poor_coverage_is_kept_aside_and_recorded_again(tmp_path, capsys):
+    folder = tmp_path / 'c'
+    # No 20 s session has 50 rests: every one is judged poor.
+    make(folder, arrays=('index_middle',), plates=('flat',), limits=CoverageLimits(min_rests=50))
+    assert campaign_tool.main(['run', str(folder), '--sim']) == 1
+    assert 'still due after 3 rounds' in capsys.readouterr().err
+    rejected = sorted(p.name for p in (folder / 'rejected').iterdir() if p.is_dir())
+    assert rejected == ['index_middle_flat_s0', 'index_middle_flat_s1', 'index_middle_flat_s2']
+    verdict = json.loads((folder / 'rejected' / 'index_middle_flat_s0.verdict.json').read_text())
+    assert any('let go between presses' in p for p in verdict['coverage']['problems'])
+    assert Campaign(folder).bags() == []

@@ -282,7 +282,9 @@ class SimWorld(TacforceNode):
             if sample.tactile_fresh:
                 self.truth_publisher.publish(wrench_stamped(
                     now_ns if self.clock_publisher is not None else self.now_ns(),
-                    self.frame(self.array.frame_id), sample.true_force))
+                    self.frame(self.hand.array(sample.pressed_array).frame_id
+                               if sample.pressed_array else self.array.frame_id),
+                    sample.true_force))
             if sample.t + dt >= stop_at - 0.5 * dt:
                 self._scene_done = True
                 self.get_logger().info(f'{SCENE_DONE_MARKER} {self._summary()}')

@@ -6,6 +6,7 @@ expressed in {F} through the hand pose (R_F^0 from the URDF kinematics), plus it
 """
 from __future__ import annotations
 
+import dataclasses
 import warnings
 
 import numpy as np
@@ -101,4 +102,30 @@ class CalibrationSimulator:
                          ft_wrench=state.wrench, ft_status=0,
                          q=state.q, qdot=state.qdot, true_force=force,
                          contact_point=s.point[k], in_contact=active,
-                         delivered=state.delivered)
+                         delivered=state.delivered, pressed_array=self.scene.array)
+
+
+class PressTour:
+    """A calibration scene with `press_tour`: the operator presses each listed array in turn,
+    one `duration` block each (starting and ending released), round and round: a check that
+    every array's taxels and topic are where the hand description says. One
+    CalibrationSimulator per array, all of one hand and seed; time runs on across them."""
+
+    def __init__(self, scene: Scene, hand: HandDescription, seed: int | None = None) -> None:
+        self.scene, self.hand = scene, hand
+        self._stops = [CalibrationSimulator(dataclasses.replace(scene, array=name, press_tour=()),
+                                            hand, seed) for name in scene.press_tour]
+        self.dt = self._stops[0].dt
+        self.block_steps = self._stops[0].block_steps
+        self.step_index = 0
+
+    def reset(self, seed: int | None = None) -> None:
+        for stop in self._stops:
+            stop.reset(seed)
+        self.step_index = 0
+
+    def step(self, joint_torques: np.ndarray | None = None) -> SimSample:
+        stop = self._stops[(self.step_index // self.block_steps) % len(self._stops)]
+        sample = dataclasses.replace(stop.step(joint_torques), t=self.step_index * self.dt)
+        self.step_index += 1
+        return sample

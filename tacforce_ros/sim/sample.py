@@ -36,6 +36,7 @@ class SimSample:
     in_contact: bool
     delivered: dict[str, bool]
     tactile_fresh: bool = True
+    pressed_array: str = ''      # the array in contact ('' = the scene's; press tours change it)
 
     @property
     def ft_counts(self) -> np.ndarray:

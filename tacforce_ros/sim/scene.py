@@ -67,6 +67,9 @@ class Scene:
     # The physical hand: per-taxel gains, baselines, coupling, actuator and link tolerances.
     # One hand is one sensor_seed, shared by every scene unless a scene names another.
     sensor_seed: int = 0
+    # Calibration: arrays the operator presses in turn, `duration` each, round and round (a
+    # press tour, sim/calibration.py); empty: `array` alone. `array` is the tour's first.
+    press_tour: tuple[str, ...] = ()
 
     @property
     def dt(self) -> float:
@@ -253,6 +256,11 @@ def load_scene(name_or_path: str | Path) -> Scene:
                                      - round(physics_rate / tactile_rate)) > 1e-9:
         raise SceneError(f'{where}: field "physics_rate" must be a multiple of tactile_rate')
     seed = _get(raw, 'seed', int, where)
+    press_tour = _press_tour(raw, where) if kind == 'calibration' else ()
+    if press_tour:
+        raw.setdefault('array', press_tour[0])
+        if raw['array'] != press_tour[0]:
+            raise SceneError(f'{where}: field "array" must be the first of "press_tour"')
     sensor_seed = _get(raw, 'sensor_seed', int, where) if 'sensor_seed' in raw else 0
     return Scene(
         name=path.stem, kind=kind, array=_get(raw, 'array', str, where),
@@ -261,7 +269,17 @@ def load_scene(name_or_path: str | Path) -> Scene:
         effects=_effects(raw, where),
         operator=_get(raw, 'operator', dict, where) if kind == 'calibration' else {},
         finger=_finger(raw, where) if kind == 'closed_loop' else {},
-        soft_object=_soft_object(raw, where), path=path, sensor_seed=sensor_seed)
+        soft_object=_soft_object(raw, where), path=path, sensor_seed=sensor_seed,
+        press_tour=press_tour)
+
+
+def _press_tour(raw: dict, where: str) -> tuple[str, ...]:
+    if 'press_tour' not in raw:
+        return ()
+    tour = raw['press_tour']
+    if not isinstance(tour, list) or not tour or not all(isinstance(a, str) for a in tour):
+        raise SceneError(f'{where}: field "press_tour" must be a list of array names')
+    return tuple(tour)
 
 
 def session_seed(base: int, array: str, plate: str, session: int) -> int:

@@ -29,7 +29,7 @@ def make_simulator(scene: Scene | str | Path, hand: HandDescription | None = Non
         scene = load_scene(scene)
     hand = load_hand() if hand is None else hand
     if scene.kind == 'calibration':
-        from tacforce_ros.sim.calibration import CalibrationSimulator
-        return CalibrationSimulator(scene, hand, seed)
+        from tacforce_ros.sim.calibration import CalibrationSimulator, PressTour
+        return (PressTour if scene.press_tour else CalibrationSimulator)(scene, hand, seed)
     from tacforce_ros.sim.closed_loop import ClosedLoopSimulator
     return ClosedLoopSimulator(scene, hand, seed)

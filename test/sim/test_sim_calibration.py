@@ -164,3 +164,25 @@ def test_sessions_share_the_hand_and_a_sensor_seed_makes_another(hand):
     # The session seed still changes what differs between sessions (noise, operator).
     a, b = (make_simulator(scene, hand, seed=s) for s in (1, 2))
     assert not np.array_equal(a.step().taxel_counts, b.step().taxel_counts)
+
+
+def test_a_press_tour_presses_each_array_in_turn(hand):
+    """press_tour: one block of `duration` per array, each starting and ending released, the
+    sample naming the array in contact, and only that array's taxels responding."""
+    from tacforce_ros.sim import load_scene
+    scene = dataclasses.replace(load_scene('press_tour'), effects={},
+                                press_tour=('thumb_tip', 'palm_center', 'index_middle'))
+    sim = make_simulator(scene, hand, seed=2)
+    block = int(round(scene.duration * scene.tactile_rate))
+    samples = [sim.step() for _ in range(4 * block)]
+    assert np.allclose(np.diff([s.t for s in samples]), sim.dt)      # time runs on
+    for k, name in enumerate(('thumb_tip', 'palm_center', 'index_middle', 'thumb_tip')):
+        part = samples[k * block:(k + 1) * block]
+        assert {s.pressed_array for s in part} == {name}
+        force = np.linalg.norm(stack(part, 'true_force'), axis=1)
+        assert force[0] == force[-1] == 0.0 and force.max() > 1.0
+        counts = stack(part, 'taxel_counts').astype(float)
+        rows = hand.array(name).flat_indices
+        others = np.setdiff1d(np.arange(hand.n_taxels), rows)
+        assert np.ptp(counts[:, rows], axis=0).max() > 100
+        assert np.ptp(counts[:, others], axis=0).max() == 0

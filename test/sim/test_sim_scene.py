@@ -81,3 +81,12 @@ def test_a_misspelt_hook_fails_loudly():
     with pytest.raises(TypeError, match=r"'misspelt': hooks \['on_taxelforce'\] name no stage"):
         Pipeline([Misspelt()])
     assert Pipeline([cls() for cls in EFFECTS.values()]).effects   # every shipped hook is known
+
+
+def test_a_press_tour_names_arrays_and_starts_with_its_array(tmp_path):
+    tour = load_scene('press_tour')
+    assert tour.array == tour.press_tour[0] and len(tour.press_tour) == 18
+    with pytest.raises(SceneError, match='"press_tour"'):
+        load_scene(write(tmp_path, 'extends: press_tour\npress_tour: index_tip\n'))
+    with pytest.raises(SceneError, match='"array" must be the first'):
+        load_scene(write(tmp_path, 'extends: press_tour\narray: palm_center\n'))

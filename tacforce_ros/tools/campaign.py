@@ -11,8 +11,9 @@
     campaign run FOLDER --sim
         records every due session in the simulator (the operator model presses unattended) and
         judges it; a session judged poor is recorded again with the next seed (at most
-        SIM_ROUNDS rounds). An interrupted run leaves FOLDER/<session>.partial, removed by the
-        next run; finished sessions are never recorded again.
+        SIM_ROUNDS rounds). A session is recorded in FOLDER/.recording/ and moved into FOLDER
+        when its bag is closed: an interrupted run leaves it there, and the next run removes it
+        and records it again; finished sessions are never recorded again.
 
 Then: `train FOLDER --out MODELS` trains every array of the campaign.
 """
@@ -33,7 +34,7 @@ from tacforce_ros.recording.campaign import Campaign, CampaignError, CampaignPla
 from tacforce_ros.sim.scene import calibration_scene_name, load_scene
 
 TRAINING_PLATES = ('button', 'flat', 'fillet', 'convex', 'edge')   # spherical: held out (paper)
-PARTIAL = '.partial'
+RECORDING = '.recording'     # sessions being recorded; moved up into the campaign when closed
 # A simulated session whose coverage is poor is recorded again with the next seed; a scene
 # that cannot meet the limits at all stops after this many rounds instead of running on.
 SIM_ROUNDS = 3
@@ -105,8 +106,8 @@ def cmd_run(args) -> int:
     from tacforce_ros.recording.sim_session import record_session
     campaign = Campaign(args.folder)
     plan = campaign.plan
-    for stale in campaign.folder.glob(f'*{PARTIAL}'):
-        shutil.rmtree(stale)          # a session interrupted while recording: recorded again
+    recording = campaign.folder / RECORDING
+    shutil.rmtree(recording, ignore_errors=True)   # sessions interrupted: recorded again
     hand, kinematics = _hand_and_kinematics(plan.hand_side)
     records, due = _status(campaign, hand, kinematics)
     for _ in range(SIM_ROUNDS):
@@ -116,10 +117,9 @@ def cmd_run(args) -> int:
             calibration_scene_name(slot.array, slot.plate)).tactile_rate)) for slot in due)
         with tqdm(total=steps, unit='step', desc=f'campaign ({len(due)} due)') as progress:
             for slot in due:
-                partial = campaign.folder / f'{slot.name}{PARTIAL}'
-                record_session(partial, hand, slot.array, slot.plate, slot.index, plan.seconds,
-                               plan.seed, progress)
-                partial.rename(campaign.folder / slot.name)
+                bag = record_session(recording / slot.name, hand, slot.array, slot.plate,
+                                     slot.index, plan.seconds, plan.seed, progress)
+                bag.rename(campaign.folder / slot.name)
         records, due = _status(campaign, hand, kinematics)
     _print_due(campaign, records, due)
     if due:

@@ -46,13 +46,13 @@ def test_an_interrupted_campaign_resumes_and_records_only_what_is_missing(tmp_pa
     deadline = time.monotonic() + 120.0
     try:
         # Killed (no chance to clean up) while its second session records.
-        while time.monotonic() < deadline and not (folder / 'index_middle_edge_s0.partial'
+        while time.monotonic() < deadline and not (folder / '.recording' / 'index_middle_edge_s0'
                                                    ).is_dir():
             time.sleep(0.02)
     finally:
         first.send_signal(signal.SIGKILL)
         first.wait(timeout=30)
-    assert (folder / 'index_middle_edge_s0.partial').is_dir(), 'never reached the 2nd session'
+    assert (folder / '.recording' / 'index_middle_edge_s0').is_dir(), 'never reached session 2'
     finished = {p.name: os.stat(p / 'metadata.yaml').st_mtime_ns
                 for p in Campaign(folder).bags()}
     assert 1 <= len(finished) < 4
@@ -62,7 +62,7 @@ def test_an_interrupted_campaign_resumes_and_records_only_what_is_missing(tmp_pa
     bags = {p.name: os.stat(p / 'metadata.yaml').st_mtime_ns for p in campaign.bags()}
     assert sorted(bags) == sorted(SessionSlot(a, p, 0).name for a in ARRAYS for p in PLATES)
     assert all(bags[name] == stamp for name, stamp in finished.items())    # not recorded again
-    assert not list(folder.glob('*.partial'))
+    assert not (folder / '.recording').exists() or not any((folder / '.recording').iterdir())
     records = campaign.check(*campaign_tool._hand_and_kinematics('right'))
     assert campaign.due(records) == [] and len(campaign.counted_bags(records)) == 4
     verdicts = json.loads((folder / 'verdicts.json').read_text())

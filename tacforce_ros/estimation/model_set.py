@@ -95,6 +95,15 @@ def model_files(path: str | Path) -> dict[str, Path]:
             for name, file in files.items()}
 
 
+def write_model_config(path: str | Path, models: dict[str, str], comment: str = '') -> Path:
+    """A models YAML listing `models` (array -> file, relative to the YAML), with `comment`
+    lines on top."""
+    path = Path(path)
+    head = ''.join(f'# {line}\n' for line in comment.splitlines())
+    path.write_text(head + yaml.safe_dump({'models': models}, sort_keys=False))
+    return path
+
+
 def default_model_config(hand: HandDescription) -> Path:
     """The shipped models YAML of a hand: config/models/default.yaml for the right hand,
     config/models/<side>/default.yaml for another (its models are trained on that hand)."""
@@ -152,6 +161,4 @@ def write_synthetic_model_set(folder: str | Path, hand: HandDescription,
         bundle = fit_bundle(array, 'M3', {}, data.X - rest, data.F, data.plates,
                             x_offset=rest, provenance=provenance)
         models[array.name] = save_model(folder / f'{array.name}_M3.npz', bundle).name
-    path = folder / 'models.yaml'
-    path.write_text(yaml.safe_dump({'models': models}))
-    return path
+    return write_model_config(folder / 'models.yaml', models)

@@ -110,15 +110,8 @@ def static_mask(force: np.ndarray, taxels: np.ndarray, fs: float = SAMPLE_RATE_H
     """
     force = np.asarray(force, dtype=np.float64)
     taxels = np.asarray(taxels, dtype=np.float64)
-    if taxels.ndim != 3 or taxels.shape[2] != 3 or taxels.shape[0] != force.shape[0]:
-        raise ValueError(f'need taxels (N, n, 3) matching force (N, 3), got {taxels.shape} and '
-                         f'{force.shape}')
-    if not 0.0 < rest_share < 0.5:
-        raise ValueError(f'rest_share {rest_share} must lie in (0, 0.5)')
-    released = _released(taxels[:, :, 2].sum(axis=1), rest_share)
+    rest, force_rest = rest_reading(force, taxels, rest_share)
     flat = taxels.reshape(force.shape[0], -1)
-    rest = np.median(flat[released], axis=0)
-    force_rest = np.median(force[released], axis=0)
     activity = np.sqrt(np.mean((flat - rest) ** 2, axis=1))
     candidate = ((np.linalg.norm(force - force_rest, axis=1) < force_threshold)
                  & (activity < activity_threshold))
@@ -129,6 +122,22 @@ def static_mask(force: np.ndarray, taxels: np.ndarray, fs: float = SAMPLE_RATE_H
         if stop - start - 2 * trim >= min_len:
             mask[start + trim:stop - trim] = True
     return mask
+
+
+def rest_reading(force: np.ndarray, taxels: np.ndarray, rest_share: float = 0.1
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """(flat taxel counts, force) of a recording at rest: the medians over its released samples
+    (static_mask says how they are found)."""
+    force = np.asarray(force, dtype=np.float64)
+    taxels = np.asarray(taxels, dtype=np.float64)
+    if taxels.ndim != 3 or taxels.shape[2] != 3 or taxels.shape[0] != force.shape[0]:
+        raise ValueError(f'need taxels (N, n, 3) matching force (N, 3), got {taxels.shape} and '
+                         f'{force.shape}')
+    if not 0.0 < rest_share < 0.5:
+        raise ValueError(f'rest_share {rest_share} must lie in (0, 0.5)')
+    released = _released(taxels[:, :, 2].sum(axis=1), rest_share)
+    return (np.median(taxels.reshape(force.shape[0], -1)[released], axis=0),
+            np.median(force[released], axis=0))
 
 
 def _released(compression: np.ndarray, share: float) -> np.ndarray:

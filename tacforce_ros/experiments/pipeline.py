@@ -35,6 +35,7 @@ from tacforce_ros.estimation.runtime import RuntimeEstimator
 from tacforce_ros.estimation.synthetic import synthetic_hand_estimator
 from tacforce_ros.estimation.training import fit_bundle
 from tacforce_ros.experiments import node_path
+from tacforce_ros.experiments import paper_reference as paper
 from tacforce_ros.experiments.cache import (StageCache, atomic_write, digest, file_digest,
                                             node_modules, scene_digest, source_digest)
 from tacforce_ros.experiments.calibration_data import simulate_calibration
@@ -47,8 +48,8 @@ from tacforce_ros.sim import load_scene
 from tacforce_ros.sim.scene import calibration_scene_name, session_seed
 from tacforce_ros.timing import time_interleaved
 
-PLATES = ('button', 'flat', 'fillet', 'convex', 'edge')      # training plates (paper Fig. 2d)
-HELD_OUT_PLATE = 'spherical'
+PLATES = paper.TRAINING_PLATES
+HELD_OUT_PLATE = paper.HELD_OUT_PLATE
 ARRAYS = ('index_tip', 'index_middle')                       # curved fingertip, flat phalanx
 OBJECTS = ('spherical', 'foam_brick', 'softball', 'abrasive_sponge', 'bleach_cleanser')
 CONTROLLERS = ('open_loop', 'M3-lambda', 'M4')               # Table III rows
@@ -84,12 +85,16 @@ class Settings:
     # (estimation/preprocessing.py static_mask), so its un-zeroed bias does not matter.
     static_force: float = 0.3
     node_path: bool = True
+    # The whole-hand campaign (every other array, M3-lambda): one session per training plate,
+    # this long; sized for the main job's budget (the Table I arrays have the paper's sizes).
+    whole_hand_seconds: float = 30.0
 
     @classmethod
     def quick(cls) -> Settings:
         """Small sizes for tests: every stage runs, on less data and fewer runs."""
         return cls(sessions_per_plate=1, session_seconds=20.0, online_seconds=20.0, epochs=1,
-                   timing_repeats=100, objects=('spherical',), repeats=1, node_path=False)
+                   timing_repeats=100, objects=('spherical',), repeats=1, node_path=False,
+                   whole_hand_seconds=20.0)
 
 
 @dataclass
@@ -272,22 +277,29 @@ def _training_key(paths: list[str], label: str, settings: Settings) -> str:
                    'code': source_digest(cross_validate, fit_bundle)})
 
 
+def training_sets(ctx: Context, title: str, sessions: dict[str, list[str]]) -> dict[str, str]:
+    """{array: training set path} from {array: session dataset paths}, made where not cached."""
+    static_force = ctx.settings.static_force
+    sets, jobs = {}, []
+    for array, paths in sessions.items():
+        key = digest({'data': sorted(Path(p).stem for p in paths),
+                      'static_force': static_force, 'code': source_digest(concatenate)})
+        sets[array] = str(ctx.cache.path('training_set', key, '.npz'))
+        if ctx.cache.lookup('training_set', key, '.npz') is None:
+            Path(sets[array]).parent.mkdir(parents=True, exist_ok=True)
+            jobs.append((array, job_training_set, (paths, static_force, sets[array])))
+    run_units(ctx, title, jobs)
+    return sets
+
+
 def benchmark_stage(ctx: Context, layout: dict) -> tuple[dict, dict]:
     """Table I: leave-one-plate-out CV per array and model; final models on all five plates.
 
     Returns ({array: {label: cv summary}}, {array: {label: model path}}).
     """
     s = ctx.settings
-    sets, set_jobs = {}, []
-    for array in ARRAYS:
-        paths = [p for plate in PLATES for p in layout[array][plate]]
-        key = digest({'data': sorted(Path(p).stem for p in paths),
-                      'static_force': s.static_force, 'code': source_digest(concatenate)})
-        sets[array] = str(ctx.cache.path('training_set', key, '.npz'))
-        if ctx.cache.lookup('training_set', key, '.npz') is None:
-            Path(sets[array]).parent.mkdir(parents=True, exist_ok=True)
-            set_jobs.append((array, job_training_set, (paths, s.static_force, sets[array])))
-    run_units(ctx, 'training sets', set_jobs)
+    sets = training_sets(ctx, 'training sets', {
+        array: [p for plate in PLATES for p in layout[array][plate]] for array in ARRAYS})
     cv_jobs, fit_jobs, cv, models, keys = [], [], {}, {}, {}
     for array in ARRAYS:
         paths = [p for plate in PLATES for p in layout[array][plate]]
@@ -325,6 +337,50 @@ def benchmark_stage(ctx: Context, layout: dict) -> tuple[dict, dict]:
             cv.setdefault(array, {})[label] = value
     # Rows in the settings' model order, whatever order the units finished in.
     return {a: {label: cv[a][label] for label in s.models} for a in ARRAYS}, models
+
+
+WHOLE_HAND_MODEL = 'M3-lambda'
+
+
+def whole_hand_stage(ctx: Context, cv: dict) -> dict:
+    """The whole-hand campaign: every array not in Table I, one session per training plate of
+    `whole_hand_seconds`, M3-lambda leave-one-plate-out; the Table I arrays keep their rows.
+    Returns {array: {'type', 'sessions', 'seconds', 'cv'}} in hand order."""
+    s = ctx.settings
+    hand, _ = _hand()
+    others = [a.name for a in hand.arrays if a.name not in ARRAYS]
+    jobs, layout = [], {}
+    for array in others:
+        for plate in PLATES:
+            path, job = calibration_unit(ctx, array, plate, 0, s.whole_hand_seconds)
+            layout.setdefault(array, []).append(path)
+            jobs += [job] if job is not None else []
+    ctx.log(f'stage whole hand: {len(others)} arrays x {len(PLATES)} plates, {len(jobs)} '
+            'sessions to simulate')
+    run_units(ctx, 'whole-hand sessions', jobs)
+    sets = training_sets(ctx, 'whole-hand training sets', layout)
+    kind, hyper = model_hyper(WHOLE_HAND_MODEL, s)
+    results, cv_jobs, keys = {}, [], {}
+    for array, paths in layout.items():
+        keys[array] = _training_key(paths, WHOLE_HAND_MODEL, s)
+        cached = ctx.cache.load_json('cross_validation', keys[array])
+        if cached is None:
+            cv_jobs.append((array, job_cross_validation, (array, kind, hyper, sets[array])))
+        else:
+            results[array] = cached
+    for array, value in run_units(ctx, 'whole-hand cross-validations', cv_jobs).items():
+        ctx.cache.store_json('cross_validation', keys[array], value)
+        results[array] = value
+    rows = {}
+    for array in hand.arrays:
+        if array.name in ARRAYS:
+            rows[array.name] = {'type': array.kind, 'sessions': s.sessions_per_plate,
+                                'seconds': s.session_seconds,
+                                'cv': cv[array.name][WHOLE_HAND_MODEL]}
+        else:
+            rows[array.name] = {'type': array.kind, 'sessions': 1,
+                                'seconds': s.whole_hand_seconds, 'cv': results[array.name]}
+    return rows
 
 
 def timing_stage(ctx: Context, models: dict) -> dict:
@@ -581,7 +637,7 @@ def node_path_stage(ctx: Context, models: dict) -> dict:
     if not s.node_path:
         return {'ran': False, 'reason': 'switched off for this run (--quick or --no-node-path)'}
     hand, kinematics = _hand()
-    calibration_scene = f'calibration_index_tip_{HELD_OUT_PLATE}'
+    calibration_scene = calibration_scene_name('index_tip', HELD_OUT_PLATE)
     loop_scene = 'closed_loop_spherical'
     model = models['index_tip']['M3-lambda']
     key = digest({'scenes': [scene_digest(calibration_scene), scene_digest(loop_scene)],

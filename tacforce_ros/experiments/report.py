@@ -11,6 +11,7 @@ import statistics
 from typing import Any
 
 from tacforce_ros.experiments import paper_reference as paper
+from tacforce_ros.hand.description import ARRAY_KIND_TITLES
 
 MODEL_NAMES = {'M3-lambda': 'M3λ', 'M3-lambda-cv': 'M3λ (nested-CV λ)', 'open_loop': 'O.L.'}
 ARRAY_TITLES = {'index_tip': 'Curved array (index_tip)',
@@ -199,6 +200,29 @@ def _sim_paper(sim_mean, sim_std, ref: tuple | None, digits: int) -> list[str]:
     return [cell(sim_mean, sim_std, digits), cell(ref[0], ref[1], digits)]
 
 
+def whole_hand_section(rows: dict, settings: dict) -> list[str]:
+    lines = ['## Whole hand — M3λ on every array, 5-fold leave-one-plate-out', '',
+             f"Every array pressed on the five training plates: the Table I arrays at the sizes "
+             f"above, the others {settings['whole_hand_seconds']:g} s per plate (one session). "
+             'Figure: whole_hand.png.', '',
+             '| array | data | e_r [%] sim | e_hat [N] sim | MAE x / y / z [N] |',
+             '|---|---|---|---|---|']
+    for group, title in ARRAY_KIND_TITLES.items():
+        members = {a: r for a, r in rows.items() if r['type'] == group}
+        if not members:
+            continue
+        e_hat = [r['cv']['e_hat_mean'] for r in members.values()]
+        lines.append(f'| **{title}** ({len(members)}; mean e_hat '
+                     f'{statistics.mean(e_hat):.3f}) | | | | |')
+        for array, r in members.items():
+            cv = r['cv']
+            lines.append(f"| {array} | {r['sessions']} x {r['seconds']:g} s per plate | "
+                         f"{cell(_percent(cv['e_r_mean']), _percent(cv['e_r_std']), 1)} | "
+                         f"{cell(cv['e_hat_mean'], cv['e_hat_std'], 3)} | "
+                         + ' / '.join(f'{v:.3f}' for v in cv['mae_axis']) + ' |')
+    return lines + ['']
+
+
 def markdown(doc: dict) -> str:
     s, run = doc['settings'], doc['run']
     lines = ['# Reproduction of the paper\'s experiments — SIMULATION', '',
@@ -244,6 +268,7 @@ def markdown(doc: dict) -> str:
                    cell(sim['tau_full_hand_ms'], digits=3)]) + ' |')
         lines.append('')
 
+    lines += whole_hand_section(doc['whole_hand'], s)
     lines += ['## Table II — online test, index fingertip on the held-out spherical plate', '',
               f"Models retrained on all five training plates; {doc['online']['samples']} samples "
               f"({doc['online']['seconds']:.0f} s). Last column: the same models on their own "

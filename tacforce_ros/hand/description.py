@@ -16,6 +16,8 @@ import yaml
 from tacforce_ros.paths import config_dir
 
 KINDS = ('fingertip', 'phalanx', 'palm')
+ARRAY_KIND_TITLES = {'fingertip': 'curved fingertips', 'phalanx': 'flat phalanx pads',
+                     'palm': 'palm pads'}
 FINGERS = ('index', 'middle', 'ring', 'thumb')
 SIDES = ('right', 'left')
 DEFAULT_SIDE = 'right'     # the first hand described: a file that names no hand is of it

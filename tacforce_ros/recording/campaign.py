@@ -16,6 +16,7 @@ is moved to `rejected/` (kept, not counted) and its session is due again. Pure P
 from __future__ import annotations
 
 import json
+import re
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -23,7 +24,7 @@ import numpy as np
 import yaml
 
 from tacforce_ros.estimation.dataset import CalibrationDataset
-from tacforce_ros.estimation.preprocessing import static_mask, true_runs
+from tacforce_ros.estimation.preprocessing import rest_reading, static_mask, true_runs
 
 PLAN_FILE = 'campaign.yaml'
 VERDICTS_FILE = 'verdicts.json'
@@ -62,12 +63,13 @@ class Coverage:
         return not self.problems
 
 
-def session_coverage(dataset: CalibrationDataset, limits: CoverageLimits = CoverageLimits(),
-                     **static_kw) -> Coverage:
-    """Force range, shear directions and rests of one session (force in the array frame)."""
+def session_coverage(dataset: CalibrationDataset, limits: CoverageLimits = CoverageLimits()
+                     ) -> Coverage:
+    """Force range, shear directions and rests of one session (force in the array frame, from
+    the session's own rest reading: the F/T is not zeroed)."""
     force = np.asarray(dataset.F, np.float64)
-    rests = len(true_runs(static_mask(force, dataset.X, **static_kw)))
-    pressed = force - np.median(force, axis=0)
+    rests = len(true_runs(static_mask(force, dataset.X)))
+    pressed = force - rest_reading(force, dataset.X)[1]
     peak = float(np.linalg.norm(pressed, axis=1).max(initial=0.0))
     tangential = pressed[:, :2]
     shearing = np.linalg.norm(tangential, axis=1) >= limits.shear_force
@@ -140,7 +142,9 @@ class CampaignPlan:
             raise CampaignError(f'{folder}: not a campaign (no {PLAN_FILE}; make one with '
                                 '`campaign plan`)')
         try:
-            raw = yaml.safe_load(path.read_text()) or {}
+            raw = yaml.safe_load(path.read_text())
+            if not isinstance(raw, dict):
+                raise TypeError('the top level is not a mapping')
             limits = CoverageLimits(**(raw.pop('limits', None) or {}))
             return cls(**{**raw, 'arrays': tuple(raw['arrays']), 'plates': tuple(raw['plates']),
                           'limits': limits})
@@ -169,7 +173,10 @@ class Campaign:
         self._verdicts: dict[str, dict] = {}
         verdicts = self.folder / VERDICTS_FILE
         if verdicts.is_file():
-            self._verdicts = json.loads(verdicts.read_text())
+            try:
+                self._verdicts = json.loads(verdicts.read_text())
+            except ValueError:
+                pass        # judged again: the bags are what counts, not the file
 
     @classmethod
     def create(cls, folder: str | Path, plan: CampaignPlan) -> Campaign:
@@ -184,36 +191,56 @@ class Campaign:
         return cls(folder)
 
     def bags(self) -> list[Path]:
-        """Bag folders directly inside the campaign folder (in progress ones excluded)."""
+        """Bag folders directly inside the campaign folder (a lab bag still being recorded is
+        among them: it fails to read until closed, and is judged then)."""
         return sorted(p for p in self.folder.iterdir()
                       if p.is_dir() and (p / 'metadata.yaml').is_file())
 
-    def check(self, hand, kinematics, progress=None) -> list[SessionRecord]:
-        """Read every bag not yet judged, judge its coverage, move a poor one to rejected/.
-        Returns the records of the bags that count."""
+    def check(self, hand, kinematics, progress=None, write: bool = True
+              ) -> list[SessionRecord]:
+        """Judge every bag not yet judged (a verdict holds for the bag as it was, under the
+        plan's limits); with `write`, move a poor one to rejected/ and keep the verdicts.
+        Returns the records of the bags that count. A bag that does not read is reported
+        through `progress(name, None, reason)` and left alone."""
+        from tacforce_ros.bagio import BagError
         from tacforce_ros.estimation.bag_dataset import dataset_from_bag
+        from tacforce_ros.estimation.dataset import DatasetError
 
-        records = []
-        for bag in self.bags():
-            verdict = self._verdicts.get(bag.name)
-            if verdict is None:
-                dataset, _ = dataset_from_bag(bag, hand, kinematics)
-                if dataset.hand_side != self.plan.hand_side:
-                    raise CampaignError(f'{bag}: a bag of the {dataset.hand_side} hand in a '
-                                        f'campaign of the {self.plan.hand_side} hand')
-                coverage = session_coverage(dataset, self.plan.limits)
-                verdict = {'array': dataset.array, 'plate': dataset.plate_names()[0],
-                           'coverage': asdict(coverage)}
-                if progress is not None:
-                    progress(bag.name, coverage)
-            record = SessionRecord(bag.name, verdict['array'], verdict['plate'],
-                                   verdict['coverage'])
-            if record.ok:
-                self._verdicts[bag.name] = verdict
-                records.append(record)
-            else:
-                self._reject(bag, verdict)
-        self._save_verdicts()
+        limits = asdict(self.plan.limits)
+        records, verdicts = [], {}
+        try:
+            for bag in self.bags():
+                stamp = (bag / 'metadata.yaml').stat().st_mtime_ns
+                verdict = self._verdicts.get(bag.name)
+                if verdict is None or verdict.get('stamp') != stamp \
+                        or verdict.get('limits') != limits:
+                    try:
+                        dataset, _ = dataset_from_bag(bag, hand, kinematics)
+                    except (BagError, DatasetError, ValueError, KeyError, OSError) as exc:
+                        if progress is not None:
+                            progress(bag.name, None, f'not counted, does not read: {exc}')
+                        continue
+                    if dataset.hand_side != self.plan.hand_side:
+                        if progress is not None:
+                            progress(bag.name, None, f'not counted: a bag of the '
+                                     f'{dataset.hand_side} hand')
+                        continue
+                    coverage = session_coverage(dataset, self.plan.limits)
+                    verdict = {'array': dataset.array, 'plate': dataset.plate_names()[0],
+                               'coverage': asdict(coverage), 'stamp': stamp, 'limits': limits}
+                    if progress is not None:
+                        progress(bag.name, coverage, '')
+                record = SessionRecord(bag.name, verdict['array'], verdict['plate'],
+                                       verdict['coverage'])
+                if record.ok:
+                    verdicts[bag.name] = verdict
+                    records.append(record)
+                elif write:
+                    self._reject(bag, verdict)
+        finally:
+            self._verdicts = verdicts
+            if write:
+                self._save_verdicts()
         return records
 
     def _reject(self, bag: Path, verdict: dict) -> None:
@@ -224,7 +251,6 @@ class Campaign:
             target = rejected / f'{bag.name}_{len(list(rejected.iterdir()))}'
         bag.rename(target)
         (target.parent / f'{target.name}.verdict.json').write_text(json.dumps(verdict, indent=2))
-        self._verdicts.pop(bag.name, None)
 
     def _save_verdicts(self) -> None:
         path = self.folder / VERDICTS_FILE
@@ -261,8 +287,13 @@ class Campaign:
         for record in records:
             kept.setdefault((record.array, record.plate), []).append(record.bag)
         return [self.folder / bag for key in sorted(kept)
-                for bag in sorted(kept[key])[:self.plan.sessions]
+                for bag in sorted(kept[key], key=_natural)[:self.plan.sessions]
                 if key[0] in self.plan.arrays and key[1] in self.plan.plates]
+
+
+def _natural(name: str) -> list:
+    """Sort key: digits as numbers (s2 before s10)."""
+    return [int(part) if part.isdigit() else part for part in re.split(r'(\d+)', name)]
 
 
 def is_campaign(path: Path) -> bool:

@@ -16,7 +16,7 @@ from tacforce_ros.sim.contact import Contact
 from tacforce_ros.sim.effects import Pipeline
 from tacforce_ros.sim.operator import OperatorParams, Schedule, draw_schedule
 from tacforce_ros.sim.sample import SimSample, StepState
-from tacforce_ros.sim.scene import Scene
+from tacforce_ros.sim.scene import Scene, session_seed
 from tacforce_ros.sim.sensors import TactileSensor
 
 
@@ -108,20 +108,25 @@ class CalibrationSimulator:
 class PressTour:
     """A calibration scene with `press_tour`: the operator presses each listed array in turn,
     one `duration` block each (starting and ending released), round and round: a check that
-    every array's taxels and topic are where the hand description says. One
-    CalibrationSimulator per array, all of one hand and seed; time runs on across them."""
+    every array's taxels and topic are where the hand description says.
+
+    One CalibrationSimulator per array, each a session of the same hand (sensor_seed) with a
+    seed of its own; the whole hand's readings come from the one pressing, so an untouched
+    array's reading changes at a block boundary by about its noise and drift (each stop's
+    effects advance only while it runs). Time runs on across the stops."""
 
     def __init__(self, scene: Scene, hand: HandDescription, seed: int | None = None) -> None:
         self.scene, self.hand = scene, hand
         self._stops = [CalibrationSimulator(dataclasses.replace(scene, array=name, press_tour=()),
-                                            hand, seed) for name in scene.press_tour]
+                                            hand) for name in scene.press_tour]
         self.dt = self._stops[0].dt
         self.block_steps = self._stops[0].block_steps
-        self.step_index = 0
+        self.reset(seed)
 
     def reset(self, seed: int | None = None) -> None:
+        self.seed = self.scene.seed if seed is None else int(seed)
         for stop in self._stops:
-            stop.reset(seed)
+            stop.reset(session_seed(self.seed, stop.scene.array, self.scene.plate.name, 0))
         self.step_index = 0
 
     def step(self, joint_torques: np.ndarray | None = None) -> SimSample:

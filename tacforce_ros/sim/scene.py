@@ -155,7 +155,7 @@ def _load_raw(path: Path, chain: tuple[Path, ...] = ()) -> dict:
     # A parent next to the file wins; else the shared scenes folder (so a scene kept elsewhere
     # can still extend the project defaults).
     parent_path = path.parent / f'{parent}.yaml'
-    if not parent_path.is_file() and _generated_calibration(parent_path) is None:
+    if not parent_path.is_file():
         parent_path = scenes_dir() / f'{parent}.yaml'
     return _deep_merge(_load_raw(parent_path, chain + (path,)), raw)
 

@@ -23,10 +23,12 @@ import warnings
 
 import numpy as np
 
+from tacforce_ros.experiments import paper_reference as paper
 from tacforce_ros.hand.description import load_hand
 from tacforce_ros.paths import output_file
 from tacforce_ros.sim import list_scenes, load_scene, make_simulator
 from tacforce_ros.sim.effects import EFFECTS
+from tacforce_ros.sim.scene import calibration_scene_name
 
 TARGETS = {'calibration': 50.0, 'closed_loop': 10.0, 'closed_loop_with_control': 15.0}
 LOOP_SEQUENCE = 'paper_70s'
@@ -116,13 +118,16 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--out', type=output_file, help='JSON result file')
     parser.add_argument('--seconds', type=float, default=5.0, help='simulated s per run')
     parser.add_argument('--repeats', type=int, default=2, help='runs per measurement (best)')
-    parser.add_argument('--scenes', nargs='*', help='scene names (default: all)')
+    parser.add_argument('--scenes', nargs='*', help='scene names (default: the calibration '
+                        'scenes of the Table I arrays on every plate, and every scene file)')
     parser.add_argument('--loop-seconds', type=float, default=25.0,
                         help='seconds of the paper sequence played with the loop closed '
                         '(default 25: the first 9 s in contact); 0 = skip')
     args = parser.parse_args(argv)
     hand = load_hand()
-    scenes = args.scenes or list_scenes()
+    scenes = args.scenes or [
+        calibration_scene_name(array, plate) for array in paper.TABLE_I
+        for plate in (*paper.TRAINING_PLATES, paper.HELD_OUT_PLATE)] + list_scenes()
     result = {'seconds': args.seconds, 'loop_seconds': args.loop_seconds,
               'repeats': args.repeats, 'targets': TARGETS, 'load_before': os.getloadavg(),
               'scenes': {}, 'effects': {}}

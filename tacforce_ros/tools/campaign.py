@@ -28,12 +28,12 @@ from tqdm import tqdm
 
 from tacforce_ros import bagio
 from tacforce_ros.estimation.dataset import DatasetError
+from tacforce_ros.experiments.paper_reference import TRAINING_PLATES
 from tacforce_ros.estimation.preprocessing import StaticSegmentError
 from tacforce_ros.hand.description import SIDES, hand_config, load_hand
 from tacforce_ros.recording.campaign import Campaign, CampaignError, CampaignPlan, SessionSlot
-from tacforce_ros.sim.scene import calibration_scene_name, load_scene
+from tacforce_ros.sim.scene import SceneError, calibration_scene_name, load_scene
 
-TRAINING_PLATES = ('button', 'flat', 'fillet', 'convex', 'edge')   # spherical: held out (paper)
 RECORDING = '.recording'     # sessions being recorded; moved up into the campaign when closed
 # A simulated session whose coverage is poor is recorded again with the next seed; a scene
 # that cannot meet the limits at all stops after this many rounds instead of running on.
@@ -46,7 +46,10 @@ def _hand_and_kinematics(side: str):
     return hand, HandKinematics(hand.urdf_path)
 
 
-def _say_verdict(name: str, coverage) -> None:
+def _say_verdict(name: str, coverage, reason: str) -> None:
+    if coverage is None:
+        tqdm.write(f'{name}: {reason}')
+        return
     verdict = 'ok' if coverage.ok else 'REDO: ' + '; '.join(coverage.problems)
     tqdm.write(f'{name}: peak {coverage.peak_force:.2f} N, shear in {coverage.shear_sectors} '
                f'directions, {coverage.rests} rests -> {verdict}')
@@ -69,8 +72,9 @@ def _print_due(campaign: Campaign, records: list, due: list[SessionSlot]) -> Non
     print(f'{len(due)} due, about {minutes:.0f} min of operator time; next:')
     for slot in due[:5]:
         print(f'  press {slot.array} on the {slot.plate} plate ({plan.seconds:.0f} s): '
-              f'ros2 launch tacforce_ros calibration.launch.py array:={slot.array} '
-              f'plate:={slot.plate} out:={campaign.folder}')
+              f'ros2 launch tacforce_ros calibration.launch.py sim:=false '
+              f'hand_side:={plan.hand_side} array:={slot.array} plate:={slot.plate} '
+              f'out:={campaign.folder}')
 
 
 def cmd_plan(args) -> int:
@@ -80,6 +84,8 @@ def cmd_plan(args) -> int:
     if unknown:
         print(f'campaign: not arrays of the hand: {unknown}', file=sys.stderr)
         return 2
+    for plate in args.plates:       # a plate the rig has: its calibration scene exists
+        load_scene(calibration_scene_name(arrays[0], plate))
     plan = CampaignPlan(hand_side=hand.side, arrays=arrays, plates=tuple(args.plates),
                         sessions=args.sessions, seconds=args.seconds, seed=args.seed)
     campaign = Campaign.create(args.folder, plan)
@@ -154,7 +160,8 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     try:
         return args.run(args)
-    except (CampaignError, DatasetError, StaticSegmentError, bagio.BagError, OSError) as exc:
+    except (CampaignError, SceneError, DatasetError, StaticSegmentError, bagio.BagError,
+            OSError) as exc:
         print(f'campaign: {exc}', file=sys.stderr)
         return 2
 

@@ -55,10 +55,16 @@ def code_version() -> str:
     return git_version()
 
 
-def figures(out: Path, cv: dict, table_i: dict, end_to_end: dict, traces: dict) -> list[str]:
+def figures(out: Path, cv: dict, table_i: dict, end_to_end: dict, traces: dict,
+            whole_hand: dict) -> list[str]:
     from tacforce_ros.experiments import plots
+    from tacforce_ros.hand.description import load_hand
     names = [plots.accuracy_vs_time(table_i, end_to_end, out / 'accuracy_vs_time.png').name,
-             plots.per_plate_errors(cv, out / 'per_plate_errors.png').name]
+             plots.per_plate_errors(cv, out / 'per_plate_errors.png').name,
+             plots.hand_errors(load_hand(), {a: row['cv']['e_hat_mean']
+                                             for a, row in whole_hand.items()},
+                               f'SIMULATION, {pipeline.WHOLE_HAND_MODEL}: held-out e_hat [N]',
+                               out / 'whole_hand.png').name]
     by_object: dict[str, dict] = {}
     for (obj, controller), paths in traces.items():
         by_object.setdefault(obj, {})[controller] = [pipeline.load_trace(p) for p in paths]
@@ -78,6 +84,7 @@ def run(settings: pipeline.Settings, out: Path, jobs: int) -> dict:
                                log=lambda line: print(line, file=sys.stderr, flush=True))
         layout = pipeline.calibration_stage(ctx)
         cv, models = pipeline.benchmark_stage(ctx, layout)
+        whole_hand = pipeline.whole_hand_stage(ctx, cv)
         timing = pipeline.timing_stage(ctx, models)
         online = pipeline.online_stage(ctx, layout, models)
         end_to_end = pipeline.end_to_end_stage(ctx, layout, models, timing,
@@ -101,9 +108,9 @@ def run(settings: pipeline.Settings, out: Path, jobs: int) -> dict:
         'table_I': table_i, 'online': online,
         'table_II': report.table_ii(online), 'end_to_end': end_to_end, 'table_III': rows,
         'filter_closed_loop': filter_effect,
-        'must_show': report.must_show(rows), 'node_path': node,
+        'must_show': report.must_show(rows), 'node_path': node, 'whole_hand': whole_hand,
         'node_tolerance_reason': NODE_TOLERANCE_REASON,
-        'figures': figures(out, cv, table_i, end_to_end, traces),
+        'figures': figures(out, cv, table_i, end_to_end, traces, whole_hand),
     }
     # What differs between two runs of the same inputs lives under 'run' only.
     doc['run'] = {'date': time.strftime('%Y-%m-%dT%H:%M:%S%z'), 'code_version': code_version(),

@@ -21,23 +21,21 @@ import time
 from collections import defaultdict
 from pathlib import Path
 
-import yaml
 from tqdm import tqdm
 
 from tacforce_ros.estimation.cross_validation import cross_validate
 from tacforce_ros.estimation.dataset import CalibrationDataset, DatasetError, concatenate
 from tacforce_ros.estimation.m3_lambda import DEFAULT_GRID
 from tacforce_ros.estimation.model_io import save_model
+from tacforce_ros.estimation.model_set import write_model_config
 from tacforce_ros.estimation.preprocessing import StaticSegmentError
 from tacforce_ros.estimation.registry import MODEL_KINDS
 from tacforce_ros.estimation.training import fit_bundle
-from tacforce_ros.hand.description import (DEFAULT_SIDE, SIDES, HandDescription, hand_config,
-                                           load_hand, side_of)
+from tacforce_ros.hand.description import (ARRAY_KIND_TITLES, DEFAULT_SIDE, SIDES,
+                                           HandDescription, hand_config, load_hand, side_of)
 from tacforce_ros.paths import output_folder
 
 RANDOM_KINDS = ('M4', 'M5')     # trained from a random initialisation: they take a seed
-ARRAY_GROUPS = {'fingertip': 'curved fingertips', 'phalanx': 'flat phalanx pads',
-                'palm': 'palm pads'}
 
 
 def code_version() -> str:
@@ -75,11 +73,15 @@ def expand_campaigns(paths: list[Path]) -> list[Path]:
             continue
         campaign = Campaign(path)
         hand = load_hand(hand_config(campaign.plan.hand_side))
-        records = campaign.check(hand, HandKinematics(hand.urdf_path))
+        # Judged as `campaign status` judges, but the campaign is left as it is.
+        records = campaign.check(hand, HandKinematics(hand.urdf_path), write=False)
         due = campaign.due(records)
         if due:
             print(f'train: campaign {path} is missing {len(due)} sessions (`campaign status '
                   f'{path}`); training on what it has', file=sys.stderr)
+        if not records:
+            raise ValueError(f'campaign {path} has no bag that counts yet (`campaign status '
+                             f'{path}`)')
         expanded += campaign.counted_bags(records)
     return expanded
 
@@ -118,7 +120,7 @@ def markdown_report(report: dict) -> str:
              'leave-one-plate-out benchmark', '',
              '| array | kind | plates | samples | e_r [%] | e_hat [N] | MAE x/y/z [N] | file |',
              '|---|---|---|---|---|---|---|---|']
-    for group, title in ARRAY_GROUPS.items():
+    for group, title in ARRAY_KIND_TITLES.items():
         entries = [e for e in report['models'] if e['array_type'] == group]
         if entries:
             lines.append(f'| **{title}** ({len({e["array"] for e in entries})}) '
@@ -132,11 +134,10 @@ def write_model_lists(folder: Path, report: dict) -> list[Path]:
     paths = []
     for kind in sorted({e['kind'] for e in report['models']}):
         models = {e['array']: e['file'] for e in report['models'] if e['kind'] == kind}
-        path = folder / f'models_{kind}.yaml'
-        path.write_text(f"# {kind} for {len(models)} arrays of the {report['hand_side']} hand: "
-                        f"train, code {report['code_version']}, {report['date']}\n"
-                        + yaml.safe_dump({'models': models}, sort_keys=False))
-        paths.append(path)
+        paths.append(write_model_config(
+            folder / f'models_{kind}.yaml', models,
+            f"{kind} for {len(models)} arrays of the {report['hand_side']} hand: train, code "
+            f"{report['code_version']}, {report['date']}"))
     return paths
 
 

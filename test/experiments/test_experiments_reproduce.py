@@ -171,7 +171,7 @@ def test_report_holds_every_stage_and_labels_it_simulation(runs):
 def test_figures_are_png_images(runs):
     import matplotlib.image
     out, doc, _, _ = runs
-    assert len(doc['figures']) == 2 + len(doc['settings']['objects'])
+    assert len(doc['figures']) == 3 + len(doc['settings']['objects'])
     for name in doc['figures']:
         path = out / name
         assert path.read_bytes()[:8] == b'\x89PNG\r\n\x1a\n', name
@@ -185,3 +185,25 @@ def test_second_run_comes_from_the_cache_with_the_same_results(runs):
     assert second['run']['cache']['misses'] == 0 and second['run']['cache']['hits'] > 0
     assert {k: v for k, v in first.items() if k != 'run'} == \
         {k: v for k, v in second.items() if k != 'run'}
+
+
+def test_the_whole_hand_section_shows_every_array_s_held_out_error(runs):
+    out, doc, md, second = runs
+    from tacforce_ros.hand.description import load_hand
+    hand = load_hand()
+    rows = doc['whole_hand']
+    assert list(rows) == [a.name for a in hand.arrays]
+    assert {r['type'] for r in rows.values()} == {'fingertip', 'phalanx', 'palm'}
+    for name, row in rows.items():
+        assert row['cv']['folds'] == 5 and 0.0 < row['cv']['e_hat_mean'] < 2.0, name
+    # The Table I arrays carry their Table I row; the others their own short sessions.
+    assert rows['index_tip']['cv']['e_hat_mean'] == doc['table_I']['index_tip']['M3-lambda'][
+        'sim']['e_hat']
+    assert rows['palm_center']['seconds'] == doc['settings']['whole_hand_seconds']
+    shown = {r[0]: r for r in next(v for h, v in tables(md).items()
+                                   if h.startswith('Whole hand')) if not r[0].startswith('**')}
+    assert set(shown) == set(rows)
+    for name, row in rows.items():
+        assert_shows(shown[name][3], row['cv']['e_hat_mean'], row['cv']['e_hat_std'], 3)
+    assert (out / 'whole_hand.png').read_bytes()[:8] == b'\x89PNG\r\n\x1a\n'
+    assert second['whole_hand'] == rows               # from the cache, the same

@@ -1,5 +1,5 @@
-"""The estimation graph over DDS in simulation: sim_world -> xela_driver -> estimator (a model on
-every array) -> force_controller -> allegro_driver.
+"""The estimation graph over DDS in simulation: sim_world -> xela_driver -> estimator (the
+shipped default models: one on every array) -> force_controller -> allegro_driver.
 
 * a third-party subscriber sees the 18 per-array WrenchStamped topics at 100 Hz, in the array
   frames;
@@ -19,14 +19,14 @@ from geometry_msgs.msg import Vector3Stamped, WrenchStamped
 from std_srvs.srv import SetBool
 from tacforce_msgs.msg import ControllerState, ForceEstimateArray, TactileHand
 
+from tacforce_ros.estimation.model_set import default_model_config, model_files
 from tacforce_ros.hand.description import load_hand
 from tacforce_ros.nodes.common import publisher_qos, subscriber_qos
 from tacforce_ros.nodes.messages import stamp_ns
-from tacforce_ros.paths import config_dir
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from graph_support import (Graph, graph_nodes, session_args, synthetic_model_set,  # noqa: E402
-                           unique_domain_id, wait_until, wait_while_progressing, with_overrides)
+from graph_support import (Graph, graph_nodes, session_args, unique_domain_id,  # noqa: E402
+                           wait_until, wait_while_progressing)
 
 pytestmark = pytest.mark.ros
 DOMAIN = unique_domain_id(offset=83)
@@ -46,10 +46,8 @@ def hand():
 @pytest.fixture(scope='module')
 def graph(tmp_path_factory, hand):
     folder = tmp_path_factory.mktemp('graph')
-    models = synthetic_model_set(folder / 'models', hand, use={
-        'index_tip': config_dir() / 'models' / 'index_tip_M3-lambda.npz'})
+    assert sorted(model_files(default_model_config(hand))) == sorted(a.name for a in hand.arrays)
     nodes = [n for n in graph_nodes(session_args('closed_loop', offset=1)) if n.executable in NODES]
-    nodes = with_overrides(nodes, estimator={'model_config': str(models)})
     running = Graph(nodes, DOMAIN, folder / 'logs')
     rclpy.init(domain_id=DOMAIN)
     node = rclpy.create_node('estimator_graph_probe')

@@ -90,3 +90,49 @@ def test_a_session_with_poor_coverage_is_kept_aside_and_recorded_again(tmp_path,
     verdict = json.loads((folder / 'rejected' / 'index_middle_flat_s0.verdict.json').read_text())
     assert any('let go between presses' in p for p in verdict['coverage']['problems'])
     assert Campaign(folder).bags() == []
+
+
+def test_bags_count_by_their_metadata_whatever_their_names(tmp_path):
+    """Lab recorder names (<date>_<array>_<plate>) count like sim_record's; of more bags than
+    planned the first by natural order count (s2 before s10); a verdict is judged again when
+    its bag changes."""
+    from tacforce_ros.recording.sim_session import record_session
+    folder = tmp_path / 'c'
+    campaign = make(folder, arrays=('index_middle',), plates=('flat',))
+    hand, kinematics = campaign_tool._hand_and_kinematics('right')
+    for name, session in (('20261125_101010_index_middle_flat', 0), ('x_s10', 1), ('x_s2', 2)):
+        record_session(folder / name, hand, 'index_middle', 'flat', session, 20.0, 4,
+                       _Silent())
+    records = campaign.check(hand, kinematics)
+    assert len(records) == 3 and campaign.due(records) == []
+    assert [p.name for p in campaign.counted_bags(records)] == [
+        '20261125_101010_index_middle_flat']                 # sessions: 1, natural order
+    stamps = json.loads((folder / 'verdicts.json').read_text())
+    assert set(stamps) == {'20261125_101010_index_middle_flat', 'x_s10', 'x_s2'}
+    # A bag removed: its verdict goes; a new bag under that name is judged, not trusted.
+    import shutil
+    shutil.rmtree(folder / 'x_s2')
+    record_session(folder / 'x_s2', hand, 'palm_center', 'flat', 0, 20.0, 4, _Silent())
+    records = Campaign(folder).check(hand, kinematics)
+    assert {(r.bag, r.array) for r in records} >= {('x_s2', 'palm_center')}
+
+
+def test_the_default_limits_pass_a_paper_session_and_refuse_a_timid_one(tmp_path):
+    from tacforce_ros.experiments.calibration_data import simulate_calibration
+    from tacforce_ros.hand.kinematics import HandKinematics
+    from tacforce_ros.recording.campaign import session_coverage
+    hand = load_hand()
+    kinematics = HandKinematics(hand.urdf_path)
+    full = simulate_calibration(hand, kinematics, 'calibration_index_tip_flat', 1, 100.0)
+    assert session_coverage(full).ok, session_coverage(full)
+    timid = tmp_path / 'timid.yaml'
+    timid.write_text('extends: calibration_index_middle_flat\n'
+                     'operator: {normal_force: [0.3, 1.0], shear_ratio: 0.0}\n')
+    coverage = session_coverage(simulate_calibration(hand, kinematics, str(timid), 1, 100.0))
+    assert [p.split(':')[0] for p in coverage.problems] == [
+        'press harder', 'vary the push direction']
+
+
+class _Silent:
+    def update(self, n):
+        pass

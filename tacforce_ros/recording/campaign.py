@@ -87,6 +87,15 @@ def session_coverage(dataset: CalibrationDataset, limits: CoverageLimits = Cover
     return Coverage(peak, int(sectors), rests, int(force.shape[0]), tuple(problems))
 
 
+def verdict_line(name: str, coverage: Coverage | None, reason: str = '') -> str:
+    """One line on a judged bag (Campaign.check's progress), as the tools print it."""
+    if coverage is None:
+        return f'{name}: {reason}'
+    verdict = 'ok' if coverage.ok else 'REDO: ' + '; '.join(coverage.problems)
+    return (f'{name}: peak {coverage.peak_force:.2f} N, shear in {coverage.shear_sectors} '
+            f'directions, {coverage.rests} rests -> {verdict}')
+
+
 @dataclass(frozen=True)
 class SessionSlot:
     array: str

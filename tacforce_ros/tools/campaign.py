@@ -31,7 +31,8 @@ from tacforce_ros.estimation.dataset import DatasetError
 from tacforce_ros.experiments.paper_reference import TRAINING_PLATES
 from tacforce_ros.estimation.preprocessing import StaticSegmentError
 from tacforce_ros.hand.description import SIDES, hand_config, load_hand
-from tacforce_ros.recording.campaign import Campaign, CampaignError, CampaignPlan, SessionSlot
+from tacforce_ros.recording.campaign import (Campaign, CampaignError, CampaignPlan, SessionSlot,
+                                             verdict_line)
 from tacforce_ros.sim.scene import SceneError, calibration_scene_name, load_scene
 
 RECORDING = '.recording'     # sessions being recorded; moved up into the campaign when closed
@@ -47,12 +48,7 @@ def _hand_and_kinematics(side: str):
 
 
 def _say_verdict(name: str, coverage, reason: str) -> None:
-    if coverage is None:
-        tqdm.write(f'{name}: {reason}')
-        return
-    verdict = 'ok' if coverage.ok else 'REDO: ' + '; '.join(coverage.problems)
-    tqdm.write(f'{name}: peak {coverage.peak_force:.2f} N, shear in {coverage.shear_sectors} '
-               f'directions, {coverage.rests} rests -> {verdict}')
+    tqdm.write(verdict_line(name, coverage, reason))
 
 
 def _status(campaign: Campaign, hand, kinematics) -> tuple[list, list[SessionSlot]]:

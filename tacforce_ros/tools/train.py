@@ -64,7 +64,7 @@ def model_hyper(kind: str, seed: int, lambda_cv: bool, lam: float) -> dict:
 def expand_campaigns(paths: list[Path]) -> list[Path]:
     """Each campaign folder replaced by the bags of it that count; other paths kept."""
     from tacforce_ros.hand.kinematics import HandKinematics
-    from tacforce_ros.recording.campaign import Campaign, is_campaign
+    from tacforce_ros.recording.campaign import Campaign, is_campaign, verdict_line
 
     expanded = []
     for path in paths:
@@ -74,7 +74,9 @@ def expand_campaigns(paths: list[Path]) -> list[Path]:
         campaign = Campaign(path)
         hand = load_hand(hand_config(campaign.plan.hand_side))
         # Judged as `campaign status` judges, but the campaign is left as it is.
-        records = campaign.check(hand, HandKinematics(hand.urdf_path), write=False)
+        records = campaign.check(hand, HandKinematics(hand.urdf_path), write=False,
+                                 progress=lambda *judged: print(verdict_line(*judged),
+                                                                file=sys.stderr))
         due = campaign.due(records)
         if due:
             print(f'train: campaign {path} is missing {len(due)} sessions (`campaign status '

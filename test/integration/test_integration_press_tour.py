@@ -30,6 +30,10 @@ NODES = ('sim_world', 'xela_driver', 'estimator')
 STALLED_AFTER_S = 60.0
 TIMEOUT_S = 900.0
 PRESSED_N = 1.0            # the tour presses 1.5-3 N (config/scenes/press_tour.yaml)
+# What an array not pressed may show: its estimate's noise (peaks of ~0.1 N over a block with
+# the shipped models) and the skin's crosstalk from a press next to it (~0.15 N); a sixth of
+# the weakest press the tour makes.
+ELSEWHERE_N = 0.25
 EDGE_S = 0.3               # judged: each block less this at both ends (stamps, clock offsets)
 
 
@@ -40,8 +44,11 @@ def test_a_press_on_any_array_shows_on_its_own_topic(tmp_path):
     assert sorted(model_files(default_model_config(hand))) == sorted(tour.press_tour)
     nodes = [n for n in graph_nodes(session_args('closed_loop', offset=3))
              if n.executable in NODES]
+    # Free-running simulated time (a calibration scene holds time only for a recorder): a frame
+    # late on a loaded machine is not what this test is about, so staleness waits longer.
     nodes = with_overrides(nodes, sim_world={'scene': 'press_tour', 'lockstep': False,
-                                             'real_time_factor': 2.0})
+                                             'real_time_factor': 2.0},
+                           estimator={'stale_timeout': 0.5})
     lap = tour.duration * len(tour.press_tour)
     forces = {a.name: [] for a in hand.arrays}
     truth, invalid = [], []
@@ -69,13 +76,14 @@ def test_a_press_on_any_array_shows_on_its_own_topic(tmp_path):
     subs.append(node.create_subscription(ForceEstimateArray, '/tactile/estimates', estimates,
                                          subscriber_qos('/tactile/estimates')))
 
-    def first_full_lap():
+    def judged_end():
+        """The end of the first whole tour (every array's topic heard from its start)."""
         starts = [f[0][0] for f in forces.values() if f]
-        return len(starts) == len(forces) and (np.ceil(max(starts) / lap) + 1) * lap
+        return len(starts) == len(forces) and \
+            np.ceil(max(starts) / tour.duration) * tour.duration + lap
     try:
         assert wait_while_progressing(
-            lambda: first_full_lap() and min(f[-1][0] for f in forces.values())
-            > first_full_lap() + 0.5,
+            lambda: judged_end() and min(f[-1][0] for f in forces.values()) > judged_end() + 0.5,
             lambda: sum(len(f) for f in forces.values()), STALLED_AFTER_S, TIMEOUT_S,
             lambda: rclpy.spin_once(node, timeout_sec=0.02)), running.logs()
     finally:
@@ -85,7 +93,7 @@ def test_a_press_on_any_array_shows_on_its_own_topic(tmp_path):
         rclpy.shutdown()
         codes = running.stop()
     assert all(c == 0 for c in codes.values()), (codes, running.logs())
-    end = first_full_lap()
+    end = judged_end()
     start = end - lap
     assert not [i for i in invalid if start <= i[0] < end], invalid[:5]
     series = {name: np.asarray(f) for name, f in forces.items()}
@@ -97,15 +105,18 @@ def test_a_press_on_any_array_shows_on_its_own_topic(tmp_path):
         deviation[name] = (s[inside, 0],
                            np.linalg.norm(s[inside, 1:] - np.median(s[inside, 1:], axis=0), axis=1))
     truth = [(t, frame, f) for t, frame, f in truth if start <= t < end]
-    report = []
-    for k, pressed in enumerate(tour.press_tour):
-        lo, hi = start + k * tour.duration + EDGE_S, start + (k + 1) * tour.duration - EDGE_S
+    pressed_peak, worst_elsewhere = {}, {}
+    first_block = int(round(start / tour.duration))
+    for block in range(first_block, first_block + len(tour.press_tour)):
+        pressed = tour.press_tour[block % len(tour.press_tour)]
+        lo, hi = block * tour.duration + EDGE_S, (block + 1) * tour.duration - EDGE_S
         frames = {frame for t, frame, f in truth if lo <= t < hi}
         assert frames == {hand.array(pressed).frame_id}, (pressed, frames)
         peak = {name: d[(t >= lo) & (t < hi)].max() for name, (t, d) in deviation.items()}
-        neighbours = set(hand.array(pressed).neighbours)
-        report.append((pressed, round(peak[pressed], 2),
-                       max(v for n, v in peak.items() if n in neighbours),
-                       max(v for n, v in peak.items() if n != pressed and n not in neighbours)))
-    print(report)
-    raise AssertionError(report)
+        elsewhere = max((v, n) for n, v in peak.items() if n != pressed)
+        pressed_peak[pressed], worst_elsewhere[pressed] = peak[pressed], elsewhere
+        assert peak[pressed] > PRESSED_N, (pressed, peak[pressed])
+        assert elsewhere[0] < ELSEWHERE_N, (pressed, elsewhere)
+    weakest, elsewhere = min(pressed_peak.values()), max(worst_elsewhere.values())
+    print(f'\npress tour: the weakest press read {weakest:.2f} N on its own topic; the most '
+          f'another array showed {elsewhere[0]:.2f} N ({elsewhere[1]})')

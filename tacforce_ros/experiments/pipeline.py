@@ -85,9 +85,10 @@ class Settings:
     # (estimation/preprocessing.py static_mask), so its un-zeroed bias does not matter.
     static_force: float = 0.3
     node_path: bool = True
-    # The whole-hand campaign (every other array, M3-lambda): one session per training plate,
-    # this long; sized for the main job's budget (the Table I arrays have the paper's sizes).
-    whole_hand_seconds: float = 30.0
+    # The whole-hand campaign (every other array, M3-lambda): one session per training plate of
+    # the paper's session length, a quarter of its data, for the budget (the Table I arrays
+    # have the paper's sizes).
+    whole_hand_seconds: float = 100.0
 
     @classmethod
     def quick(cls) -> Settings:

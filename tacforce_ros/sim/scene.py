@@ -95,15 +95,13 @@ def calibration_scene_name(array: str, plate: str) -> str:
 
 def _generated_calibration(path: Path) -> dict | None:
     """`calibration_<array>_<plate>` under scenes_dir() without a file: `_calibration` with
-    that array and plate; None for any other name or an unknown plate."""
+    that array and plate (load_scene checks the plate; the simulator the array); None for any
+    other name."""
     stem = path.stem
     if path.parent != scenes_dir() or not stem.startswith(CALIBRATION_PREFIX):
         return None
     array, _, plate = stem[len(CALIBRATION_PREFIX):].rpartition('_')
     if not array:
-        return None
-    plates = _load_raw(scenes_dir() / f'{CALIBRATION_DEFAULTS}.yaml').get('plates') or {}
-    if plate not in plates:
         return None
     return {'extends': CALIBRATION_DEFAULTS, 'array': array, 'plate': plate}
 

@@ -136,3 +136,11 @@ def test_the_default_limits_pass_a_paper_session_and_refuse_a_timid_one(tmp_path
 class _Silent:
     def update(self, n):
         pass
+
+
+def test_train_refuses_a_campaign_with_nothing_that_counts(tmp_path, capsys):
+    folder = tmp_path / 'c'
+    make(folder)
+    assert train.main([str(folder), '--out', str(tmp_path / 'models')]) == 2
+    assert 'has no bag that counts yet' in capsys.readouterr().err
+    assert not list((tmp_path / 'models').glob('*.npz'))

@@ -41,7 +41,7 @@ Around the law, in this order per tick:
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any, Mapping, Protocol
 
@@ -49,6 +49,7 @@ import numpy as np
 import yaml
 
 FINGERS = ('index', 'middle', 'ring', 'thumb')
+SAME_LINKS_AS_INDEX = ('index', 'middle', 'ring')     # URDF: equal link lengths and inertias
 
 # Allegro V4 firmware per-joint torque clamps (Nm), PROTOCOLS.md section 2, from
 # simlabrobotics/allegro_hand_ros_v4 and Wonik's allegro_hand_ros2 v4_spec.hpp.
@@ -134,6 +135,21 @@ class ForceControllerConfig:
     def joint_torque_limits(self) -> np.ndarray:
         """Per-joint limit actually applied: the controller cap within the firmware clamps."""
         return np.minimum(self.torque_cap, np.asarray(FIRMWARE_TORQUE_LIMITS[self.finger]))
+
+    def pressing_with(self, fingertip: Any) -> ForceControllerConfig:
+        """This configuration on the finger that carries `fingertip` (a hand description's
+        TaxelArray), its estimates in that array's frame. Gains and q_d stay: those of the
+        shipped file are sized for the index finger, whose links the middle and ring fingers
+        share (URDF); the thumb's links differ, so it needs its own."""
+        finger = fingertip.finger
+        if finger is None or fingertip.name != f'{finger}_tip':
+            raise ControllerConfigError(f'{fingertip.name} is not a fingertip array: the '
+                                        'controller pushes with a fingertip')
+        if finger not in SAME_LINKS_AS_INDEX:
+            raise ControllerConfigError(
+                f'{fingertip.name}: k_p, k_d and q_d are the index finger\'s, sized for '
+                f'{list(SAME_LINKS_AS_INDEX)}; give the {finger} its own parameters file')
+        return replace(self, finger=finger, estimate_frame=fingertip.frame_id)
 
     @classmethod
     def from_mapping(cls, values: Mapping[str, Any]) -> ForceControllerConfig:

@@ -66,6 +66,9 @@ def run_closed_loop(hand: HandDescription, kinematics: HandKinematics, scene: st
         raise ValueError('a closed-loop controller (k_i != 0) needs force models')
     scene = load_scene(scene)
     sim = make_simulator(scene, hand, seed=seed)
+    if sim.finger != config.finger:
+        raise ValueError(f'scene {scene.name} presses the {sim.finger} finger, the controller '
+                         f'drives the {config.finger} (ForceControllerConfig.pressing_with)')
     every = int(round(1.0 / (control_rate * sim.dt)))
     if every < 1 or abs(every * sim.dt * control_rate - 1.0) > 1e-9:
         raise ValueError(f'control rate {control_rate} Hz must divide the physics rate '

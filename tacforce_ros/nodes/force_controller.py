@@ -108,6 +108,9 @@ class ForceControllerNode(TacforceNode):
         array = self.params['estimate_array']
         if array not in {a.name for a in self.hand.arrays}:
             raise ParameterError(f'estimate_array: {array!r} is not an array of the hand')
+        if self.hand.array(array).finger != config.finger:
+            raise ParameterError(f'estimate_array: {array} is not on the controlled finger '
+                                 f'({CONTROLLER_GROUP}.finger: {config.finger})')
         expected = self.hand.array(array).frame_id
         if config.estimate_frame != expected:
             raise ParameterError(f'{CONTROLLER_GROUP}.estimate_frame: {config.estimate_frame!r}'

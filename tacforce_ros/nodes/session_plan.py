@@ -15,9 +15,13 @@ from pathlib import Path
 from typing import Any
 
 from tacforce_ros.control.command_sequence import ForceSequence, SequenceError
-from tacforce_ros.hand.description import DEFAULT_SIDE, FRAME_PREFIX_PATTERN, SIDES, hand_config
+from tacforce_ros.control.force_controller import ControllerConfigError, ForceControllerConfig
+from tacforce_ros.estimation.model_set import ModelConfigError, default_model_config, model_files
+from tacforce_ros.hand.description import (DEFAULT_SIDE, FRAME_PREFIX_PATTERN, SIDES, hand_config,
+                                           load_hand)
 from tacforce_ros.paths import config_dir, ros_home
-from tacforce_ros.sim.scene import SceneError, calibration_scene_name, load_scene
+from tacforce_ros.sim.scene import (SceneError, calibration_scene_name, closed_loop_scene_name,
+                                    load_scene)
 
 MODES = ('calibration', 'closed_loop')
 NAMESPACE = re.compile(r'(/[A-Za-z_][A-Za-z0-9_]*)+')
@@ -125,7 +129,7 @@ class SessionArgs:
             return self.scene
         if self.mode == 'calibration':
             return calibration_scene_name(self.array, self.plate)
-        return f'closed_loop_{self.plate}'
+        return closed_loop_scene_name(self.array, self.plate)
 
 
 def launch_bool(name: str, text: str) -> bool:
@@ -169,6 +173,28 @@ def _ros_literal(value: Any) -> str:
     return repr(value)
 
 
+def _controller_overrides(args: SessionArgs, hand: Any) -> dict[str, Any]:
+    """The controller's parameters for the closed loop on `args.array`, which must be a
+    fingertip the controller can drive and the estimator has a model for."""
+    if args.array not in {a.name for a in hand.arrays}:
+        raise PlanError(f'array: {args.array!r} is not an array of the {hand.side} hand')
+    config = ForceControllerConfig.from_yaml(params_file('force_controller'))
+    try:
+        config = config.pressing_with(hand.array(args.array))
+    except ControllerConfigError as exc:
+        raise PlanError(f'array: {exc}') from None
+    models_yaml = args.model_config or default_model_config(hand)
+    try:
+        models = model_files(models_yaml)
+    except ModelConfigError as exc:
+        raise PlanError(f'model: {exc}') from None
+    if args.array not in models:
+        raise PlanError(f'array: {models_yaml} has no model for {args.array}, whose estimate '
+                        f'closes the loop (it has {sorted(models)})')
+    return {'estimate_array': args.array, 'force_controller.finger': config.finger,
+            'force_controller.estimate_frame': config.estimate_frame}
+
+
 def plan(args: SessionArgs) -> list[NodeLaunch]:
     """The nodes of one session, in start order (the clock source first)."""
     if args.mode not in MODES:
@@ -187,6 +213,9 @@ def plan(args: SessionArgs) -> list[NodeLaunch]:
     hand = hand_config(args.hand_side)
     if not hand.is_file():
         raise PlanError(f'hand_side {args.hand_side!r}: no hand description {hand}')
+    controller: dict[str, Any] = {}
+    if args.mode == 'closed_loop':
+        controller = _controller_overrides(args, load_hand(hand))
     if args.sim:
         try:
             scene = load_scene(args.scene_name())     # before any node starts, not in sim_world
@@ -239,8 +268,7 @@ def plan(args: SessionArgs) -> list[NodeLaunch]:
                                 {**common, **managed, **hand_param,
                                  **sim_devices['allegro'], 'control': 'torque'}))
         nodes.append(NodeLaunch('force_controller', (params_file('force_controller'),),
-                                {**common, **hand_param, **framed,
-                                 'estimate_array': args.array}))
+                                {**common, **hand_param, **framed, **controller}))
         # The sequence starts once the controller and the recorder both listen.
         nodes.append(NodeLaunch('command_player', (params_file('command_player'),),
                                 {**common, **framed, 'min_subscribers': 2,

@@ -21,7 +21,7 @@ from tacforce_ros.sim.contact import Contact, skin_surface
 from tacforce_ros.sim.effects import Pipeline
 from tacforce_ros.sim.operator import FINGER_JOINTS
 from tacforce_ros.sim.sample import SimSample, StepState
-from tacforce_ros.sim.scene import Scene
+from tacforce_ros.sim.scene import CLOSED_LOOP_FINGER, Scene, SceneError
 from tacforce_ros.sim.sensors import TactileSensor
 
 FRICTION = 1.0   # silicone skin on PLA / YCB surfaces: grippy; our estimate
@@ -57,7 +57,10 @@ class ClosedLoopSimulator:
         self.dt = scene.dt
         self.frame_every = int(round(scene.physics_rate / scene.tactile_rate))
         finger = scene.finger
-        self.finger = finger.get('name', 'index')
+        self.finger = finger.get('name', CLOSED_LOOP_FINGER)
+        if hand.array(scene.array).finger != self.finger:
+            raise SceneError(f'{scene.name}: array {scene.array} is not on the pressing finger '
+                             f'({self.finger}); the closed loop estimates its own fingertip')
         self.joints = FINGER_JOINTS[self.finger]
         self.pose = np.asarray(finger['pose'], np.float64)          # start pose
         self.contact_pose = np.asarray(finger.get('contact_pose', finger['pose']), np.float64)

@@ -6,7 +6,9 @@ Files whose stem starts with `_` hold shared defaults and are not scenes on thei
 
 A calibration scene needs no file: `calibration_<array>_<plate>` is `_calibration` with that
 array and plate (any array of the hand, any plate of the plates library), so a campaign over
-all 18 arrays has one home for what a calibration session is. A file of that name wins.
+all 18 arrays has one home for what a calibration session is. Likewise a closed-loop scene
+`closed_loop_<fingertip>_<object>` is `closed_loop_<object>` (the index finger's) with that
+fingertip pressing instead. A file of either name wins.
 """
 from __future__ import annotations
 
@@ -82,6 +84,12 @@ def scenes_dir() -> Path:
 
 CALIBRATION_PREFIX = 'calibration_'
 CALIBRATION_DEFAULTS = '_calibration'
+CLOSED_LOOP_PREFIX = 'closed_loop_'
+CLOSED_LOOP_FINGER = 'index'        # the finger of the closed_loop_<object> scene files
+# The rig's F/T frame (ft_sensor in the URDF, fixed to the palm) faces the pads of the index,
+# middle and ring fingertips at their contact pose (normal within 10 deg of -z); the opposed
+# thumb's pad faces about +z, away from the plate, so the thumb needs the rig mounted for it.
+CLOSED_LOOP_FINGERS = ('index', 'middle', 'ring')
 
 
 def list_scenes() -> list[str]:
@@ -93,17 +101,33 @@ def calibration_scene_name(array: str, plate: str) -> str:
     return f'{CALIBRATION_PREFIX}{array}_{plate}'
 
 
-def _generated_calibration(path: Path) -> dict | None:
-    """`calibration_<array>_<plate>` under scenes_dir() without a file: `_calibration` with
-    that array and plate (load_scene checks the plate; the simulator the array); None for any
-    other name."""
+def closed_loop_scene_name(array: str, plate: str) -> str:
+    """The closed-loop scene of a fingertip pressing a plate or object (a closed_loop_* stem)."""
+    if array == f'{CLOSED_LOOP_FINGER}_tip':
+        return f'{CLOSED_LOOP_PREFIX}{plate}'
+    return f'{CLOSED_LOOP_PREFIX}{array}_{plate}'
+
+
+def _generated_scene(path: Path) -> dict | None:
+    """A scene named as the module docstring says, under scenes_dir() without a file (load_scene
+    checks the plate; the simulator the array); None for any other name."""
     stem = path.stem
-    if path.parent != scenes_dir() or not stem.startswith(CALIBRATION_PREFIX):
+    if path.parent != scenes_dir():
         return None
-    array, _, plate = stem[len(CALIBRATION_PREFIX):].rpartition('_')
-    if not array:
+    if stem.startswith(CALIBRATION_PREFIX):
+        array, _, plate = stem[len(CALIBRATION_PREFIX):].rpartition('_')
+        return {'extends': CALIBRATION_DEFAULTS, 'array': array, 'plate': plate} if array else None
+    finger, tip, scene = stem[len(CLOSED_LOOP_PREFIX):].partition('_tip_')
+    if not stem.startswith(CLOSED_LOOP_PREFIX) or not tip:
         return None
-    return {'extends': CALIBRATION_DEFAULTS, 'array': array, 'plate': plate}
+    if finger not in CLOSED_LOOP_FINGERS:
+        raise SceneError(f'{stem}: the closed loop presses with one of the fingertips '
+                         f'{[f + "_tip" for f in CLOSED_LOOP_FINGERS]}, not {finger}_tip (the '
+                         "rig's F/T frame, ft_sensor in the URDF, faces those fingers' pads)")
+    base = scenes_dir() / f'{CLOSED_LOOP_PREFIX}{scene}.yaml'
+    if not base.is_file():
+        return None
+    return {'extends': base.stem, 'array': f'{finger}_tip', 'finger': {'name': finger}}
 
 
 def _deep_merge(base: dict, child: dict) -> dict:
@@ -130,7 +154,8 @@ def _read_yaml(path: Path) -> dict:
         known = ', '.join(list_scenes()) if scenes_dir().is_dir() else 'none'
         raise SceneError(f'scene file {path} not found (known scenes: {known}; and '
                          f'{calibration_scene_name("<array>", "<plate>")} for any array and '
-                         'plate)')
+                         f'plate, {closed_loop_scene_name("<finger>_tip", "<object>")} for a '
+                         'closed_loop_<object> scene pressed by another fingertip)')
     try:
         return yaml.safe_load(path.read_text(encoding='utf8')) or {}
     except yaml.YAMLError as exc:
@@ -140,7 +165,7 @@ def _read_yaml(path: Path) -> dict:
 def _load_raw(path: Path, chain: tuple[Path, ...] = ()) -> dict:
     if path in chain:
         raise SceneError(f'{path}: field "extends" forms a cycle ({" -> ".join(map(str, chain))})')
-    raw = None if path.is_file() else _generated_calibration(path)
+    raw = None if path.is_file() else _generated_scene(path)
     if raw is None:
         raw = _read_yaml(path)
     if not isinstance(raw, dict):

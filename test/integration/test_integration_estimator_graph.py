@@ -1,5 +1,6 @@
 """The estimation graph over DDS in simulation: sim_world -> xela_driver -> estimator (the
-shipped default models: one on every array) -> force_controller -> allegro_driver.
+shipped default models: one on every array) -> force_controller -> allegro_driver, the loop
+closed on the ring fingertip (the launch's `array`; the index finger is the main job's).
 
 * a third-party subscriber sees the 18 per-array WrenchStamped topics at 100 Hz, in the array
   frames;
@@ -36,6 +37,7 @@ SAFE_MODES = ('safe', 'hold')
 # messages keep coming, fail when none came for STALLED_AFTER_S.
 STALLED_AFTER_S = 60.0
 TIMEOUT_S = 900.0
+CONTROLLED = 'ring_tip'
 
 
 @pytest.fixture(scope='module')
@@ -47,7 +49,8 @@ def hand():
 def graph(tmp_path_factory, hand):
     folder = tmp_path_factory.mktemp('graph')
     assert sorted(model_files(default_model_config(hand))) == sorted(a.name for a in hand.arrays)
-    nodes = [n for n in graph_nodes(session_args('closed_loop', offset=1)) if n.executable in NODES]
+    nodes = [n for n in graph_nodes(session_args('closed_loop', offset=1, array=CONTROLLED))
+             if n.executable in NODES]
     running = Graph(nodes, DOMAIN, folder / 'logs')
     rclpy.init(domain_id=DOMAIN)
     node = rclpy.create_node('estimator_graph_probe')
@@ -123,6 +126,7 @@ def test_stale_tactile_stream_makes_the_controller_safe_within_100_ms(graph):
             lambda: states and states[-1].mode == 'closed_loop' and states[-1].estimate_fresh,
             lambda: len(states), STALLED_AFTER_S, TIMEOUT_S, commanding), \
             ([s.mode for s in states[-5:]], running.logs())
+        assert {s.finger for s in states} == {'ring'}
         assert pause.wait_for_service(timeout_sec=30.0)
         future = pause.call_async(SetBool.Request(data=True))
         assert wait_until(future.done, 30.0, lambda: spin(node)) and future.result().success

@@ -23,6 +23,8 @@ CASES = [
     ('allegro_driver', ["control:='force'"], "control: 'force' is not one of"),
     ('force_controller', ['force_controller.k_i:=[1.0, 2.0]'], 'k_i: expected 3 finite numbers'),
     ('force_controller', ["estimate_array:='nose'"], "estimate_array: 'nose' is not an array"),
+    ('force_controller', ["estimate_array:='ring_tip'"],
+     'estimate_array: ring_tip is not on the controlled finger'),
     ('sim_world', ["scene:='no_such_scene'"], 'no_such_scene'),
     ('xela_driver', ["url:='http://127.0.0.1:5000'"], 'url: '),
     ('ft_bridge', ["force_unit:='furlong'"], "force_unit: 'furlong' is not one of"),

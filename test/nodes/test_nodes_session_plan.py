@@ -63,6 +63,31 @@ def test_bad_choices_are_refused(field, value, message):
         plan(SessionArgs(**args))
 
 
+def test_the_closed_loop_array_picks_the_scene_the_finger_and_the_estimate():
+    nodes = {n.executable: n for n in plan(SessionArgs('closed_loop', array='middle_tip'))}
+    assert nodes['sim_world'].overrides['scene'] == 'closed_loop_middle_tip_spherical'
+    controller = nodes['force_controller'].overrides
+    assert (controller['estimate_array'], controller['force_controller.finger'],
+            controller['force_controller.estimate_frame']) == ('middle_tip', 'middle',
+                                                               'uskin_middle_tip')
+    assert nodes['sync_recorder'].overrides['array'] == 'middle_tip'
+
+
+@pytest.mark.parametrize('array, message', [
+    ('index_middle', 'not a fingertip array'), ('thumb_tip', "the index finger's, sized for"),
+    ('pinky_tip', 'not an array of the right hand')])
+def test_a_closed_loop_array_the_controller_cannot_drive_is_refused(array, message):
+    with pytest.raises(PlanError, match=message):
+        plan(SessionArgs('closed_loop', array=array))
+
+
+def test_a_closed_loop_array_without_a_model_is_refused(tmp_path):
+    models = tmp_path / 'models.yaml'
+    models.write_text('models: {index_tip: index_tip_M3-lambda.npz}\n')
+    with pytest.raises(PlanError, match='has no model for ring_tip'):
+        plan(SessionArgs('closed_loop', array='ring_tip', model_config=str(models)))
+
+
 def test_a_side_without_a_description_is_refused(monkeypatch, tmp_path):
     from tacforce_ros.nodes import session_plan
     monkeypatch.setattr(session_plan, 'hand_config', lambda side: tmp_path / f'{side}.yaml')

@@ -66,6 +66,27 @@ def test_unknown_scene_lists_the_known_ones():
         load_scene('calibration_index_tip_banana')
 
 
+def test_a_closed_loop_scene_of_another_fingertip_is_the_index_scene_on_that_finger():
+    index = load_scene('closed_loop_foam_brick')
+    ring = load_scene('closed_loop_ring_tip_foam_brick')
+    assert (ring.array, ring.finger['name'], ring.soft_object) == ('ring_tip', 'ring',
+                                                                   index.soft_object)
+    assert {k: v for k, v in ring.finger.items() if k != 'name'} == {
+        k: v for k, v in index.finger.items() if k != 'name'}
+    assert ring.effects == index.effects and ring.plate == index.plate
+    with pytest.raises(SceneError, match="not thumb_tip .*faces those fingers' pads"):
+        load_scene('closed_loop_thumb_tip_spherical')
+    with pytest.raises(SceneError, match='not found'):             # no such object
+        load_scene('closed_loop_ring_tip_banana')
+
+
+def test_a_closed_loop_scene_refuses_an_array_off_its_finger(hand, tmp_path):
+    from tacforce_ros.sim import make_simulator
+    scene = load_scene(write(tmp_path, 'extends: closed_loop_spherical\narray: middle_tip\n'))
+    with pytest.raises(SceneError, match='middle_tip is not on the pressing finger'):
+        make_simulator(scene, hand)
+
+
 def test_every_effect_has_a_distinct_registered_name():
     assert all(cls.name == name for name, cls in EFFECTS.items())
 

@@ -8,7 +8,7 @@ HERE = Path(__file__).parent
 
 # Installed executables: ROS nodes first, then offline tools (all take --help).
 NODES = ['xela_driver', 'ft_bridge', 'allegro_driver', 'force_controller', 'estimator',
-         'sync_recorder', 'command_player', 'sim_world', 'tacforce_container']
+         'sync_recorder', 'coverage_view', 'command_player', 'sim_world', 'tacforce_container']
 TOOLS = {
     'train': 'train',               # bags/datasets -> model files + report
     'bench': 'bench',               # accuracy vs inference time of M1-M5, M3-lambda

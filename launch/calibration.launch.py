@@ -1,7 +1,9 @@
 """ros2 launch tacforce_ros calibration.launch.py [sim:=true|false] [hand_side:=right|left]
 [array:=index_tip] [plate:=spherical] [scene:=...] [out:=bags] [real_time_factor:=1.0]
 [lockstep:=true] [sim_duration:=0.0] [seed:=-1] [compose:=false] [namespace:=] [frame_prefix:=]
-[autostart:=true] [xela_port:=5000] [netft_port:=49152] [can_port:=29536]
+[autostart:=true] [xela_port:=5000] [netft_port:=49152] [can_port:=29536] [campaign:=FOLDER]
+
+campaign:=FOLDER records the next session the campaign has due (its array and plate, into FOLDER).
 
 The node graph is tacforce_ros.nodes.session_plan's, shared with `session calibration`."""
 import sys

@@ -13,7 +13,8 @@ from launch_ros.actions import Node
 
 from tacforce_ros.hand.description import hand_config, load_hand
 from tacforce_ros.nodes.session_plan import (CAN_PORT, NETFT_PORT, SCENE_DONE_MARKER, XELA_PORT,
-                                             SessionArgs, launch_bool, plan)
+                                             SessionArgs, campaign_session, launch_bool,
+                                             plan)
 
 ARGUMENTS = {
     'sim': ('true', 'true: sim_world and its device emulators; false: the hardware'),
@@ -27,6 +28,8 @@ ARGUMENTS = {
     'sequence': ('', 'closed loop: force command sequence, a name in config/commands/ or a '
                  'path; empty: paper_70s'),
     'out': ('bags', 'folder for the recorded bags'),
+    'campaign': ('', 'calibration: record the next session this campaign folder has due (its '
+                 'array, plate and folder; in simulation its length and seed)'),
     'real_time_factor': ('1.0', 'simulated seconds per wall second (sim only; with lockstep '
                          'the most it runs at)'),
     'lockstep': ('true', 'sim only: simulated time waits for the nodes closing the loop; '
@@ -54,7 +57,7 @@ def _nodes(context, mode: str):
                        hand_side=value['hand_side'], array=value['array'],
                        plate=value['plate'], scene=value['scene'],
                        model_config=value['model'], sequence=value['sequence'],
-                       out=value['out'],
+                       out=value['out'], campaign=value['campaign'],
                        real_time_factor=float(value['real_time_factor']),
                        lockstep=launch_bool('lockstep', value['lockstep']),
                        sim_duration=float(value['sim_duration']),
@@ -63,6 +66,8 @@ def _nodes(context, mode: str):
                        namespace=value['namespace'], frame_prefix=value['frame_prefix'],
                        xela_port=int(value['xela_port']), netft_port=int(value['netft_port']),
                        can_port=int(value['can_port']))
+    if args.campaign:
+        args = campaign_session(args)
     # All nodes start together (as in `session`): the hand driver waits for the first /clock,
     # which sim_world publishes once its emulators listen (on hardware: up to connect_timeout
     # for the hand), the XELA and F/T clients keep trying their devices, and the command player

@@ -115,6 +115,8 @@ class SessionArgs:
     autostart: bool = True             # the managed drivers configure and activate themselves
     namespace: str = ''                # every node in this namespace (e.g. /left); '': the root
     frame_prefix: str = ''             # before every frame id the nodes publish (e.g. left/)
+    campaign: str = ''                 # calibration: record the next due session of this
+    #                                    campaign folder (its array, plate, length, seed)
     seed: int = -1                     # simulator seed; -1: the scene's own
     xela_port: int = XELA_PORT
     netft_port: int = NETFT_PORT
@@ -195,8 +197,39 @@ def _controller_overrides(args: SessionArgs, hand: Any) -> dict[str, Any]:
             'force_controller.estimate_frame': config.estimate_frame}
 
 
+def campaign_session(args: SessionArgs) -> SessionArgs:
+    """`args` set to record the next session `args.campaign` has due: its array and plate, into
+    the campaign folder; in simulation its length and seed unless given. Bags not yet judged
+    are judged as `campaign status` judges them, without changing the campaign."""
+    from tacforce_ros.hand.kinematics import HandKinematics
+    from tacforce_ros.recording.campaign import Campaign, CampaignError
+    from tacforce_ros.sim.scene import session_seed
+    if args.mode != 'calibration':
+        raise PlanError('campaign: a campaign records calibration sessions')
+    try:
+        campaign = Campaign(args.campaign)
+    except (CampaignError, OSError) as exc:
+        raise PlanError(f'campaign: {exc}') from None
+    plan_ = campaign.plan
+    if plan_.hand_side != args.hand_side:
+        raise PlanError(f'campaign: {args.campaign} is a campaign of the {plan_.hand_side} hand; '
+                        f'hand_side is {args.hand_side}')
+    hand = load_hand(hand_config(args.hand_side))
+    due = campaign.due(campaign.check(hand, HandKinematics(hand.urdf_path), write=False))
+    if not due:
+        raise PlanError(f'campaign: {args.campaign} is complete, nothing is due (train it: '
+                        f'`train {args.campaign} --out MODELS`)')
+    slot = due[0]
+    simulated = {'sim_duration': args.sim_duration or plan_.seconds,
+                 'seed': session_seed(plan_.seed, slot.array, slot.plate, slot.index)
+                 if args.seed == -1 else args.seed} if args.sim else {}
+    return dataclasses.replace(args, array=slot.array, plate=slot.plate, scene='',
+                               out=str(campaign.folder), **simulated)
+
+
 def plan(args: SessionArgs) -> list[NodeLaunch]:
-    """The nodes of one session, in start order (the clock source first)."""
+    """The nodes of one session, in start order (the clock source first); `args` with a
+    campaign are campaign_session's."""
     if args.mode not in MODES:
         raise PlanError(f'mode: {args.mode!r} is not one of {list(MODES)}')
     if args.sim_duration < 0:
@@ -258,6 +291,10 @@ def plan(args: SessionArgs) -> list[NodeLaunch]:
         nodes.append(NodeLaunch('allegro_driver', (params_file('allegro_driver'),),
                                 {**common, **managed, **hand_param,
                                  **sim_devices['allegro'], 'control': 'off'}))
+        # What the operator watches while pressing.
+        nodes.append(NodeLaunch('coverage_view', (params_file('coverage_view'),), {
+            **common, **hand_param, 'plate': args.plate, 'campaign': args.campaign,
+            **({'session_seconds': float(args.sim_duration)} if args.sim else {})}))
     else:
         nodes.append(NodeLaunch('estimator', (params_file('estimator'),), {
             **common, **hand_param, **framed,

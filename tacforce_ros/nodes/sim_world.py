@@ -106,7 +106,7 @@ class SimWorld(TacforceNode):
     PARAMETERS = (
         ParamSpec('scene', 'calibration_index_tip_spherical',
                   'scene: a name under config/scenes/ or a YAML path'),
-        ParamSpec('seed', -1, 'simulator seed; -1 = the scene\'s own', range=(-1, 2**31 - 1)),
+        ParamSpec('seed', -1, 'simulator seed; -1 = the scene\'s own', range=(-1, 2**32 - 1)),
         ParamSpec('real_time_factor', 1.0, 'simulated seconds per wall second',
                   range=(0.05, 50.0)),
         ParamSpec('publish_clock', True, 'publish simulated time on /clock'),

@@ -80,7 +80,7 @@ class SyncRecorder(TacforceNode):
         ParamSpec('source', 'lab', 'where the data comes from', choices=('lab', 'sim')),
         ParamSpec('scene', '', 'simulation: the scene sim_world runs (session metadata)'),
         ParamSpec('seed', -1, 'simulation: the simulator seed for the session metadata; -1 = '
-                  'the scene\'s own (stored empty)', range=(-1, 2**31 - 1)),
+                  'the scene\'s own (stored empty)', range=(-1, 2**32 - 1)),
         HAND_CONFIG,
         ParamSpec('autostart', False, 'start recording at start-up with the parameters above'),
     )

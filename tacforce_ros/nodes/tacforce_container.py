@@ -31,7 +31,8 @@ from tacforce_ros.nodes.common import EXIT_BAD_PARAMETERS, TacforceNode, run_nod
 NODE_CLASSES = {'xela_driver': 'XelaDriver', 'ft_bridge': 'FtBridge',
                 'allegro_driver': 'AllegroDriver', 'force_controller': 'ForceControllerNode',
                 'estimator': 'Estimator',
-                'sync_recorder': 'SyncRecorder', 'command_player': 'CommandPlayer',
+                'sync_recorder': 'SyncRecorder', 'coverage_view': 'CoverageViewNode',
+                'command_player': 'CommandPlayer',
                 'sim_world': 'SimWorld'}
 USAGE = ('usage: tacforce_container --node NAME [--ros-args ...] [--node NAME ...]; NAME one of '
          + ', '.join(NODE_CLASSES))

@@ -57,6 +57,7 @@ class Coverage:
     rests: int
     samples: int
     problems: tuple[str, ...]
+    sectors: tuple[int, ...] = ()      # which directions were pressed (0 .. shear_sectors-1)
 
     @property
     def ok(self) -> bool:
@@ -65,26 +66,91 @@ class Coverage:
 
 def session_coverage(dataset: CalibrationDataset, limits: CoverageLimits = CoverageLimits()
                      ) -> Coverage:
-    """Force range, shear directions and rests of one session (force in the array frame, from
-    the session's own rest reading: the F/T is not zeroed)."""
-    force = np.asarray(dataset.F, np.float64)
-    rests = len(true_runs(static_mask(force, dataset.X)))
-    pressed = force - rest_reading(force, dataset.X)[1]
+    """Force range, shear directions and rests of one session."""
+    return coverage_of(dataset.F, dataset.X, limits)
+
+
+def coverage_of(force: np.ndarray, tactile: np.ndarray,
+                limits: CoverageLimits = CoverageLimits()) -> Coverage:
+    """Coverage of force samples (N, 3) in the array frame and their tactile frames (N, taxels,
+    3), from the session's own rest reading (the F/T is not zeroed). Sector k holds the shear
+    directions at angles [-180 + k * 360 / sectors, ...) deg from the array's +x."""
+    force = np.asarray(force, np.float64)
+    tactile = np.asarray(tactile, np.float64)
+    rests = len(true_runs(static_mask(force, tactile)))
+    pressed = force - rest_reading(force, tactile)[1]
     peak = float(np.linalg.norm(pressed, axis=1).max(initial=0.0))
     tangential = pressed[:, :2]
     shearing = np.linalg.norm(tangential, axis=1) >= limits.shear_force
     angles = np.arctan2(tangential[shearing, 1], tangential[shearing, 0])
-    sectors = np.unique(np.floor((angles + np.pi) / (2 * np.pi) * limits.shear_sectors)
-                        .astype(int) % limits.shear_sectors).size
+    seen = np.unique(np.floor((angles + np.pi) / (2 * np.pi) * limits.shear_sectors)
+                     .astype(int) % limits.shear_sectors)
     problems = []
     if peak < limits.min_peak_force:
         problems.append(f'press harder: peak force {peak:.2f} N < {limits.min_peak_force} N')
-    if sectors < limits.min_shear_sectors:
-        problems.append(f'vary the push direction: shear in {sectors} of {limits.shear_sectors}'
-                        f' directions < {limits.min_shear_sectors}')
+    if seen.size < limits.min_shear_sectors:
+        problems.append(f'vary the push direction: shear in {seen.size} of '
+                        f'{limits.shear_sectors} directions < {limits.min_shear_sectors}')
     if rests < limits.min_rests:
         problems.append(f'let go between presses: {rests} rests < {limits.min_rests}')
-    return Coverage(peak, int(sectors), rests, int(force.shape[0]), tuple(problems))
+    return Coverage(peak, int(seen.size), rests, int(force.shape[0]), tuple(problems),
+                    tuple(int(k) for k in seen))
+
+
+class LiveCoverage:
+    """The coverage of a session while it is recorded, from its synchronised samples (the
+    recorder's /calibration/sample), judged as `coverage_of` judges the closed bag. The bag's
+    verdict low-passes and resamples first, so near a limit the two can differ slightly."""
+
+    def __init__(self, kinematics, ft_frame: str, array_frame: str,
+                 limits: CoverageLimits = CoverageLimits()) -> None:
+        self.kinematics, self.ft_frame, self.array_frame = kinematics, ft_frame, array_frame
+        self.limits = limits
+        self.reset()
+
+    def reset(self) -> None:
+        self._force: list[np.ndarray] = []
+        self._tactile: list[np.ndarray] = []
+
+    def add(self, tactile: np.ndarray, force_ft: np.ndarray, q16: np.ndarray) -> None:
+        """One sample: raw taxel readings (taxels, 3), the F/T force in its frame, joints."""
+        rotation = self.kinematics.rotation_between(q16, self.ft_frame, self.array_frame)
+        self._force.append(rotation @ np.asarray(force_ft, np.float64))
+        self._tactile.append(np.asarray(tactile, np.float64))
+
+    @property
+    def samples(self) -> int:
+        return len(self._force)
+
+    def coverage(self) -> Coverage | None:
+        """None until there are two samples."""
+        if self.samples < 2:
+            return None
+        return coverage_of(np.stack(self._force), np.stack(self._tactile), self.limits)
+
+
+def coverage_view(title: str, coverage: Coverage | None, limits: CoverageLimits,
+                  elapsed: float, planned: float = 0.0, width: int = 30) -> str:
+    """A few lines for the operator's terminal: time, force, directions, rests, what is left."""
+    if planned > 0:
+        done = min(elapsed / planned, 1.0)
+        bar = '#' * int(round(done * width))
+        clock = f'[{bar:<{width}}] {elapsed:5.0f} / {planned:.0f} s'
+    else:
+        clock = f'{elapsed:.0f} s'
+    lines = [f'{title}  {clock}']
+    if coverage is None:
+        return '\n'.join(lines + ['  waiting for synchronised samples (/calibration/sample)'])
+    step = 360.0 / limits.shear_sectors
+    compass = ' '.join(f'{-180 + (k + 0.5) * step:+.0f}:{"#" if k in coverage.sectors else "."}'
+                       for k in range(limits.shear_sectors))
+    lines += [
+        f'  peak force {coverage.peak_force:5.2f} N   (need {limits.min_peak_force:g})',
+        f'  shear      {coverage.shear_sectors} of {limits.shear_sectors} directions (need '
+        f'{limits.min_shear_sectors}): {compass} deg from +x',
+        f'  rests      {coverage.rests}   (need {limits.min_rests})',
+        '  so far: ' + ('enough' if coverage.ok else '; '.join(coverage.problems))]
+    return '\n'.join(lines)
 
 
 def verdict_line(name: str, coverage: Coverage | None, reason: str = '') -> str:

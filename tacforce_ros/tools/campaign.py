@@ -6,8 +6,8 @@
     campaign status FOLDER
         judges every bag not yet judged (force range, shear directions, rests), moves a poor one
         to FOLDER/rejected/ with the reasons, and prints what counts and what is due. On the
-        rig: record the next due session with the calibration launch (the line it prints) into
-        FOLDER, then run status again.
+        rig: `ros2 launch tacforce_ros calibration.launch.py sim:=false campaign:=FOLDER`
+        records the next due session into FOLDER (coverage_view shows its coverage live).
     campaign run FOLDER --sim
         records every due session in the simulator (the operator model presses unattended) and
         judges it; a session judged poor is recorded again with the next seed (at most
@@ -67,10 +67,11 @@ def _print_due(campaign: Campaign, records: list, due: list[SessionSlot]) -> Non
     minutes = plan.duration_s(due) / 60.0
     print(f'{len(due)} due, about {minutes:.0f} min of operator time; next:')
     for slot in due[:5]:
-        print(f'  press {slot.array} on the {slot.plate} plate ({plan.seconds:.0f} s): '
-              f'ros2 launch tacforce_ros calibration.launch.py sim:=false '
-              f'hand_side:={plan.hand_side} array:={slot.array} plate:={slot.plate} '
-              f'out:={campaign.folder}')
+        print(f'  press {slot.array} on the {slot.plate} plate ({plan.seconds:.0f} s)')
+    print('record the next one (coverage_view shows its coverage while you press; stop it '
+          f'with Ctrl-C after {plan.seconds:.0f} s):\n  ros2 launch tacforce_ros '
+          f'calibration.launch.py sim:=false hand_side:={plan.hand_side} '
+          f'campaign:={campaign.folder}')
 
 
 def cmd_plan(args) -> int:

@@ -36,7 +36,7 @@ from pathlib import Path
 
 from tacforce_ros.nodes.session_plan import (CAN_PORT, MODES, NETFT_PORT, SCENE_DONE_MARKER,
                                              SESSION_SCENE_ENDED, XELA_PORT, NodeLaunch,
-                                             PlanError, SessionArgs, plan)
+                                             PlanError, SessionArgs, campaign_session, plan)
 from tacforce_ros.paths import output_folder
 
 POLL_S = 0.1
@@ -173,10 +173,13 @@ class CrashDrill:
 
 def run(args: SessionArgs, duration: float | None, grace: float,
         crash: Crash | None = None) -> int:
-    out = Path(args.out)
-    log_dir = out / 'logs'
     try:
+        if args.campaign:
+            args = campaign_session(args)
+            print(f'session: campaign {args.campaign}: {args.array} on the {args.plate} plate',
+                  flush=True)
         nodes = plan(args)
+        log_dir = Path(args.out) / 'logs'
         drill = CrashDrill(crash, nodes, log_dir) if crash is not None else None
     except PlanError as exc:
         print(f'session: {exc}', file=sys.stderr)
@@ -216,6 +219,7 @@ def run(args: SessionArgs, duration: float | None, grace: float,
         codes = stop_nodes(procs, grace)
         for sig, handler in previous.items():
             signal.signal(sig, handler)
+    out = Path(args.out)
     bags = sorted(p for p in out.iterdir() if p.is_dir() and p.name != 'logs')
     print(f'session {args.mode}: stopped after {time.monotonic() - started:.1f} s; exit codes '
           + ', '.join(f'{n}={c}' for n, c in codes.items()))
@@ -242,6 +246,9 @@ def main(argv: list[str] | None = None) -> None:
                         'or a YAML path (default: command_player.yaml\'s, paper_70s)')
     parser.add_argument('--out', type=output_folder, default='bags',
                         help='folder for bags and node logs')
+    parser.add_argument('--campaign', default='',
+                        help='calibration: record the next session this campaign folder has '
+                        'due (its array, plate and folder; in simulation its length and seed)')
     parser.add_argument('--real-time-factor', type=float, default=1.0,
                         help='simulated seconds per wall second (sim only; with lockstep the '
                         'most it runs at)')
@@ -292,7 +299,7 @@ def main(argv: list[str] | None = None) -> None:
                              real_time_factor=a.real_time_factor, lockstep=a.lockstep,
                              sim_duration=a.sim_duration, seed=a.seed, compose=a.compose,
                              autostart=a.autostart, namespace=a.namespace,
-                             frame_prefix=a.frame_prefix,
+                             frame_prefix=a.frame_prefix, campaign=a.campaign,
                              xela_port=a.ports[0],
                              netft_port=a.ports[1], can_port=a.ports[2]),
                  a.duration, a.grace, crash))

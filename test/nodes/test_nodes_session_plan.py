@@ -251,3 +251,24 @@ def test_the_recorder_starts_before_the_streams_it_records(sim):
     names = [n.executable for n in plan(SessionArgs(mode='closed_loop', sim=sim))]
     assert names.index('sync_recorder') == (1 if sim else 0), names
     assert names[0] == ('sim_world' if sim else 'sync_recorder')
+
+
+def test_a_campaign_session_is_the_first_due_slot_and_only_for_calibration(tmp_path):
+    from tacforce_ros.nodes.session_plan import campaign_session
+    from tacforce_ros.recording.campaign import Campaign, CampaignPlan
+    folder = tmp_path / 'campaign'
+    Campaign.create(folder, CampaignPlan(hand_side='right', arrays=('palm_center', 'thumb_tip'),
+                                         plates=('convex',), sessions=2, seconds=30.0))
+    args = campaign_session(SessionArgs('calibration', campaign=str(folder)))
+    assert (args.array, args.plate, args.out, args.sim_duration) == (
+        'palm_center', 'convex', str(folder), 30.0)
+    nodes = {n.executable: n for n in plan(args)}
+    assert nodes['sim_world'].overrides['scene'] == 'calibration_palm_center_convex'
+    assert nodes['coverage_view'].overrides['campaign'] == str(folder)
+    hardware = campaign_session(SessionArgs('calibration', sim=False, campaign=str(folder)))
+    assert hardware.sim_duration == 0.0 and 'session_seconds' not in {
+        n.executable: n for n in plan(hardware)}['coverage_view'].overrides
+    with pytest.raises(PlanError, match='records calibration sessions'):
+        campaign_session(SessionArgs('closed_loop', campaign=str(folder)))
+    with pytest.raises(PlanError, match='not a campaign'):
+        campaign_session(SessionArgs('calibration', campaign=str(tmp_path)))

@@ -144,3 +144,35 @@ def test_train_refuses_a_campaign_with_nothing_that_counts(tmp_path, capsys):
     assert train.main([str(folder), '--out', str(tmp_path / 'models')]) == 2
     assert 'has no bag that counts yet' in capsys.readouterr().err
     assert not list((tmp_path / 'models').glob('*.npz'))
+
+
+def test_the_live_view_judges_the_samples_as_the_bag_is_judged_and_says_what_is_missing():
+    """LiveCoverage takes the recorder's samples one by one (F/T force in its frame, joints) and
+    judges them with coverage_of, as session_coverage judges the session's dataset."""
+    import numpy as np
+    from tacforce_ros.experiments.calibration_data import simulate_calibration
+    from tacforce_ros.hand.kinematics import HandKinematics
+    from tacforce_ros.recording.campaign import LiveCoverage, coverage_of, coverage_view
+    hand = load_hand()
+    kinematics = HandKinematics(hand.urdf_path)
+    array = hand.array('index_tip')
+    data = simulate_calibration(hand, kinematics, 'calibration_index_tip_flat', 1, 30.0)
+    rng = np.random.default_rng(0)
+    live = LiveCoverage(kinematics, hand.ft_frame, array.frame_id)
+    assert live.coverage() is None
+    for x, f in zip(data.X, data.F):
+        q = np.zeros(16)
+        q[kinematics.finger_joints('index')] = rng.uniform(0.0, 0.8, 4)
+        # The F/T reading that, at this pose, is f in the array frame.
+        live.add(x, kinematics.rotation_between(q, array.frame_id, hand.ft_frame) @ f, q)
+    whole = coverage_of(data.F, data.X)
+    got = live.coverage()
+    assert got.samples == len(data.X) and got.sectors == whole.sectors
+    assert got.rests == whole.rests and abs(got.peak_force - whole.peak_force) < 1e-9
+    text = coverage_view('index_tip on flat', got, live.limits, 30.0, 100.0)
+    assert '[#########' in text and '30 / 100 s' in text and 'of 8 directions' in text
+    assert text.splitlines()[-1] == '  so far: ' + (
+        'enough' if got.ok else '; '.join(got.problems))
+    timid = coverage_of(data.F * 0.1, data.X)
+    assert 'press harder' in coverage_view('t', timid, live.limits, 5.0)
+    assert 'waiting for synchronised samples' in coverage_view('t', None, live.limits, 0.0)

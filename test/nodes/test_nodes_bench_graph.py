@@ -97,6 +97,17 @@ def test_crash_metrics_read_the_hold_the_contact_and_the_recovery():
     assert result['passed']
 
 
+def test_the_drill_outage_is_judged_and_a_short_stale_blip_before_it_is_reported():
+    """An estimate stale for 30 ms just after engaging (session 15's failed fault run judged
+    that blip instead of the kill's outage): the longest spell is the drill's."""
+    t, modes, fresh, f_d, f_hat, f_tilde, tip = outage_ticks()
+    fresh[20:23] = False
+    modes[22:24] = ['safe'] * 2
+    result = crash_metrics(t, modes, fresh, f_d, f_hat, f_tilde, tip, 0.05)
+    assert result['last_estimate_s'] == 3.0 and result['passed']
+    assert result['other_stale_spells'] == [{'at_s': 0.2, 'lasted_s': pytest.approx(0.03)}]
+
+
 def test_crash_metrics_fail_a_lost_contact_a_late_hold_and_a_missing_outage():
     t, modes, fresh, f_d, f_hat, f_tilde, tip = outage_ticks()
     f_tilde[350:360, 2] = 0.0                        # off the plate for 0.1 s

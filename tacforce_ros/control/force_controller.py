@@ -48,6 +48,8 @@ from typing import Any, Mapping, Protocol
 import numpy as np
 import yaml
 
+from tacforce_ros.paths import config_dir
+
 FINGERS = ('index', 'middle', 'ring', 'thumb')
 SAME_LINKS_AS_INDEX = ('index', 'middle', 'ring')     # URDF: equal link lengths and inertias
 
@@ -82,6 +84,11 @@ def _param(default: Any, description: str) -> Any:
 
 class ControllerConfigError(ValueError):
     """A controller configuration that cannot be used; the message names the field."""
+
+
+def finger_params_file(finger: str) -> Path:
+    """The parameters file (config/params/) of a finger whose links differ from the index's."""
+    return config_dir() / 'params' / f'force_controller_{finger}.yaml'
 
 
 @dataclass(frozen=True)
@@ -136,20 +143,28 @@ class ForceControllerConfig:
         """Per-joint limit actually applied: the controller cap within the firmware clamps."""
         return np.minimum(self.torque_cap, np.asarray(FIRMWARE_TORQUE_LIMITS[self.finger]))
 
-    def pressing_with(self, fingertip: Any) -> ForceControllerConfig:
+    def pressing_with(self, fingertip: Any, rig_frame: str) -> ForceControllerConfig:
         """This configuration on the finger that carries `fingertip` (a hand description's
-        TaxelArray), its estimates in that array's frame. Gains and q_d stay: those of the
-        shipped file are sized for the index finger, whose links the middle and ring fingers
-        share (URDF); the thumb's links differ, so it needs its own."""
+        TaxelArray), its estimates in that array's frame, f_d in `rig_frame` (the F/T frame of
+        the rig as mounted for that finger). Gains and q_d stay where the finger shares the
+        index finger's links (URDF: middle, ring); another finger takes them from its own
+        parameters file, finger_params_file(finger), which the node loads after the shipped
+        one."""
         finger = fingertip.finger
         if finger is None or fingertip.name != f'{finger}_tip':
             raise ControllerConfigError(f'{fingertip.name} is not a fingertip array: the '
                                         'controller pushes with a fingertip')
+        config = self
         if finger not in SAME_LINKS_AS_INDEX:
-            raise ControllerConfigError(
-                f'{fingertip.name}: k_p, k_d and q_d are the index finger\'s, sized for '
-                f'{list(SAME_LINKS_AS_INDEX)}; give the {finger} its own parameters file')
-        return replace(self, finger=finger, estimate_frame=fingertip.frame_id)
+            own = finger_params_file(finger)
+            if not own.is_file():
+                raise ControllerConfigError(
+                    f'{fingertip.name}: k_p, k_d and q_d are sized for {list(SAME_LINKS_AS_INDEX)};'
+                    f' the {finger} needs its own in {own}')
+            group = ForceControllerConfig.from_yaml(own)
+            config = replace(self, k_p=group.k_p, k_d=group.k_d, q_d=group.q_d)
+        return replace(config, finger=finger, estimate_frame=fingertip.frame_id,
+                       force_frame=rig_frame)
 
     @classmethod
     def from_mapping(cls, values: Mapping[str, Any]) -> ForceControllerConfig:

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 import yaml
@@ -73,6 +73,9 @@ class HandDescription:
     base_frame: str
     ft_frame: str
     sensor_model: str = ''     # XELA model string the server reports for this hand
+    # The F/T frame of the rig as mounted for a finger whose pad does not face ft_frame (the
+    # closed loop of that finger pushes a plate there); other fingers use ft_frame.
+    rig_frames: Mapping[str, str] = field(default_factory=dict)
     _by_name: dict[str, int] = field(init=False, repr=False)
     _gather: np.ndarray = field(init=False, repr=False)   # flat positions in array-major order
     _scatter: np.ndarray = field(init=False, repr=False)  # inverse permutation of _gather
@@ -87,6 +90,10 @@ class HandDescription:
                             ('_gather', _read_only(gather)), ('_scatter', _read_only(scatter)),
                             ('_bounds', np.cumsum(sizes)[:-1])):
             object.__setattr__(self, name, value)
+
+    def rig_frame(self, finger: str) -> str:
+        """The F/T frame of the rig mounted for `finger`'s fingertip."""
+        return self.rig_frames.get(finger, self.ft_frame)
 
     @property
     def n_taxels(self) -> int:
@@ -155,7 +162,15 @@ def _build(doc: dict, path: Path) -> HandDescription:
         base_frame=_require(doc, 'base_frame', str, 'base_frame'),
         ft_frame=_require(doc, 'ft_frame', str, 'ft_frame'),
         sensor_model=str(doc.get('sensor_model', '')),
+        rig_frames={str(k): str(v) for k, v in _optional_mapping(doc, 'rig_frames').items()},
     )
+
+
+def _optional_mapping(doc: dict, key: str) -> dict:
+    value = doc.get(key) or {}
+    if not isinstance(value, dict):
+        raise HandConfigError(f'{key}: expected a mapping, got {value!r}')
+    return value
 
 
 @dataclass(frozen=True)

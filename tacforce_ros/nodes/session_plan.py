@@ -15,7 +15,8 @@ from pathlib import Path
 from typing import Any
 
 from tacforce_ros.control.command_sequence import ForceSequence, SequenceError
-from tacforce_ros.control.force_controller import ControllerConfigError, ForceControllerConfig
+from tacforce_ros.control.force_controller import (ControllerConfigError, ForceControllerConfig,
+                                                   finger_params_file)
 from tacforce_ros.estimation.model_set import ModelConfigError, default_model_config, model_files
 from tacforce_ros.hand.description import (DEFAULT_SIDE, FRAME_PREFIX_PATTERN, SIDES, hand_config,
                                            load_hand)
@@ -175,14 +176,23 @@ def _ros_literal(value: Any) -> str:
     return repr(value)
 
 
-def _controller_overrides(args: SessionArgs, hand: Any) -> dict[str, Any]:
-    """The controller's parameters for the closed loop on `args.array`, which must be a
-    fingertip the controller can drive and the estimator has a model for."""
+@dataclass(frozen=True)
+class FingertipLoop:
+    """What the closed loop on one fingertip sets in the graph."""
+    controller_files: tuple[Path, ...]      # force_controller's parameter files, in order
+    controller: dict[str, Any]              # its overrides
+    rig_frame: str                          # the F/T frame of the rig mounted for the finger
+
+
+def fingertip_loop(args: SessionArgs, hand: Any) -> FingertipLoop:
+    """The closed loop on `args.array`, which must be a fingertip the estimator has a model
+    for (ForceControllerConfig.pressing_with says what the controller needs)."""
     if args.array not in {a.name for a in hand.arrays}:
         raise PlanError(f'array: {args.array!r} is not an array of the {hand.side} hand')
+    tip = hand.array(args.array)
     config = ForceControllerConfig.from_yaml(params_file('force_controller'))
     try:
-        config = config.pressing_with(hand.array(args.array))
+        config = config.pressing_with(tip, hand.rig_frame(tip.finger))
     except ControllerConfigError as exc:
         raise PlanError(f'array: {exc}') from None
     models_yaml = args.model_config or default_model_config(hand)
@@ -193,8 +203,13 @@ def _controller_overrides(args: SessionArgs, hand: Any) -> dict[str, Any]:
     if args.array not in models:
         raise PlanError(f'array: {models_yaml} has no model for {args.array}, whose estimate '
                         f'closes the loop (it has {sorted(models)})')
-    return {'estimate_array': args.array, 'force_controller.finger': config.finger,
-            'force_controller.estimate_frame': config.estimate_frame}
+    own = finger_params_file(config.finger)
+    files = (params_file('force_controller'),) + ((own,) if own.is_file() else ())
+    return FingertipLoop(files, {'estimate_array': args.array,
+                                 'force_controller.finger': config.finger,
+                                 'force_controller.estimate_frame': config.estimate_frame,
+                                 'force_controller.force_frame': config.force_frame},
+                         config.force_frame)
 
 
 def campaign_session(args: SessionArgs) -> SessionArgs:
@@ -246,9 +261,8 @@ def plan(args: SessionArgs) -> list[NodeLaunch]:
     hand = hand_config(args.hand_side)
     if not hand.is_file():
         raise PlanError(f'hand_side {args.hand_side!r}: no hand description {hand}')
-    controller: dict[str, Any] = {}
-    if args.mode == 'closed_loop':
-        controller = _controller_overrides(args, load_hand(hand))
+    description = load_hand(hand)
+    loop = fingertip_loop(args, description) if args.mode == 'closed_loop' else None
     if args.sim:
         try:
             scene = load_scene(args.scene_name())     # before any node starts, not in sim_world
@@ -284,8 +298,11 @@ def plan(args: SessionArgs) -> list[NodeLaunch]:
     nodes.append(NodeLaunch('xela_driver', (params_file('xela_driver'),),
                             {**common, **managed, **hand_param, **framed,
                              **sim_devices['xela']}))
+    # A finger whose pad faces another way pushes on the rig mounted for it: {F} is that frame.
+    rig = ({'frame_id': loop.rig_frame}
+           if loop is not None and loop.rig_frame != description.ft_frame else {})
     nodes.append(NodeLaunch('ft_bridge', (params_file('ft_bridge'),),
-                            {**common, **managed, **framed, **sim_devices['netft']}))
+                            {**common, **managed, **framed, **sim_devices['netft'], **rig}))
     if args.mode == 'calibration':
         # The operator moves the hand: joint states only, no torque commands.
         nodes.append(NodeLaunch('allegro_driver', (params_file('allegro_driver'),),
@@ -304,11 +321,11 @@ def plan(args: SessionArgs) -> list[NodeLaunch]:
         nodes.append(NodeLaunch('allegro_driver', (params_file('allegro_driver'),),
                                 {**common, **managed, **hand_param,
                                  **sim_devices['allegro'], 'control': 'torque'}))
-        nodes.append(NodeLaunch('force_controller', (params_file('force_controller'),),
-                                {**common, **hand_param, **framed, **controller}))
+        nodes.append(NodeLaunch('force_controller', loop.controller_files,
+                                {**common, **hand_param, **framed, **loop.controller}))
         # The sequence starts once the controller and the recorder both listen.
         nodes.append(NodeLaunch('command_player', (params_file('command_player'),),
-                                {**common, **framed, 'min_subscribers': 2,
+                                {**common, **framed, 'min_subscribers': 2, **rig,
                                  **({'sequence': args.sequence} if args.sequence else {})}))
     # Both modes keep the raw streams (closed loop: the F/T reading is the reference). Listed
     # right after the simulator, as one starts `ros2 bag record` first; what makes a closed-loop

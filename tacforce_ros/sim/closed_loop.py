@@ -118,7 +118,7 @@ class ClosedLoopSimulator:
         self.radius = self.tip_radius + build.tip_radius_extra
         self.offset = build.contact_offset
         self.s0 = self.model.body(self.sensor.array.frame_id).id
-        ft = self.model.body(self.hand.ft_frame).id
+        ft = self.model.body(self.hand.rig_frame(self.finger)).id
         # The lab places the rig so the plate just touches the (real) fingertip at the contact
         # pose; the finger starts at its start pose, clear of the plate when the two differ.
         self.data.qpos[:] = self._q(self.contact_pose)

@@ -8,7 +8,8 @@ A calibration scene needs no file: `calibration_<array>_<plate>` is `_calibratio
 array and plate (any array of the hand, any plate of the plates library), so a campaign over
 all 18 arrays has one home for what a calibration session is. Likewise a closed-loop scene
 `closed_loop_<fingertip>_<object>` is `closed_loop_<object>` (the index finger's) with that
-fingertip pressing instead. A file of either name wins.
+fingertip pressing instead (and `_closed_loop_<finger>.yaml`'s finger part, where the finger has
+one: the thumb). A file of either name wins.
 """
 from __future__ import annotations
 
@@ -86,10 +87,7 @@ CALIBRATION_PREFIX = 'calibration_'
 CALIBRATION_DEFAULTS = '_calibration'
 CLOSED_LOOP_PREFIX = 'closed_loop_'
 CLOSED_LOOP_FINGER = 'index'        # the finger of the closed_loop_<object> scene files
-# The rig's F/T frame (ft_sensor in the URDF, fixed to the palm) faces the pads of the index,
-# middle and ring fingertips at their contact pose (normal within 10 deg of -z); the opposed
-# thumb's pad faces about +z, away from the plate, so the thumb needs the rig mounted for it.
-CLOSED_LOOP_FINGERS = ('index', 'middle', 'ring')
+CLOSED_LOOP_FINGERS = ('index', 'middle', 'ring', 'thumb')
 
 
 def list_scenes() -> list[str]:
@@ -120,14 +118,13 @@ def _generated_scene(path: Path) -> dict | None:
     finger, tip, scene = stem[len(CLOSED_LOOP_PREFIX):].partition('_tip_')
     if not stem.startswith(CLOSED_LOOP_PREFIX) or not tip:
         return None
-    if finger not in CLOSED_LOOP_FINGERS:
-        raise SceneError(f'{stem}: the closed loop presses with one of the fingertips '
-                         f'{[f + "_tip" for f in CLOSED_LOOP_FINGERS]}, not {finger}_tip (the '
-                         "rig's F/T frame, ft_sensor in the URDF, faces those fingers' pads)")
     base = scenes_dir() / f'{CLOSED_LOOP_PREFIX}{scene}.yaml'
-    if not base.is_file():
+    if finger not in CLOSED_LOOP_FINGERS or not base.is_file():
         return None
-    return {'extends': base.stem, 'array': f'{finger}_tip', 'finger': {'name': finger}}
+    # A finger whose links or pose differ from the index finger's has its own part.
+    own = scenes_dir() / f'_{CLOSED_LOOP_PREFIX}{finger}.yaml'
+    finger_part = _read_yaml(own).get('finger') if own.is_file() else {'name': finger}
+    return {'extends': base.stem, 'array': f'{finger}_tip', 'finger': finger_part}
 
 
 def _deep_merge(base: dict, child: dict) -> dict:

@@ -397,3 +397,29 @@ def test_class_defaults_are_the_project_parameter_file():
     # Only the estimate frame differs: the class default is the force frame itself (no turn).
     assert project.estimate_frame == 'uskin_index_tip'
     assert dataclasses.replace(project, estimate_frame='') == ForceControllerConfig()
+
+
+def test_pressing_with_another_fingertip_keeps_the_law_and_gives_the_thumb_its_own_gains(
+        monkeypatch):
+    from tacforce_ros.control import force_controller
+    from tacforce_ros.hand.description import load_hand
+    hand = load_hand()
+    base = ForceControllerConfig.from_yaml(force_controller.config_dir() / 'params'
+                                           / 'force_controller.yaml')
+    open_loop = dataclasses.replace(base, k_i=(0.0, 0.0, 0.0))
+    ring = open_loop.pressing_with(hand.array('ring_tip'), 'ft_sensor')
+    assert (ring.finger, ring.estimate_frame, ring.force_frame) == ('ring', 'uskin_ring_tip',
+                                                                    'ft_sensor')
+    assert dataclasses.replace(ring, finger='index', estimate_frame=base.estimate_frame) == \
+        open_loop
+    thumb = open_loop.pressing_with(hand.array('thumb_tip'), 'ft_sensor_thumb')
+    own = ForceControllerConfig.from_yaml(force_controller.finger_params_file('thumb'))
+    assert (thumb.k_p, thumb.k_d, thumb.q_d) == (own.k_p, own.k_d, own.q_d) != (
+        base.k_p, base.k_d, base.q_d)
+    assert thumb.k_i == (0.0, 0.0, 0.0) and thumb.force_frame == 'ft_sensor_thumb'
+    with pytest.raises(ControllerConfigError, match='not a fingertip array'):
+        base.pressing_with(hand.array('thumb_distal'), 'ft_sensor')
+    monkeypatch.setattr(force_controller, 'finger_params_file',
+                        lambda finger: force_controller.Path('/nonexistent.yaml'))
+    with pytest.raises(ControllerConfigError, match='the thumb needs its own in'):
+        base.pressing_with(hand.array('thumb_tip'), 'ft_sensor_thumb')

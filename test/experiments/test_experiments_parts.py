@@ -231,26 +231,35 @@ def test_the_filter_effect_is_paired_by_seed_and_called_only_beyond_its_noise(
     assert 'traces' not in effect and effect['cutoff_hz'] == 10.0
 
 
-@pytest.mark.parametrize('array', ['middle_tip', 'ring_tip'])
-def test_the_closed_loop_on_another_fingertip_tracks_as_the_index_does(hand, kinematics, array):
-    """The launch's `array` picks the fingertip: its scene (the rig placed at that tip), the
-    controller on its finger and the estimate of its array. Paper sequence, spherical plate:
-    the closed loop cuts e~ by >= 70 % against the open loop and tracks within 0.1 N."""
+@pytest.mark.parametrize('array, reduction', [('middle_tip', 0.7), ('ring_tip', 0.7),
+                                              ('thumb_tip', 0.0)])
+def test_the_closed_loop_on_another_fingertip_tracks_its_estimate(hand, kinematics, array,
+                                                                  reduction):
+    """The launch's `array` picks the fingertip: its scene (the rig placed at that tip; the
+    thumb's own rig, pose and gains), the controller on its finger and the estimate of its
+    array. Paper sequence, spherical plate: the loop tracks its estimate within 0.1 N and beats
+    the open loop on e~; the middle and ring fingers (the index finger's links) by the paper's
+    >= 70 %. The thumb's margin is not a target: its estimate is further off (README)."""
     from tacforce_ros.estimation.model_set import default_model_config, load_model_set
     from tacforce_ros.sim.scene import closed_loop_scene_name
     sequence = ForceSequence.load('paper_70s')
     scene, tip = closed_loop_scene_name(array, 'spherical'), hand.array(array)
+    rig = hand.rig_frame(tip.finger)
     models = load_model_set(default_model_config(hand), hand)
     with warnings.catch_warnings():
         warnings.simplefilter('ignore')
         open_loop = trace_metrics([run_closed_loop(
-            hand, kinematics, scene, 0, controller_config('open_loop').pressing_with(tip),
+            hand, kinematics, scene, 0, controller_config('open_loop').pressing_with(tip, rig),
             sequence, None)])
         closed = trace_metrics([run_closed_loop(
-            hand, kinematics, scene, 0, controller_config('M3-lambda').pressing_with(tip),
+            hand, kinematics, scene, 0, controller_config('M3-lambda').pressing_with(tip, rig),
             sequence, models)])
+    print(f"\n{array}: e~ closed / open loop {closed['e_tilde_mean']:.3f} / "
+          f"{open_loop['e_tilde_mean']:.3f} N, e_track {closed['e_track_mean']:.3f} N, "
+          f"e_hat {closed['e_hat_mean']:.3f} N")
     assert closed['estimate_coverage'] == 1.0
-    assert closed['e_tilde_mean'] <= 0.3 * open_loop['e_tilde_mean'], (closed, open_loop)
+    assert closed['e_tilde_mean'] < (1.0 - reduction) * open_loop['e_tilde_mean'], (
+        closed, open_loop)
     assert closed['e_track_mean'] < 0.1
     with pytest.raises(ValueError, match='presses the ring finger, the controller drives the'):
         run_closed_loop(hand, kinematics, closed_loop_scene_name('ring_tip', 'spherical'), 0,

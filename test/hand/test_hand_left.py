@@ -57,7 +57,8 @@ def test_each_taxel_is_the_mirror_of_the_right_hands_in_its_array_frame():
 def test_every_frame_of_the_left_hand_is_the_mirror_of_the_right(seed):
     q = random_q(seed)
     frames = ([a.frame_id for a in RIGHT.arrays] + [a.parent_link for a in RIGHT.arrays]
-              + [RIGHT.ft_frame, 'link_15.0_tip', 'link_12.0', 'link_13.0'])
+              + [RIGHT.ft_frame, RIGHT.rig_frame('thumb'), 'link_15.0_tip', 'link_12.0',
+                 'link_13.0'])
     for frame in frames:
         R_r, p_r = KIN_R.frame_pose(q, frame)
         R_l, p_l = KIN_L.frame_pose(mirrored_q(q), frame)

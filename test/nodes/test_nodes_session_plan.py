@@ -71,11 +71,23 @@ def test_the_closed_loop_array_picks_the_scene_the_finger_and_the_estimate():
             controller['force_controller.estimate_frame']) == ('middle_tip', 'middle',
                                                                'uskin_middle_tip')
     assert nodes['sync_recorder'].overrides['array'] == 'middle_tip'
+    assert 'frame_id' not in nodes['ft_bridge'].overrides          # the rig of the fingers
+
+
+def test_the_thumb_closes_its_loop_on_the_rig_mounted_for_it_with_its_own_gains():
+    from tacforce_ros.control.force_controller import finger_params_file
+    nodes = {n.executable: n for n in plan(SessionArgs('closed_loop', array='thumb_tip'))}
+    assert nodes['sim_world'].overrides['scene'] == 'closed_loop_thumb_tip_spherical'
+    controller = nodes['force_controller']
+    assert controller.param_files[-1] == finger_params_file('thumb')
+    assert (controller.overrides['force_controller.finger'],
+            controller.overrides['force_controller.force_frame']) == ('thumb', 'ft_sensor_thumb')
+    assert nodes['ft_bridge'].overrides['frame_id'] == 'ft_sensor_thumb'
+    assert nodes['command_player'].overrides['frame_id'] == 'ft_sensor_thumb'
 
 
 @pytest.mark.parametrize('array, message', [
-    ('index_middle', 'not a fingertip array'), ('thumb_tip', "the index finger's, sized for"),
-    ('pinky_tip', 'not an array of the right hand')])
+    ('index_middle', 'not a fingertip array'), ('pinky_tip', 'not an array of the right hand')])
 def test_a_closed_loop_array_the_controller_cannot_drive_is_refused(array, message):
     with pytest.raises(PlanError, match=message):
         plan(SessionArgs('closed_loop', array=array))

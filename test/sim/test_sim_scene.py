@@ -74,8 +74,10 @@ def test_a_closed_loop_scene_of_another_fingertip_is_the_index_scene_on_that_fin
     assert {k: v for k, v in ring.finger.items() if k != 'name'} == {
         k: v for k, v in index.finger.items() if k != 'name'}
     assert ring.effects == index.effects and ring.plate == index.plate
-    with pytest.raises(SceneError, match="not thumb_tip .*faces those fingers' pads"):
-        load_scene('closed_loop_thumb_tip_spherical')
+    thumb = load_scene('closed_loop_thumb_tip_spherical')      # its own poses
+    assert (thumb.array, thumb.finger['name'], thumb.finger['contact_pose']) == (
+        'thumb_tip', 'thumb', [0.9, 0.5, 0.6, 0.5])
+    assert thumb.finger['skin_stiffness'] == index.finger['skin_stiffness']
     with pytest.raises(SceneError, match='not found'):             # no such object
         load_scene('closed_loop_ring_tip_banana')
 

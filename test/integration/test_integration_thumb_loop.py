@@ -1,0 +1,57 @@
+"""The closed loop on the thumb through the node graph (`session closed_loop --array thumb_tip`,
+as `closed_loop.launch.py array:=thumb_tip` starts it): the thumb pushes on the rig mounted for
+it, so the F/T wrench, the commands and the controller's state are all in ft_sensor_thumb; the
+controller runs the thumb with its own gains without swinging (with gains sized from the
+diagonal of its inertia it swung at 10-27 rad/s here), and tracks its estimate."""
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from tacforce_ros import bagio, topics
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from graph_support import free_ports, unique_domain_id  # noqa: E402
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from ros_processes import executable, ros_env  # noqa: E402
+
+pytestmark = pytest.mark.ros
+SIM_SECONDS = 25.0       # the paper sequence's first command comes at 16 s
+THUMB = slice(12, 16)
+
+
+def test_the_thumb_closes_its_loop_on_its_own_rig(tmp_path):
+    result = subprocess.run(
+        [executable('session'), 'closed_loop', '--array', 'thumb_tip', '--out', str(tmp_path),
+         '--sim-duration', str(SIM_SECONDS), '--duration', '240',
+         '--ports', *[str(p) for p in free_ports(offset=2)]],
+        env=ros_env(unique_domain_id(offset=77)), capture_output=True, text=True, timeout=300)
+    logs = '\n'.join(p.read_text()[-800:] for p in sorted((tmp_path / 'logs').glob('*.log')))
+    assert result.returncode == 0, result.stdout + result.stderr + logs
+    bag = next(p for p in tmp_path.iterdir() if p.is_dir() and p.name != 'logs')
+    frames = {}
+    states, speeds = [], []
+    for topic, _, msg in bagio.read_messages(bag, [topics.TOPIC_WRENCH, topics.TOPIC_DESIRED,
+                                                   topics.TOPIC_CONTROLLER_STATE,
+                                                   topics.TOPIC_JOINTS]):
+        if topic == topics.TOPIC_JOINTS:
+            speeds.append(np.abs(np.asarray(msg.velocity)[THUMB]).max())
+            continue
+        frames.setdefault(topic, set()).add(msg.header.frame_id)
+        if topic == topics.TOPIC_CONTROLLER_STATE:
+            states.append((msg.finger, msg.mode,
+                           [msg.desired_force.x, msg.desired_force.y, msg.desired_force.z],
+                           [msg.estimated_force.x, msg.estimated_force.y, msg.estimated_force.z]))
+    assert frames == {t: {'ft_sensor_thumb'} for t in (
+        topics.TOPIC_WRENCH, topics.TOPIC_DESIRED, topics.TOPIC_CONTROLLER_STATE)}
+    assert {s[0] for s in states} == {'thumb'}
+    commanded = [s for s in states if np.linalg.norm(s[2]) > 0]
+    assert len(commanded) > 300 and all(s[1] == 'closed_loop' for s in commanded)
+    f_d, f_hat = np.array([s[2] for s in commanded]), np.array([s[3] for s in commanded])
+    e_track = float(np.linalg.norm(f_d - f_hat, axis=1).mean())
+    print(f'\nthumb: e_track {e_track:.3f} N over {len(commanded)} commanded ticks, fastest '
+          f'thumb joint {max(speeds):.2f} rad/s')
+    assert e_track < 0.1 and max(speeds) < 3.0

@@ -271,12 +271,14 @@ class Campaign:
         return sorted(p for p in self.folder.iterdir()
                       if p.is_dir() and (p / 'metadata.yaml').is_file())
 
-    def check(self, hand, kinematics, progress=None, write: bool = True
-              ) -> list[SessionRecord]:
+    def check(self, hand, kinematics, progress=None, write: bool = True,
+              read: dict | None = None) -> list[SessionRecord]:
         """Judge every bag not yet judged (a verdict holds for the bag as it was, under the
         plan's limits); with `write`, move a poor one to rejected/ and keep the verdicts.
         Returns the records of the bags that count. A bag that does not read is reported
-        through `progress(name, None, reason)` and left alone."""
+        through `progress(name, None, reason)` and left alone. `read`, if given, receives
+        bag path -> (dataset, messages dropped) of each counted bag this call read, so that a
+        caller that needs the datasets reads no bag twice."""
         from tacforce_ros.bagio import BagError
         from tacforce_ros.estimation.bag_dataset import dataset_from_bag
         from tacforce_ros.estimation.dataset import DatasetError
@@ -287,10 +289,11 @@ class Campaign:
             for bag in self.bags():
                 stamp = (bag / 'metadata.yaml').stat().st_mtime_ns
                 verdict = self._verdicts.get(bag.name)
+                fresh = None
                 if verdict is None or verdict.get('stamp') != stamp \
                         or verdict.get('limits') != limits:
                     try:
-                        dataset, _ = dataset_from_bag(bag, hand, kinematics)
+                        dataset, dropped = dataset_from_bag(bag, hand, kinematics)
                     except (BagError, DatasetError, ValueError, KeyError, OSError) as exc:
                         if progress is not None:
                             progress(bag.name, None, f'not counted, does not read: {exc}')
@@ -301,6 +304,7 @@ class Campaign:
                                      f'{dataset.hand_side} hand')
                         continue
                     coverage = session_coverage(dataset, self.plan.limits)
+                    fresh = (dataset, dropped)
                     verdict = {'array': dataset.array, 'plate': dataset.plate_names()[0],
                                'coverage': asdict(coverage), 'stamp': stamp, 'limits': limits}
                     if progress is not None:
@@ -310,6 +314,8 @@ class Campaign:
                 if record.ok:
                     verdicts[bag.name] = verdict
                     records.append(record)
+                    if read is not None and fresh is not None:
+                        read[bag] = fresh
                 elif write:
                     self._reject(bag, verdict)
         finally:

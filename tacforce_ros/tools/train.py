@@ -61,8 +61,9 @@ def model_hyper(kind: str, seed: int, lambda_cv: bool, lam: float) -> dict:
     return {}
 
 
-def expand_campaigns(paths: list[Path]) -> list[Path]:
-    """Each campaign folder replaced by the bags of it that count; other paths kept."""
+def expand_campaigns(paths: list[Path], read: dict | None = None) -> list[Path]:
+    """Each campaign folder replaced by the bags of it that count; other paths kept. `read`
+    receives the datasets of the bags judging them read (Campaign.check)."""
     from tacforce_ros.hand.kinematics import HandKinematics
     from tacforce_ros.recording.campaign import Campaign, is_campaign, verdict_line
 
@@ -74,7 +75,7 @@ def expand_campaigns(paths: list[Path]) -> list[Path]:
         campaign = Campaign(path)
         hand = load_hand(hand_config(campaign.plan.hand_side))
         # Judged as `campaign status` judges, but the campaign is left as it is.
-        records = campaign.check(hand, HandKinematics(hand.urdf_path), write=False,
+        records = campaign.check(hand, HandKinematics(hand.urdf_path), write=False, read=read,
                                  progress=lambda *judged: print(verdict_line(*judged),
                                                                 file=sys.stderr))
         due = campaign.due(records)
@@ -88,10 +89,11 @@ def expand_campaigns(paths: list[Path]) -> list[Path]:
     return expanded
 
 
-def load_inputs(paths: list[Path], side: str | None
+def load_inputs(paths: list[Path], side: str | None, read: dict | None = None
                 ) -> tuple[HandDescription, dict[str, list[CalibrationDataset]], int]:
     """The hand the inputs are of (the one their bags and datasets name, all the same, or
-    `side`), their datasets by array name, and the malformed messages dropped."""
+    `side`), their datasets by array name, and the malformed messages dropped. `read`: bag
+    path -> (dataset, dropped) already read (expand_campaigns), not read again."""
     from tacforce_ros.bagio import read_session_metadata
     bags = [p for p in paths if p.is_dir()]
     datasets = [CalibrationDataset.load(p) for p in paths if not p.is_dir()]
@@ -108,7 +110,7 @@ def load_inputs(paths: list[Path], side: str | None
         from tacforce_ros.hand.kinematics import HandKinematics
         kinematics = HandKinematics(hand.urdf_path)
         for bag in tqdm(bags, desc='bags', unit='bag'):
-            dataset, n_dropped = dataset_from_bag(bag, hand, kinematics)
+            dataset, n_dropped = (read or {}).get(bag) or dataset_from_bag(bag, hand, kinematics)
             by_array[dataset.array].append(dataset)
             dropped += n_dropped
     for dataset in datasets:
@@ -189,7 +191,9 @@ def main(argv: list[str] | None = None) -> int:
     if missing:
         parser.error(f'inputs not found: {missing}')
     try:
-        hand, by_array, dropped = load_inputs(expand_campaigns(args.inputs), args.hand_side)
+        read: dict = {}
+        hand, by_array, dropped = load_inputs(expand_campaigns(args.inputs, read),
+                                              args.hand_side, read)
     except (DatasetError, ValueError, RuntimeError, OSError) as exc:
         print(f'train: {exc}', file=sys.stderr)
         return 2

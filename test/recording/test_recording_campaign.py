@@ -38,7 +38,8 @@ def test_the_plan_goes_plate_by_plate_and_refuses_another_plan_in_its_folder(tmp
         Campaign(tmp_path)
 
 
-def test_an_interrupted_campaign_resumes_and_records_only_what_is_missing(tmp_path):
+def test_an_interrupted_campaign_resumes_and_records_only_what_is_missing(tmp_path,
+                                                                         monkeypatch):
     folder = tmp_path / 'c'
     make(folder)
     command = [sys.executable, '-m', 'tacforce_ros.tools.campaign', 'run', str(folder), '--sim']
@@ -68,9 +69,17 @@ def test_an_interrupted_campaign_resumes_and_records_only_what_is_missing(tmp_pa
     verdicts = json.loads((folder / 'verdicts.json').read_text())
     assert {v['array'] for v in verdicts.values()} == set(ARRAYS)
 
-    # train CAMPAIGN: every array of it, one model list for the estimator
+    # train CAMPAIGN: every array of it, one model list for the estimator; with no verdict
+    # stored, judging a bag and training on it read it once.
+    from tacforce_ros.estimation import bag_dataset
+    reads = []
+    reading = bag_dataset.dataset_from_bag
+    monkeypatch.setattr(bag_dataset, 'dataset_from_bag',
+                        lambda bag, *a: reads.append(bag.name) or reading(bag, *a))
+    (folder / 'verdicts.json').unlink()
     models = tmp_path / 'models'
     assert train.main([str(folder), '--out', str(models), '--kinds', 'M3-lambda']) == 0
+    assert sorted(reads) == sorted(bags)
     report = json.loads((models / 'report.json').read_text())
     assert {(m['array'], m['array_type']) for m in report['models']} == {
         ('index_middle', 'phalanx'), ('palm_center', 'palm')}

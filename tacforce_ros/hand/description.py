@@ -162,15 +162,17 @@ def _build(doc: dict, path: Path) -> HandDescription:
         base_frame=_require(doc, 'base_frame', str, 'base_frame'),
         ft_frame=_require(doc, 'ft_frame', str, 'ft_frame'),
         sensor_model=str(doc.get('sensor_model', '')),
-        rig_frames={str(k): str(v) for k, v in _optional_mapping(doc, 'rig_frames').items()},
+        rig_frames=_rig_frames(doc, {a.finger for a in arrays if a.finger}),
     )
 
 
-def _optional_mapping(doc: dict, key: str) -> dict:
-    value = doc.get(key) or {}
-    if not isinstance(value, dict):
-        raise HandConfigError(f'{key}: expected a mapping, got {value!r}')
-    return value
+def _rig_frames(doc: dict, fingers: set[str]) -> dict[str, str]:
+    raw = doc.get('rig_frames') or {}
+    if not isinstance(raw, dict) or not set(raw) <= fingers:
+        raise HandConfigError(f'rig_frames: expected finger -> frame for fingers of '
+                              f'{sorted(fingers)}, got {raw!r}')
+    return {str(k): str(v) for k, v in raw.items()}
+
 
 
 @dataclass(frozen=True)

@@ -5,8 +5,9 @@ joint state of the pressed array) and every `period` wall seconds prints how the
 meets the campaign's coverage limits (recording/campaign.py: the same judgement the closed bag
 gets): elapsed against the planned length, peak force, the shear directions pressed, the rests,
 and what is still missing ("press harder", "vary the push direction", "let go between
-presses"). On a terminal the view redraws in place; otherwise (a launch log) each view is
-printed below the last. The limits are the campaign's (`campaign`: its folder) or the defaults.
+presses"). On a terminal the view redraws in place; otherwise (a launch log) a view is
+printed below the last when samples came since. The hand is the campaign's unless `hand_config`
+names one. The limits are the campaign's (`campaign`: its folder) or the defaults.
 A new array in the samples, or stamps that go back (a new session), starts a new view.
 """
 from __future__ import annotations
@@ -17,6 +18,7 @@ import numpy as np
 from rclpy.clock import Clock, ClockType
 from tacforce_msgs.msg import CalibrationSample
 
+from tacforce_ros.hand.description import hand_config
 from tacforce_ros.nodes.common import (HAND_CONFIG, ParamSpec, ParameterError, TacforceNode,
                                        hand_parameter, kinematics_parameter, run_node,
                                        subscriber_qos)
@@ -41,10 +43,8 @@ class CoverageViewNode(TacforceNode):
     def __init__(self, **node_options) -> None:
         super().__init__(**node_options)
         p = self.params
-        self.hand = hand_parameter(p)
-        # Only rotations are asked of the kinematics: gravity does not matter.
-        self.kin = kinematics_parameter(self.hand, {'gravity': (0.0, 0.0, -9.81)})
         self.limits, self.planned = CoverageLimits(), p['session_seconds']
+        hand_params = dict(p)
         if p['campaign']:
             try:
                 plan = CampaignPlan.load(p['campaign'])
@@ -52,11 +52,18 @@ class CoverageViewNode(TacforceNode):
                 raise ParameterError(f'campaign: {exc}') from None
             self.limits = plan.limits
             self.planned = self.planned or plan.seconds
+            hand_params['hand_config'] = p['hand_config'] or str(hand_config(plan.hand_side))
+        self.hand = hand_parameter(hand_params)
+        if p['campaign'] and self.hand.side != plan.hand_side:
+            raise ParameterError(f'campaign: a campaign of the {plan.hand_side} hand, '
+                                 f'hand_config is the {self.hand.side} hand\'s')
+        # Only rotations are asked of the kinematics: gravity does not matter.
+        self.kin = kinematics_parameter(self.hand, {'gravity': (0.0, 0.0, -9.81)})
         self.live: LiveCoverage | None = None
         self.array = ''
         self.first_ns = self.last_ns = 0
         self.drawn_lines = 0
-        self.refused = 0
+        self.drawn_samples = -1
         self.tty = sys.stdout.isatty()
         self.create_subscription(CalibrationSample, relative(TOPIC_SAMPLE), self._on_sample,
                                  subscriber_qos(TOPIC_SAMPLE))
@@ -69,7 +76,6 @@ class CoverageViewNode(TacforceNode):
             try:
                 array = self.hand.array(name)
             except KeyError:
-                self.refused += 1
                 return
             self.array, self.first_ns = name, t
             self.live = LiveCoverage(self.kin, self.hand.ft_frame, array.frame_id, self.limits)
@@ -77,7 +83,6 @@ class CoverageViewNode(TacforceNode):
         tactile = msg.tactile
         if not set(self.kin.joint_names) <= set(order) or not (
                 len(tactile.x) == len(tactile.y) == len(tactile.z) > 0):
-            self.refused += 1
             return
         q = np.array([msg.joints.position[order[j]] for j in self.kin.joint_names])
         f = msg.wrench.wrench.force
@@ -85,13 +90,17 @@ class CoverageViewNode(TacforceNode):
         self.last_ns = t
 
     def view(self) -> str:
-        title = f'{self.array or "(no samples yet)"}' + (f' on {self.params["plate"]}'
-                                                           if self.params['plate'] else '')
+        title = (self.array or '(no samples yet)') + (f' on {self.params["plate"]}'
+                                                        if self.params['plate'] else '')
         coverage = None if self.live is None else self.live.coverage()
         return coverage_view(title, coverage, self.limits, (self.last_ns - self.first_ns) * 1e-9,
                              self.planned)
 
     def _draw(self) -> None:
+        samples = 0 if self.live is None else self.live.samples
+        if not self.tty and samples == self.drawn_samples:
+            return          # a log (launch's screen) gets a view only when there is news
+        self.drawn_samples = samples
         text = self.view()
         if self.tty and self.drawn_lines:
             sys.stdout.write(f'\x1b[{self.drawn_lines}F\x1b[J')    # back to the last view
@@ -100,6 +109,7 @@ class CoverageViewNode(TacforceNode):
         self.drawn_lines = text.count('\n') + 1
 
     def leave_safe(self) -> None:
+        self.drawn_samples = -1
         self._draw()        # the session as it ended
         coverage = None if self.live is None else self.live.coverage()
         if coverage is not None:

@@ -111,6 +111,10 @@ class ForceControllerNode(TacforceNode):
         if self.hand.array(array).finger != config.finger:
             raise ParameterError(f'estimate_array: {array} is not on the controlled finger '
                                  f'({CONTROLLER_GROUP}.finger: {config.finger})')
+        rig = self.hand.rig_frame(config.finger)
+        if config.force_frame != rig:
+            raise ParameterError(f'{CONTROLLER_GROUP}.force_frame: {config.force_frame!r} but '
+                                 f'the rig for the {config.finger} is {rig!r} (hand rig_frames)')
         expected = self.hand.array(array).frame_id
         if config.estimate_frame != expected:
             raise ParameterError(f'{CONTROLLER_GROUP}.estimate_frame: {config.estimate_frame!r}'

@@ -214,8 +214,9 @@ def fingertip_loop(args: SessionArgs, hand: Any) -> FingertipLoop:
 
 def campaign_session(args: SessionArgs) -> SessionArgs:
     """`args` set to record the next session `args.campaign` has due: its array and plate, into
-    the campaign folder; in simulation its length and seed unless given. Bags not yet judged
-    are judged as `campaign status` judges them, without changing the campaign."""
+    the campaign folder; in simulation its length and seed unless given (a session recorded
+    again after a poor one gets the next seed). Bags not yet judged are judged as `campaign
+    status` judges them: a poor one is set aside in rejected/, the verdicts are kept."""
     from tacforce_ros.hand.kinematics import HandKinematics
     from tacforce_ros.recording.campaign import Campaign, CampaignError
     from tacforce_ros.sim.scene import session_seed
@@ -230,13 +231,14 @@ def campaign_session(args: SessionArgs) -> SessionArgs:
         raise PlanError(f'campaign: {args.campaign} is a campaign of the {plan_.hand_side} hand; '
                         f'hand_side is {args.hand_side}')
     hand = load_hand(hand_config(args.hand_side))
-    due = campaign.due(campaign.check(hand, HandKinematics(hand.urdf_path), write=False))
+    due = campaign.due(campaign.check(hand, HandKinematics(hand.urdf_path)))
     if not due:
         raise PlanError(f'campaign: {args.campaign} is complete, nothing is due (train it: '
                         f'`train {args.campaign} --out MODELS`)')
     slot = due[0]
     simulated = {'sim_duration': args.sim_duration or plan_.seconds,
-                 'seed': session_seed(plan_.seed, slot.array, slot.plate, slot.index)
+                 'seed': session_seed(plan_.seed, slot.array, slot.plate, slot.index
+                                      + campaign.rejected_count(slot.array, slot.plate))
                  if args.seed == -1 else args.seed} if args.sim else {}
     return dataclasses.replace(args, array=slot.array, plate=slot.plate, scene='',
                                out=str(campaign.folder), **simulated)

@@ -106,9 +106,6 @@ class LiveCoverage:
                  limits: CoverageLimits = CoverageLimits()) -> None:
         self.kinematics, self.ft_frame, self.array_frame = kinematics, ft_frame, array_frame
         self.limits = limits
-        self.reset()
-
-    def reset(self) -> None:
         self._force: list[np.ndarray] = []
         self._tactile: list[np.ndarray] = []
 
@@ -212,7 +209,7 @@ class CampaignPlan:
 
     @classmethod
     def load(cls, folder: Path) -> CampaignPlan:
-        path = Path(folder) / PLAN_FILE
+        path = Path(folder).expanduser() / PLAN_FILE
         if not path.is_file():
             raise CampaignError(f'{folder}: not a campaign (no {PLAN_FILE}; make one with '
                                 '`campaign plan`)')
@@ -243,7 +240,7 @@ class Campaign:
     """A campaign folder: its plan, the bags it holds, and what is still due."""
 
     def __init__(self, folder: str | Path) -> None:
-        self.folder = Path(folder)
+        self.folder = Path(folder).expanduser()
         self.plan = CampaignPlan.load(self.folder)
         self._verdicts: dict[str, dict] = {}
         verdicts = self.folder / VERDICTS_FILE
@@ -338,6 +335,14 @@ class Campaign:
         partial = path.with_name(path.name + '.partial')
         partial.write_text(json.dumps(self._verdicts, indent=2, sort_keys=True))
         partial.replace(path)
+
+    def rejected_count(self, array: str, plate: str) -> int:
+        """How many bags of (array, plate) were judged poor and set aside."""
+        folder = self.folder / REJECTED
+        if not folder.is_dir():
+            return 0
+        verdicts = [json.loads(p.read_text()) for p in folder.glob('*.verdict.json')]
+        return sum((v.get('array'), v.get('plate')) == (array, plate) for v in verdicts)
 
     def due(self, records: list[SessionRecord]) -> list[SessionSlot]:
         """The planned sessions no counted bag covers yet, in recording order; each takes the

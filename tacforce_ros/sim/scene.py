@@ -123,8 +123,8 @@ def _generated_scene(path: Path) -> dict | None:
         return None
     # A finger whose links or pose differ from the index finger's has its own part.
     own = scenes_dir() / f'_{CLOSED_LOOP_PREFIX}{finger}.yaml'
-    finger_part = _read_yaml(own).get('finger') if own.is_file() else {'name': finger}
-    return {'extends': base.stem, 'array': f'{finger}_tip', 'finger': finger_part}
+    part = (_read_yaml(own).get('finger') or {}) if own.is_file() else {}
+    return {'extends': base.stem, 'array': f'{finger}_tip', 'finger': {**part, 'name': finger}}
 
 
 def _deep_merge(base: dict, child: dict) -> dict:

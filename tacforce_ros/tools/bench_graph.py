@@ -152,7 +152,8 @@ def crash_metrics(t: np.ndarray, modes: list[str], fresh: np.ndarray, f_d: np.nd
     spells = [] if engaged is None else stale_spells(np.asarray(fresh[engaged:], bool), engaged)
     if not spells:
         return {'failed': 'the estimate never went stale after the controller engaged'}
-    first_stale, back = max(spells, key=lambda spell: spell[1] - spell[0])
+    first_stale, back = max(spells, key=lambda spell: (
+        len(t) if spell[1] is None else spell[1]) - spell[0])
     if back is None:
         return {'failed': f'the estimate went stale at {t[first_stale]:.2f} s and never returned'}
     others = [(t[a], (t[b] if b is not None else t[-1]) - t[a]) for a, b in spells

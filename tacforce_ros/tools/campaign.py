@@ -6,7 +6,8 @@
     campaign status FOLDER
         judges every bag not yet judged (force range, shear directions, rests), moves a poor one
         to FOLDER/rejected/ with the reasons, and prints what counts and what is due. On the
-        rig: `ros2 launch tacforce_ros calibration.launch.py sim:=false campaign:=FOLDER`
+        rig: `ros2 launch tacforce_ros calibration.launch.py sim:=false hand_side:=SIDE
+        campaign:=FOLDER`
         records the next due session into FOLDER (coverage_view shows its coverage live).
     campaign run FOLDER --sim
         records every due session in the simulator (the operator model presses unattended) and

@@ -237,7 +237,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument('--hand-side', default='right', help='hand description side')
     parser.add_argument('--array', default='index_tip',
                         help='array pressed (calibration) or fingertip that closes the loop '
-                        '(index_tip, middle_tip or ring_tip)')
+                        '(index_tip, middle_tip, ring_tip or thumb_tip)')
     parser.add_argument('--plate', default='spherical', help='push-plate or object')
     parser.add_argument('--scene', default='', help='sim scene (default from mode/array/plate)')
     parser.add_argument('--model', default='', help='estimator models YAML (closed_loop)')

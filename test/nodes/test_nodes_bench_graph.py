@@ -106,6 +106,12 @@ def test_the_drill_outage_is_judged_and_a_short_stale_blip_before_it_is_reported
     result = crash_metrics(t, modes, fresh, f_d, f_hat, f_tilde, tip, 0.05)
     assert result['last_estimate_s'] == 3.0 and result['passed']
     assert result['other_stale_spells'] == [{'at_s': 0.2, 'lasted_s': pytest.approx(0.03)}]
+    fresh[995:] = False                              # and stale at the very end
+    result = crash_metrics(t, modes, fresh, f_d, f_hat, f_tilde, tip, 0.05)
+    assert result['last_estimate_s'] == 3.0 and len(result['other_stale_spells']) == 2
+    fresh[3000 // 10:] = False                       # the drill's outage never ends
+    assert 'never returned' in crash_metrics(t, modes, fresh, f_d, f_hat, f_tilde, tip,
+                                             0.05)['failed']
 
 
 def test_crash_metrics_fail_a_lost_contact_a_late_hold_and_a_missing_outage():

@@ -284,3 +284,30 @@ def test_a_campaign_session_is_the_first_due_slot_and_only_for_calibration(tmp_p
         campaign_session(SessionArgs('closed_loop', campaign=str(folder)))
     with pytest.raises(PlanError, match='not a campaign'):
         campaign_session(SessionArgs('calibration', campaign=str(tmp_path)))
+
+
+def test_a_campaign_session_after_a_poor_one_takes_the_next_seed_and_a_complete_one_none(
+        tmp_path):
+    import json
+    from tacforce_ros.hand.description import load_hand
+    from tacforce_ros.nodes.session_plan import campaign_session
+    from tacforce_ros.recording.campaign import Campaign, CampaignPlan, CoverageLimits
+    from tacforce_ros.recording.sim_session import record_session
+    from tacforce_ros.sim.scene import session_seed
+    folder = tmp_path / 'campaign'
+    Campaign.create(folder, CampaignPlan(
+        hand_side='right', arrays=('index_tip',), plates=('flat',), sessions=1, seconds=6.0,
+        seed=2, limits=CoverageLimits(min_peak_force=0.0, min_shear_sectors=0, min_rests=0)))
+    (folder / 'rejected').mkdir()
+    (folder / 'rejected' / 'x.verdict.json').write_text(json.dumps(
+        {'array': 'index_tip', 'plate': 'flat'}))
+    args = campaign_session(SessionArgs('calibration', campaign=str(folder)))
+    assert args.seed == session_seed(2, 'index_tip', 'flat', 1)
+
+    class Silent:
+        def update(self, n):
+            pass
+    record_session(folder / 'index_tip_flat_s0', load_hand(), 'index_tip', 'flat', 0, 6.0, 2,
+                   Silent())
+    with pytest.raises(PlanError, match='is complete, nothing is due'):
+        campaign_session(SessionArgs('calibration', campaign=str(folder)))

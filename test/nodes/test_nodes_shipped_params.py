@@ -4,6 +4,7 @@ range, so a file and the code cannot drift apart."""
 import pytest
 import yaml
 
+from tacforce_ros.control.force_controller import finger_params_file
 from tacforce_ros.nodes.session_plan import params_node_key
 from tacforce_ros.nodes.tacforce_container import NODE_CLASSES, node_class
 from tacforce_ros.paths import config_dir
@@ -22,13 +23,19 @@ def flattened(params: dict, prefix: str = '') -> dict:
     return out
 
 
+# Loaded after a node's own file for one case: a finger's controller (finger_params_file).
+OVERLAYS = {finger_params_file('thumb').stem: 'force_controller'}
+
+
 def test_every_node_has_a_shipped_parameter_file():
-    assert sorted(p.stem for p in (config_dir() / 'params').glob('*.yaml')) == sorted(NODE_CLASSES)
+    assert sorted(p.stem for p in (config_dir() / 'params').glob('*.yaml')) == sorted(
+        [*NODE_CLASSES, *OVERLAYS])
 
 
-@pytest.mark.parametrize('node', sorted(NODE_CLASSES))
-def test_a_shipped_parameter_file_holds_only_declared_parameters_of_valid_values(node):
-    doc = yaml.safe_load((config_dir() / 'params' / f'{node}.yaml').read_text())
+@pytest.mark.parametrize('stem, node', [(n, n) for n in sorted(NODE_CLASSES)]
+                         + sorted(OVERLAYS.items()))
+def test_a_shipped_parameter_file_holds_only_declared_parameters_of_valid_values(stem, node):
+    doc = yaml.safe_load((config_dir() / 'params' / f'{stem}.yaml').read_text())
     assert list(doc) == [params_node_key(node)]
     values = flattened(doc[params_node_key(node)]['ros__parameters'])
     specs = {spec.name: spec for spec in node_class(node).PARAMETERS}

@@ -15,8 +15,8 @@ from pathlib import Path
 from typing import Any
 
 from tacforce_ros.control.command_sequence import ForceSequence, SequenceError
-from tacforce_ros.control.force_controller import (ControllerConfigError, ForceControllerConfig,
-                                                   finger_params_file)
+from tacforce_ros.control.force_controller import (SAME_LINKS_AS_INDEX, ControllerConfigError,
+                                                   ForceControllerConfig, finger_params_file)
 from tacforce_ros.estimation.model_set import ModelConfigError, default_model_config, model_files
 from tacforce_ros.hand.description import (DEFAULT_SIDE, FRAME_PREFIX_PATTERN, SIDES, hand_config,
                                            load_hand)
@@ -203,8 +203,9 @@ def fingertip_loop(args: SessionArgs, hand: Any) -> FingertipLoop:
     if args.array not in models:
         raise PlanError(f'array: {models_yaml} has no model for {args.array}, whose estimate '
                         f'closes the loop (it has {sorted(models)})')
-    own = finger_params_file(config.finger)
-    files = (params_file('force_controller'),) + ((own,) if own.is_file() else ())
+    # pressing_with took this finger's own gains from its file: the node loads it too.
+    own = () if config.finger in SAME_LINKS_AS_INDEX else (finger_params_file(config.finger),)
+    files = (params_file('force_controller'),) + own
     return FingertipLoop(files, {'estimate_array': args.array,
                                  'force_controller.finger': config.finger,
                                  'force_controller.estimate_frame': config.estimate_frame,

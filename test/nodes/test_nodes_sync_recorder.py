@@ -285,9 +285,12 @@ def test_closed_loop_streams_are_recorded_when_published(ros_node, streams, tmp_
                           .get_subscription_count() > 0, 20.0)
         assert pubs[sync_recorder.TOPIC_DESIRED].get_subscription_count() == 0, \
             'the command topic before the inputs were recorded'
-        streams.run(0.3)
-        assert spin_until(ros_node, lambda: all(p.get_subscription_count() for p in
-                                                 pubs.values()), 20.0), 'recorder never subscribed'
+        # Inputs flow until the recorder has written each of them (DDS may match a stream late
+        # on a loaded host: a fixed 0.3 s of inputs once ended before one of them arrived).
+        deadline = time.monotonic() + 20.0
+        while not all(p.get_subscription_count() for p in pubs.values()):
+            assert time.monotonic() < deadline, 'recorder never subscribed to the command topic'
+            streams.run(0.1)
         for k in range(50):
             stamp = Time(nanoseconds=(k + 1) * 10 * MS).to_msg()
             desired = Vector3Stamped()

@@ -40,7 +40,9 @@ class TactileSensor:
         self.hand = hand
         self.array = hand.array(array_name)
         self.pipeline = pipeline
+        self.plate = plate
         self.pressure = PressureModel(self.array.positions, plate)
+        self.skin = pipeline.get('magnetic_skin')   # None: the empirical response
         array_of = np.empty(hand.n_taxels, np.int64)
         for index, array in enumerate(hand.arrays):
             array_of[array.flat_indices] = index
@@ -55,13 +57,20 @@ class TactileSensor:
         ctx.params = ResponseParams.nominal(ctx.n_taxels)
         self.pipeline.reset(seed, ctx, sensor_seed)
         self.pipeline.run('response', ctx)
-        ctx.idle_counts = counts_from_loads(np.zeros((ctx.n_taxels, 3)), ctx.params,
-                                            slice(None))
+        if self.skin is None:
+            ctx.idle_counts = counts_from_loads(np.zeros((ctx.n_taxels, 3)), ctx.params,
+                                                slice(None))
         self._warm = np.full(ctx.n_taxels, WARM_TEMPERATURE)
 
     def measure(self, state: StepState) -> None:
         """Fill state.counts / temperatures / counts_out from state.contact."""
         contact, run = state.contact, self.pipeline.run
+        if self.skin is not None:
+            counts = self.ctx.idle_counts.copy()
+            counts[self.ctx.rows] = self.skin.counts(contact, self.plate)
+            state.depth = self.skin.depth
+            self._finish(state, counts)
+            return
         weights = self.pressure.weights(contact)
         state.depth = self.pressure.depth
         state.taxel_force = weights[:, None] * contact.force
@@ -72,7 +81,10 @@ class TactileSensor:
         counts = self.ctx.idle_counts.copy()
         counts[self.ctx.rows] = counts_from_loads(taxel_loads(state.local_force), self.ctx.params,
                                                   self.ctx.rows)
+        self._finish(state, counts)
+
+    def _finish(self, state: StepState, counts: np.ndarray) -> None:
         state.counts = counts
         state.temperatures = self._warm
-        run('counts', state)
+        self.pipeline.run('counts', state)
         state.counts_out = to_uint16(state.counts)

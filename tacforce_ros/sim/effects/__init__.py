@@ -32,6 +32,7 @@ STAGES = ('model', 'response', 'taxel_force', 'local_force', 'counts', 'wrench',
 class Effect:
     """Base of all effects. Subclasses set `name` and define some `on_<stage>(state)` hooks."""
     name: ClassVar[str] = ''
+    supersedes: ClassVar[tuple[str, ...]] = ()   # effects whose part this one models itself
 
     def draw_hand(self, rng: np.random.Generator, ctx: Any) -> None:
         """Draw the parameters of the physical hand and its sensors (taxel gains, baselines,
@@ -53,6 +54,12 @@ class Pipeline:
             if unknown:     # a misspelt hook would otherwise never run, silently
                 raise TypeError(f'effect {effect.name!r}: hooks {unknown} name no stage; '
                                 f'stages are {list(STAGES)}')
+        names = {e.name for e in self.effects}
+        for effect in self.effects:
+            both = sorted(names.intersection(effect.supersedes))
+            if both:    # the same physics would be counted twice
+                raise ValueError(f'effect {effect.name!r} models what {both} stand in for; '
+                                 f'remove them from the scene (e.g. `{both[0]}: null`)')
         self.hooks: dict[str, tuple] = {
             stage: tuple(getattr(e, f'on_{stage}') for e in self.effects
                          if hasattr(e, f'on_{stage}'))
@@ -79,15 +86,19 @@ class Pipeline:
     def __contains__(self, name: str) -> bool:
         return any(e.name == name for e in self.effects)
 
+    def get(self, name: str) -> Effect | None:
+        return next((e for e in self.effects if e.name == name), None)
+
 
 def _registry() -> dict[str, type[Effect]]:
     from tacforce_ros.sim.effects import (actuator_limits, contact_offset, crosstalk,
                                           deformation, ft_noise, hysteresis, joint_friction,
-                                          kinematic_mismatch, taxel_noise, taxel_variation,
-                                          temperature_drift, torque_gain_error, transport)
-    modules = (taxel_variation, deformation, hysteresis, taxel_noise, temperature_drift,
-               crosstalk, ft_noise, actuator_limits, torque_gain_error, joint_friction,
-               kinematic_mismatch, contact_offset, transport)
+                                          kinematic_mismatch, magnetic_skin, taxel_noise,
+                                          taxel_variation, temperature_drift, torque_gain_error,
+                                          transport)
+    modules = (taxel_variation, deformation, hysteresis, magnetic_skin, taxel_noise,
+               temperature_drift, crosstalk, ft_noise, actuator_limits, torque_gain_error,
+               joint_friction, kinematic_mismatch, contact_offset, transport)
     return {m.EFFECT.name: m.EFFECT for m in modules}
 
 

@@ -9,6 +9,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from tacforce_ros.sim.effects import Effect
+from tacforce_ros.sim.skin_physics import Play
 
 
 @dataclass
@@ -20,13 +21,11 @@ class Hysteresis(Effect):
     width: float = 0.003     # N
 
     def reset(self, rng: np.random.Generator, ctx) -> None:
-        self._output = np.zeros((ctx.array.n_taxels, 3))
+        self._play = Play(self.relative, self.width)
+        self._play.reset((ctx.array.n_taxels, 3))
 
     def on_local_force(self, state) -> None:
-        half = self.relative * np.abs(state.local_force) + self.width
-        np.clip(self._output, state.local_force - half, state.local_force + half,
-                out=self._output)
-        state.local_force = self._output.copy()
+        state.local_force = self._play(state.local_force)
 
 
 EFFECT = Hysteresis

@@ -1,0 +1,215 @@
+"""The magnetic skin: each taxel's counts from its physics instead of the empirical response.
+
+Per frame: the Hertz pressure of the plate on the skin (relative curvature of plate and skin at
+the contact, the skin's from the hand description's taxels), sampled as point loads carrying the
+contact force (shear in proportion to pressure); the displacement of each magnet relative to
+its chip from those loads (Boussinesq and Cerruti in a layer on a rigid board); the elastomer's
+creep and hysteresis; the displaced magnet's dipole field at the chip, converted to counts by the chip's
+sensitivity. Pieces: sim/skin_physics.py. Parameter sources: docs/SKIN_PHYSICS.md.
+
+It supersedes what the empirical chain stood in for: the foundation-spring pressure weights
+and the tanh response (sim/contact.py, sim/taxel_response.py), `taxel_variation` (here the
+spread of rest readings and gains comes from where each magnet sits), `deformation` (the
+displacement field turns and shifts what each taxel reads on a curved skin) and `hysteresis`
+(creep and hysteresis). A scene naming one of those beside it is refused. The chip's noise and temperature
+effects (`taxel_noise`, `temperature_drift`) and `crosstalk` act on its counts as before.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import ClassVar
+
+import numpy as np
+
+from tacforce_ros.sim import skin_physics as phys
+from tacforce_ros.sim.effects import Effect
+
+# The chip's zero field reads mid-scale (MLX90393 unsigned output at RES_XYZ 2; docs).
+CHIP_ZERO = 32768.0
+
+
+@dataclass
+class MagneticSkin(Effect):
+    name = 'magnetic_skin'
+    supersedes: ClassVar[tuple[str, ...]] = ('taxel_variation', 'deformation', 'hysteresis')
+    # Values and sources: docs/SKIN_PHYSICS.md, which marks each as sourced or an estimate.
+    magnet_diameter: float = 0.002          # m, estimate
+    magnet_thickness: float = 0.0005        # m, estimate
+    remanence: float = 1.345                # T, N45 sintered NdFeB (grade an estimate)
+    layer_thickness: float = 0.005          # m, skin surface to the chip's board, estimate
+    youngs_modulus: float = 87e3            # Pa, Ecoflex 00-50 (grade an estimate)
+    poisson: float = 0.49                   # estimate (near-incompressible silicone)
+    sensitivity_xy: float = 3.004e-6        # T per count, MLX90393 RES 2, GAIN_SEL 0 (estimate)
+    sensitivity_z: float = 4.840e-6         # T per count, same setting
+    rest_z_range: tuple[float, float] = (33600.0, 37600.0)   # counts at rest (PROTOCOLS.md)
+    rest_xy_spread: float = 1350.0          # counts, +/- about mid-scale at rest (PROTOCOLS.md)
+    closest: float = 0.0005                 # m, magnet centre over the chip fully pressed, estimate
+    hysteresis: float = 0.05                # share of the displacement: a 10 % loop (Tomo 2018)
+    hysteresis_width: float = 1e-6          # m, estimate
+    creep_share: float = 0.1                # estimate
+    creep_time_constant: float = 1.0        # s, estimate
+
+    def __post_init__(self) -> None:
+        volume = np.pi * (0.5 * self.magnet_diameter) ** 2 * self.magnet_thickness
+        self.moment = self.remanence * volume / phys.MU0      # A m^2, uniform magnetisation
+        self.shear_modulus = self.youngs_modulus / (2.0 * (1.0 + self.poisson))
+        self.contact_modulus = self.youngs_modulus / (1.0 - self.poisson ** 2)
+        self._sensitivity = np.array([self.sensitivity_xy, self.sensitivity_xy,
+                                      self.sensitivity_z])
+        self.creep = phys.Creep(self.creep_share, self.creep_time_constant)
+        self.play = phys.Play(self.hysteresis, self.hysteresis_width)
+        self._patch = phys.elliptic_patch()
+
+    # -- the hand: where each magnet sits ------------------------------------------------------
+
+    def placement(self, rest: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(lateral (n, 2), height (n,)) m of magnets whose dipole fields read `rest` (n, 3)
+        counts at their chips. With the offset d = c h: B_xy / B_z = 3 c_xy / (2 - |c|^2) and
+        B_z = mu0 m (2 - |c|^2) / (4 pi h^3 (1 + |c|^2)^(5/2))."""
+        field = (np.asarray(rest, np.float64) - CHIP_ZERO) * self._sensitivity
+        if np.any(field[:, 2] <= 0.0):
+            raise ValueError('rest Z counts must lie above the chip zero (the magnet above it)')
+        ratio = field[:, :2] / field[:, 2:]
+        # |c| solves |r| |c|^2 + 3 |c| - 2 |r| = 0, taken in its cancellation-free form.
+        r2 = np.sum(ratio * ratio, axis=1, keepdims=True)
+        c = ratio * 4.0 / (3.0 + np.sqrt(9.0 + 8.0 * r2))
+        c2 = np.sum(c * c, axis=1)
+        height = (phys.MU0 * self.moment * (2.0 - c2)
+                  / (4.0 * np.pi * field[:, 2] * (1.0 + c2) ** 2.5)) ** (1.0 / 3.0)
+        return c * height[:, None], height
+
+    def draw_hand(self, rng: np.random.Generator, ctx) -> None:
+        """Where each magnet sits: at the place whose field reads a rest value drawn from the
+        measured ranges (PROTOCOLS.md), so a taxel's gain follows from its height as on the
+        real skin."""
+        n = ctx.n_taxels
+        rest = np.column_stack([
+            CHIP_ZERO + rng.uniform(-self.rest_xy_spread, self.rest_xy_spread, (n, 2)),
+            rng.uniform(*self.rest_z_range, n)])
+        self.lateral, self.height = self.placement(rest)
+        self.rest_counts = self.counts_at(np.zeros((n, 3)), slice(None))
+
+    def counts_at(self, displacement: np.ndarray, rows) -> np.ndarray:
+        """(n, 3) float counts of the taxels `rows` with their magnets displaced by
+        `displacement` (n, 3) m in the taxel frames (z out of the skin)."""
+        position = np.column_stack([self.lateral[rows], self.height[rows]]) + displacement
+        # The elastomer under the magnet cannot be squeezed to nothing.
+        np.maximum(position[:, 2], self.closest, out=position[:, 2])
+        moment = np.zeros_like(position)
+        moment[:, 2] = self.moment
+        return CHIP_ZERO + phys.dipole_field(moment, -position) / self._sensitivity
+
+    # -- a session -------------------------------------------------------------------------------
+
+    def reset(self, rng: np.random.Generator, ctx) -> None:
+        array = ctx.array
+        self._rows = ctx.rows
+        self._positions = array.positions
+        self._normals = array.rotations[:, :, 2]
+        self._rotations = array.rotations
+        self._pitch = float(np.min(np.sqrt(np.sum(
+            (self._positions[:, None] - self._positions[None]) ** 2, axis=-1))
+            + np.eye(array.n_taxels)))
+        height = self.height[self._rows]
+        self._magnet_depth = self.layer_thickness - height                 # (n,)
+        if np.any(self._magnet_depth <= 0.0):
+            raise ValueError(f'magnet_skin: magnets {height.max() * 1e3:.2f} mm above the chip '
+                             f'do not fit in a {self.layer_thickness * 1e3:.2f} mm layer')
+        self.creep.reset((array.n_taxels, 3), ctx.dt)
+        self.play.reset((array.n_taxels, 3))
+        self._location_key = b''
+        self.depth = 0.0
+        ctx.idle_counts = self.rest_counts
+
+    def _location(self, contact, plate) -> None:
+        """Per contact location (the operator holds one through a press): the relative
+        curvature tensor, the tangent basis and the magnets and boards in the contact frame."""
+        key = (contact.point.tobytes() + contact.normal.tobytes() + contact.axis.tobytes()
+               + repr(plate).encode())
+        if key == self._location_key:
+            return
+        self._location_key = key
+        t1, t2 = phys.tangent_basis(contact.normal)
+        skin = phys.skin_curvature(self._positions, self._normals, contact.point,
+                                   contact.normal, reach=self._pitch)
+        if plate.shape == 'sphere':
+            indenter = np.eye(2) / plate.radius
+        elif plate.shape == 'cylinder':
+            across = np.cross(contact.normal, contact.axis)
+            direction = np.array([across @ t1, across @ t2])
+            indenter = np.outer(direction, direction) / plate.radius
+        else:
+            indenter = np.zeros((2, 2))
+        curvature, axes = np.linalg.eigh(skin + indenter)
+        self._curvatures = np.maximum(curvature, 0.0)
+        self._axes = axes.T @ np.stack([t1, t2])                    # (2, 3) principal directions
+        into = -contact.normal
+        self._frame = np.stack([self._axes[0], self._axes[1], into])  # rows: contact frame
+        # Footprint of the array along the principal directions, half a pitch beyond its taxels.
+        along = (self._positions - contact.point) @ self._axes.T
+        self._footprint = (along.min(axis=0) - 0.5 * self._pitch,
+                           along.max(axis=0) + 0.5 * self._pitch)
+        self._magnets = self._positions - self._magnet_depth[:, None] * self._normals
+        self._boards = self._positions - self.layer_thickness * self._normals
+
+    def _loads(self, contact, normal_force: float) -> tuple[np.ndarray, np.ndarray]:
+        """Load points (k, 2) in the principal tangent coordinates about the contact point and
+        their shares (k,) of the contact force: Hertz ellipse, line or flat punch."""
+        k1, k2 = self._curvatures
+        low, high = self._footprint
+        curved = self._curvatures > 1e-9
+        if curved.all():
+            a, b = phys.hertz_semi_axes(normal_force, (k1, k2), self.contact_modulus)
+            return self._patch[0] * (a, b), self._patch[1]
+        grid = (np.arange(8) + 0.5) / 8.0
+        if not curved.any():   # a plate flatter than the skin's footprint: uniform pressure
+            u, v = np.meshgrid(low[0] + grid * (high[0] - low[0]),
+                               low[1] + grid * (high[1] - low[1]))
+            points = np.column_stack([u.ravel(), v.ravel()])
+            return points, np.full(len(points), 1.0 / len(points))
+        # Line contact along the flat direction, over the array's footprint there.
+        line, across = (0, 1) if curved[1] else (1, 0)
+        length = high[line] - low[line]
+        half = phys.line_contact_half_width(normal_force, length, self._curvatures[across],
+                                            self.contact_modulus)
+        offsets = 2.0 * grid - 1.0
+        shares = np.sqrt(1.0 - offsets ** 2)
+        points = np.zeros((64, 2))
+        points[:, line] = np.repeat(low[line] + grid * length, 8)
+        points[:, across] = np.tile(half * offsets, 8)
+        weights = np.tile(shares, 8)
+        return points, weights / weights.sum()
+
+    def displacement(self, contact, plate) -> np.ndarray:
+        """(n, 3) m: each magnet's displacement relative to its chip, in its taxel frame, before
+        creep; zeros without a compressive contact."""
+        normal_force = float(contact.force @ contact.normal)
+        if not contact.active or normal_force <= 0.0:
+            self.depth = 0.0
+            return np.zeros((len(self._positions), 3))
+        self._location(contact, plate)
+        points, shares = self._loads(contact, normal_force)
+        sources = contact.point + points @ self._axes                      # (k, 3) in {S0}
+        # contact.force is what the skin applies to the plate; the plate loads the skin with
+        # its opposite.
+        force = -shares[:, None] * (contact.force @ self._frame.T)         # (k, 3) contact frame
+        relative = []
+        for targets, depth in ((self._magnets, self._magnet_depth[:, None]),
+                               (self._boards, self.layer_thickness)):
+            offset = (targets[:, None, :] - sources[None]) @ self._frame.T   # (n, k, 3)
+            # Taxels around the curve from the contact sit above its tangent plane; the
+            # half-space solution needs them below, at least as deep as they are in the skin.
+            offset[..., 2] = np.maximum(offset[..., 2], depth)
+            relative.append(np.sum(phys.half_space_displacement(
+                offset, force[None], self.shear_modulus, self.poisson), axis=1))
+        moved = (relative[0] - relative[1]) @ self._frame                  # (n, 3) in {S0}
+        self.depth = float(np.max(-moved @ contact.normal))
+        return np.einsum('nji,nj->ni', self._rotations, moved)
+
+    def counts(self, contact, plate) -> np.ndarray:
+        """(n, 3) float counts of the pressed array for this frame."""
+        return self.counts_at(self.play(self.creep(self.displacement(contact, plate))),
+                              self._rows)
+
+
+EFFECT = MagneticSkin

@@ -1,0 +1,188 @@
+"""Mechanics and magnetics of a magnetic tactile taxel: the pieces a uSkin reading is made of.
+
+A uSkin taxel is a small magnet in a silicone layer over a 3-axis Hall chip (Tomo et al. 2018).
+An indenter presses the layer; the pressure under it (Hertz) displaces the elastomer around the
+magnet (Boussinesq and Cerruti point-load solutions, summed over the contact patch); the layer
+is bonded to the chip's board, so what moves the magnet relative to the chip is the half-space
+displacement at the magnet's depth less the one at the board (Steinbrenner's approximation for a
+layer on a rigid base); the chip reads the displaced magnet's dipole field; the elastomer creeps
+(standard linear solid). Formulas: K. L. Johnson, Contact Mechanics (1985), sections 2.2, 3.2,
+3.4 and 4.2 (Hertz, Boussinesq, Cerruti, approximate ellipse ratio); J. D. Jackson, Classical
+Electrodynamics (1999), eq. 5.56 (dipole field). Parameter values live with their sources in
+docs/SKIN_PHYSICS.md and in sim/effects/magnetic_skin.py; this module holds no numbers of the
+hardware.
+
+Frames: `half_space_displacement` works in a frame with z pointing INTO the material (Johnson's
+convention); everything else takes vectors in the caller's frame.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+MU0 = 4e-7 * np.pi   # T m / A
+
+
+def dipole_field(moment: np.ndarray, offset: np.ndarray) -> np.ndarray:
+    """(..., 3) T: field of point dipoles `moment` (A m^2) at `offset` (m) from each dipole.
+
+    B = mu0 / (4 pi) (3 r (m . r) / |r|^5 - m / |r|^3)."""
+    offset = np.asarray(offset, np.float64)
+    r2 = np.sum(offset * offset, axis=-1, keepdims=True)
+    r = np.sqrt(r2)
+    along = np.sum(moment * offset, axis=-1, keepdims=True)
+    return MU0 / (4.0 * np.pi) * (3.0 * offset * along / (r2 * r2 * r) - moment / (r2 * r))
+
+
+def half_space_displacement(offset: np.ndarray, force: np.ndarray, shear_modulus: float,
+                            poisson: float) -> np.ndarray:
+    """(..., 3) m: displacement at `offset` (m, z > 0 into the material) from a point load
+    `force` (N) on the surface of an elastic half-space, both in a frame with z into the
+    material: Boussinesq for the normal part, Cerruti for the two tangential parts (Johnson
+    1985, eqs. 3.19 and 3.86-3.88 in his notation). The field point must lie off the load."""
+    x, y, z = (np.asarray(offset, np.float64)[..., k] for k in range(3))
+    fx, fy, fz = (np.asarray(force, np.float64)[..., k] for k in range(3))
+    rho = np.sqrt(x * x + y * y + z * z)
+    rho3 = rho ** 3
+    rz = rho + z
+    c = 1.0 - 2.0 * poisson
+    scale = 1.0 / (4.0 * np.pi * shear_modulus)
+    # Normal load fz (Boussinesq).
+    radial = fz * (z / rho3 - c / (rho * rz))
+    ux, uy = radial * x, radial * y
+    uz = fz * (z * z / rho3 + 2.0 * (1.0 - poisson) / rho)
+    # Tangential loads (Cerruti): the in-line term for fx along x and fy along y, the cross
+    # term between them, and the vertical term.
+    tangential = 1.0 / rho + c / rz
+    cross_term = 1.0 / rho3 - c / (rho * rz * rz)
+    ux = ux + fx * (tangential + x * x * cross_term) + fy * x * y * cross_term
+    uy = uy + fy * (tangential + y * y * cross_term) + fx * x * y * cross_term
+    uz = uz + (fx * x + fy * y) * (z / rho3 + c / (rho * rz))
+    return scale * np.stack([ux, uy, uz], axis=-1)
+
+
+def layer_displacement(lateral: np.ndarray, depth: float, base_depth: float,
+                       force: np.ndarray, shear_modulus: float, poisson: float) -> np.ndarray:
+    """(..., 3) m: displacement of a point at `depth` in a layer bonded at `base_depth` to a
+    rigid board, relative to the board below it, from surface point loads `force` at `lateral`
+    (..., 2) m from the point (frame z into the material). Steinbrenner's approximation: the
+    half-space displacement at the point less the one at the base."""
+    lateral = np.asarray(lateral, np.float64)
+    shape = lateral.shape[:-1] + (1,)
+    at = np.concatenate([lateral, np.full(shape, depth)], axis=-1)
+    base = np.concatenate([lateral, np.full(shape, base_depth)], axis=-1)
+    return (half_space_displacement(at, force, shear_modulus, poisson)
+            - half_space_displacement(base, force, shear_modulus, poisson))
+
+
+def hertz_semi_axes(normal_force: float, curvatures: tuple[float, float],
+                    contact_modulus: float) -> tuple[float, float]:
+    """(a, b) m: semi-axes of the Hertz contact ellipse along the two principal directions of
+    relative curvature (1/m, both > 0) for a rigid indenter on a body of contact modulus
+    E* = E / (1 - nu^2). Equivalent radius R_e = 1 / sqrt(k1 k2), sqrt(a b) = (3 P R_e /
+    (4 E*))^(1/3), and the ratio from Johnson's approximation b / a = (k1 / k2)^(2/3)
+    (1985, eq. 4.33b): the ellipse is longer along the direction of smaller curvature."""
+    k1, k2 = curvatures
+    if k1 <= 0.0 or k2 <= 0.0:
+        raise ValueError(f'Hertz contact needs both curvatures > 0, got {k1}, {k2}')
+    mean = (3.0 * normal_force / (4.0 * contact_modulus * np.sqrt(k1 * k2))) ** (1.0 / 3.0)
+    ratio = (k1 / k2) ** (1.0 / 3.0)      # sqrt of b / a
+    return mean / ratio, mean * ratio
+
+
+def line_contact_half_width(normal_force: float, length: float, curvature: float,
+                            contact_modulus: float) -> float:
+    """m: half-width of the Hertz line contact of a cylinder (curvature 1/m across it) pressed
+    over `length` m: a = sqrt(4 P R / (pi L E*)) (Johnson 1985, eq. 4.43)."""
+    return float(np.sqrt(4.0 * normal_force / (np.pi * length * curvature * contact_modulus)))
+
+
+def elliptic_patch(n_rings: int = 6, n_spokes: int = 12) -> tuple[np.ndarray, np.ndarray]:
+    """Points (k, 2) in the unit disk and weights (k,) summing to 1 that sample the Hertz
+    pressure sqrt(1 - r^2): scaled by the semi-axes they sample an elliptic contact, and with
+    one axis collapsed onto a line they sample a line contact. Midpoint rings of equal width."""
+    edges = np.linspace(0.0, 1.0, n_rings + 1)
+    radii = 0.5 * (edges[1:] + edges[:-1])
+    angles = (np.arange(n_spokes) + 0.5) * 2.0 * np.pi / n_spokes
+    points = np.stack([np.outer(radii, np.cos(angles)).ravel(),
+                       np.outer(radii, np.sin(angles)).ravel()], axis=-1)
+    ring_load = radii * np.sqrt(1.0 - radii ** 2) * np.diff(edges)
+    weights = np.repeat(ring_load / n_spokes, n_spokes)
+    return points, weights / weights.sum()
+
+
+def tangent_basis(normal: np.ndarray, first: np.ndarray | None = None
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """Two unit tangents (t1, t2) with t1 x t2 = normal; t1 along `first` projected onto the
+    tangent plane when given (and not parallel to the normal)."""
+    normal = np.asarray(normal, np.float64)
+    seed = np.eye(3)[np.argmin(np.abs(normal))] if first is None else np.asarray(first, float)
+    t1 = seed - (seed @ normal) * normal
+    if t1 @ t1 < 1e-12:
+        t1 = np.eye(3)[np.argmin(np.abs(normal))]
+        t1 = t1 - (t1 @ normal) * normal
+    t1 /= np.sqrt(t1 @ t1)
+    return t1, np.cross(normal, t1)
+
+
+def skin_curvature(positions: np.ndarray, normals: np.ndarray, point: np.ndarray,
+                   normal: np.ndarray, reach: float) -> np.ndarray:
+    """(2, 2) 1/m: curvature tensor of the skin at `point` in the basis tangent_basis(normal),
+    from its taxels (positions (n, 3), unit outward normals (n, 3)) within about `reach`: the
+    shape operator S with dn = S dp, fitted by weighted least squares over the taxels' offsets
+    and symmetrised. A sphere of radius R gives I / R, a plane 0, a cylinder 1/R across its axis
+    only."""
+    t1, t2 = tangent_basis(normal)
+    basis = np.stack([t1, t2])
+    offset = (np.asarray(positions, np.float64) - point) @ basis.T          # (n, 2)
+    turn = (np.asarray(normals, np.float64) - normal) @ basis.T             # (n, 2)
+    weight = np.sqrt(np.exp(-0.5 * np.sum(offset ** 2, axis=1) / reach ** 2))[:, None]
+    if np.count_nonzero(weight > 1e-3) < 3:
+        return np.zeros((2, 2))
+    solution, *_ = np.linalg.lstsq(weight * offset, weight * turn, rcond=None)
+    return 0.5 * (solution + solution.T)
+
+
+@dataclass
+class Creep:
+    """Standard-linear-solid creep of the elastomer, per displacement component: under a held
+    load the displacement grows from its instantaneous value u to (1 + share) u with the time
+    constant `tau`; released, the extra part decays with it. Exact for loads held over a step."""
+    share: float      # creep compliance over the instantaneous one
+    tau: float        # s
+
+    def __post_init__(self) -> None:
+        if self.share < 0.0 or self.tau <= 0.0:
+            raise ValueError(f'creep needs share >= 0 and tau > 0, got {self.share}, {self.tau}')
+        self._state: np.ndarray | None = None
+        self._decay = 0.0
+
+    def reset(self, shape: tuple[int, ...], dt: float) -> None:
+        self._state = np.zeros(shape)
+        self._decay = float(np.exp(-dt / self.tau))
+
+    def __call__(self, instantaneous: np.ndarray) -> np.ndarray:
+        self._state *= self._decay
+        self._state += (1.0 - self._decay) * self.share * instantaneous
+        return instantaneous + self._state
+
+
+@dataclass
+class Play:
+    """Rate-independent hysteresis (a play operator), per component: the output holds until the
+    input moves more than the half-width `relative * |input| + width` away from it, then
+    follows at that distance. A load cycle reads a loop whose width grows with the load."""
+    relative: float
+    width: float
+
+    def __post_init__(self) -> None:
+        self._output: np.ndarray | None = None
+
+    def reset(self, shape: tuple[int, ...]) -> None:
+        self._output = np.zeros(shape)
+
+    def __call__(self, value: np.ndarray) -> np.ndarray:
+        half = self.relative * np.abs(value) + self.width
+        np.clip(self._output, value - half, value + half, out=self._output)
+        return self._output.copy()

@@ -1,0 +1,198 @@
+"""The magnetic skin's physics, each piece against a case computed by hand, and the effect."""
+import dataclasses
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+from conftest import stack
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from tacforce_ros.sim import load_scene, make_simulator
+from tacforce_ros.sim import skin_physics as phys
+from tacforce_ros.sim.contact import Contact
+from tacforce_ros.sim.effects import Pipeline
+from tacforce_ros.sim.effects.magnetic_skin import CHIP_ZERO, MagneticSkin
+from tacforce_ros.sim.scene import Plate
+
+G, NU = 30e3, 0.45          # Pa, -: a soft silicone
+MAGNETIC = {'magnetic_skin': {}}
+
+
+def test_dipole_field_on_its_axis_and_its_equator():
+    m, d = 1.5e-3, 0.003
+    moment = np.array([0.0, 0.0, m])
+    on_axis = phys.dipole_field(moment, np.array([0.0, 0.0, -d]))
+    np.testing.assert_allclose(on_axis, [0.0, 0.0, phys.MU0 * m / (2 * np.pi * d ** 3)])
+    equator = phys.dipole_field(moment, np.array([d, 0.0, 0.0]))
+    np.testing.assert_allclose(equator, [0.0, 0.0, -phys.MU0 * m / (4 * np.pi * d ** 3)])
+
+
+def test_boussinesq_below_the_load_and_on_the_surface():
+    P, z, r = 2.0, 0.002, 0.003
+    below = phys.half_space_displacement(np.array([0.0, 0.0, z]), np.array([0, 0, P]), G, NU)
+    np.testing.assert_allclose(below, [0.0, 0.0, P * (3 - 2 * NU) / (4 * np.pi * G * z)])
+    surface = phys.half_space_displacement(np.array([r, 0.0, 0.0]), np.array([0, 0, P]), G, NU)
+    # Johnson (1985) 3.2: the surface sinks by P (1 - nu) / (2 pi G r) and moves towards the load
+    # by (1 - 2 nu) P / (4 pi G r).
+    np.testing.assert_allclose(surface, [-(1 - 2 * NU) * P / (4 * np.pi * G * r), 0.0,
+                                         P * (1 - NU) / (2 * np.pi * G * r)])
+
+
+def test_cerruti_below_the_load():
+    Q, z = 0.5, 0.002
+    below = phys.half_space_displacement(np.array([0.0, 0.0, z]), np.array([0, Q, 0]), G, NU)
+    np.testing.assert_allclose(below, [0.0, Q * (3 - 2 * NU) / (8 * np.pi * G * z), 0.0],
+                               atol=1e-15)
+
+
+finite = st.floats(-1.0, 1.0)
+
+
+@settings(max_examples=60, deadline=None)
+@given(p1=st.tuples(finite, finite), p2=st.tuples(finite, finite),
+       f1=st.tuples(finite, finite, finite), f2=st.tuples(finite, finite, finite))
+def test_surface_displacements_are_reciprocal(p1, p2, f1, f2):
+    """Betti: f2 . u(p2 | f1 at p1) = f1 . u(p1 | f2 at p2) for loads on the surface."""
+    a, b = np.array([*p1, 0.0]) * 0.01, np.array([*p2, 0.0]) * 0.01
+    if np.linalg.norm(a - b) < 1e-4:
+        return
+    f1, f2 = np.array(f1), np.array(f2)
+    one = f2 @ phys.half_space_displacement(b - a, f1, G, NU)
+    two = f1 @ phys.half_space_displacement(a - b, f2, G, NU)
+    assert one == pytest.approx(two, rel=1e-9, abs=1e-15)
+
+
+def test_a_layer_holds_at_its_board_and_moves_less_than_a_half_space():
+    force = np.array([0.1, 0.0, 1.0])
+    lateral = np.array([0.001, 0.0])
+    at_board = phys.layer_displacement(lateral, 0.004, 0.004, force, G, NU)
+    np.testing.assert_array_equal(at_board, 0.0)
+    layer = phys.layer_displacement(lateral, 0.001, 0.004, force, G, NU)
+    half = phys.half_space_displacement(np.array([0.001, 0.0, 0.001]), force, G, NU)
+    assert 0.0 < layer[2] < half[2]
+
+
+def test_hertz_contact_radius_of_a_worked_example():
+    """R 8 mm on a rigid plane, F = 60 pi N, E = 1000 MPa, nu = 0.3: a = 1.010 mm (the worked
+    example beside the formula list of S. J. Bull, Newcastle University)."""
+    e_star = 1000e6 / (1 - 0.3 ** 2)
+    a, b = phys.hertz_semi_axes(60 * np.pi, (1 / 0.008, 1 / 0.008), e_star)
+    assert a == b == pytest.approx(1.010e-3, abs=1e-6)
+
+
+def test_an_elongated_contact_lies_along_the_smaller_curvature():
+    a, b = phys.hertz_semi_axes(1.0, (10.0, 80.0), 1e5)
+    assert a / b == pytest.approx(8.0 ** (2.0 / 3.0))
+    assert np.sqrt(a * b) == pytest.approx((3 / (4e5 * np.sqrt(800.0))) ** (1 / 3))
+
+
+def test_the_patch_samples_the_hertz_pressure():
+    """Unit load, and the pressure's second moment: int r^2 p dA / P = 2 a^2 / 5."""
+    points, weights = phys.elliptic_patch(n_rings=40, n_spokes=16)
+    assert weights.sum() == pytest.approx(1.0)
+    assert weights @ np.sum(points ** 2, axis=1) == pytest.approx(0.4, rel=2e-3)
+
+
+def _sphere(radius, n=200, seed=0):
+    normals = np.random.default_rng(seed).normal(size=(n, 3))
+    normals[:, 2] = np.abs(normals[:, 2]) + 1.0
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    return radius * normals, normals
+
+
+def test_skin_curvature_of_a_sphere_a_cylinder_and_a_plane():
+    positions, normals = _sphere(0.0135)
+    top = np.array([0.0, 0.0, 1.0])
+    k = phys.skin_curvature(positions, normals, 0.0135 * top, top, reach=0.004)
+    np.testing.assert_allclose(np.linalg.eigvalsh(k), [1 / 0.0135] * 2, rtol=0.02)
+    grid = np.random.default_rng(1).uniform(-0.01, 0.01, (200, 2))
+    angle = grid[:, 1] / 0.01       # a cylinder of radius 10 mm along x
+    cyl_n = np.column_stack([np.zeros(200), np.sin(angle), np.cos(angle)])
+    cyl_p = np.column_stack([grid[:, 0], 0.01 * cyl_n[:, 1], 0.01 * cyl_n[:, 2]])
+    k = phys.skin_curvature(cyl_p, cyl_n, 0.01 * top, top, reach=0.004)
+    np.testing.assert_allclose(np.linalg.eigvalsh(k), [0.0, 100.0], atol=1.0)
+    flat = np.column_stack([grid, np.zeros(200)])
+    k = phys.skin_curvature(flat, np.tile(top, (200, 1)), np.zeros(3), top, reach=0.004)
+    np.testing.assert_allclose(k, 0.0, atol=1e-12)
+
+
+def test_creep_and_play():
+    creep = phys.Creep(share=0.2, tau=1.0)
+    creep.reset((1,), dt=0.01)
+    out = [creep(np.array([1.0]))[0] for _ in range(100)]
+    assert out[0] == pytest.approx(1.0 + 0.2 * (1 - np.exp(-0.01)))
+    assert out[-1] == pytest.approx(1.0 + 0.2 * (1 - np.exp(-1.0)))
+    play = phys.Play(relative=0.05, width=0.0)
+    play.reset((1,))
+    up = [play(np.array([v]))[0] for v in np.linspace(0, 2, 21)]
+    down = [play(np.array([v]))[0] for v in np.linspace(2, 0, 21)]
+    assert up[10] == pytest.approx(0.95)     # rising: lags 5 % of the input below it
+    assert down[10] == pytest.approx(1.05)   # falling: holds 5 % above
+    with pytest.raises(ValueError):
+        phys.Creep(share=-0.1, tau=1.0)
+
+
+@pytest.fixture(scope='module')
+def skin(hand):
+    def make(array='index_middle', **params):
+        effect = MagneticSkin(**params)
+        arr = hand.array(array)
+        ctx = SimpleNamespace(n_taxels=hand.n_taxels, array=arr, rows=arr.flat_indices, dt=0.01)
+        effect.draw_hand(np.random.default_rng(0), ctx)
+        effect.reset(np.random.default_rng(0), ctx)
+        centre = np.argmin(np.linalg.norm(arr.positions - arr.positions.mean(0), axis=1))
+        return effect, arr, centre
+    return make
+
+
+def test_rest_readings_span_the_measured_ranges(skin):
+    effect, _, _ = skin()
+    rest = effect.rest_counts
+    # The magnets sit where their fields read the drawn rest values, to rounding.
+    assert 33600 - 1e-6 <= rest[:, 2].min() and rest[:, 2].max() <= 37600 + 1e-6
+    assert np.abs(rest[:, :2] - CHIP_ZERO).max() <= 1350 + 1e-6
+    assert np.ptp(rest[:, 2]) > 3000 and np.ptp(rest[:, :2]) > 2000
+    lateral, height = effect.placement(rest)
+    np.testing.assert_allclose(height, effect.height, rtol=1e-9)
+    np.testing.assert_allclose(lateral, effect.lateral, atol=1e-12)
+
+
+def test_a_press_raises_z_most_under_it_and_a_sharp_plate_concentrates(skin):
+    effect, arr, c = skin()
+    normal = arr.rotations[c, :, 2]
+    spread = {}
+    for plate in (Plate('button', 'sphere', 0.002), Plate('flat', 'plane', 0.0)):
+        contact = Contact(1.0 * normal, arr.positions[c], normal, arr.rotations[c, :, 0], True)
+        change = effect.counts_at(effect.displacement(contact, plate), arr.flat_indices)
+        change -= effect.rest_counts[arr.flat_indices]
+        assert change[:, 2].sum() > 0
+        spread[plate.name] = change[c, 2] / change[:, 2].sum()
+    assert spread['button'] > 3 * spread['flat']
+    released = Contact(np.zeros(3), arr.positions[c], normal, arr.rotations[c, :, 0], False)
+    np.testing.assert_array_equal(effect.displacement(released, plate), 0.0)
+
+
+def test_the_magnetic_skin_refuses_what_it_supersedes():
+    with pytest.raises(ValueError, match="'magnetic_skin' models what \\['deformation'\\]"):
+        Pipeline.from_scene({'magnetic_skin': {}, 'deformation': {}})
+
+
+def test_magnetic_skin_alone_is_deterministic_and_changes_only_counts(run_scene):
+    name = 'calibration_index_tip_convex'
+    a = run_scene(name, effects=MAGNETIC, steps=400, seed=2)
+    b = run_scene(name, effects=MAGNETIC, steps=400, seed=2)
+    plain = run_scene(name, effects={}, steps=400, seed=2)
+    assert np.array_equal(stack(a, 'taxel_counts'), stack(b, 'taxel_counts'))
+    assert not np.array_equal(stack(a, 'taxel_counts'), stack(plain, 'taxel_counts'))
+    for field in ('temperatures', 'ft_wrench', 'true_force'):
+        assert np.array_equal(stack(a, field), stack(plain, field)), field
+
+
+def test_a_scene_with_the_magnetic_skin_and_chip_effects_runs(hand):
+    scene = load_scene('calibration_index_tip_flat')
+    effects = {'magnetic_skin': {}, **{k: v for k, v in scene.effects.items()
+                                       if k not in MagneticSkin.supersedes}}
+    sim = make_simulator(dataclasses.replace(scene, effects=effects), hand, seed=0)
+    counts = np.array([sim.step().taxel_counts for _ in range(300)]).astype(float)
+    assert counts.min() >= 0 and counts.max() <= 65535

@@ -4,15 +4,16 @@ Per frame: the Hertz pressure of the plate on the skin (relative curvature of pl
 the contact, the skin's from the hand description's taxels), sampled as point loads carrying the
 contact force (shear in proportion to pressure); the displacement of each magnet relative to
 its chip from those loads (Boussinesq and Cerruti in a layer on a rigid board); the elastomer's
-creep and hysteresis; the displaced magnet's dipole field at the chip, converted to counts by the chip's
-sensitivity. Pieces: sim/skin_physics.py. Parameter sources: docs/SKIN_PHYSICS.md.
+creep and hysteresis; the displaced magnet's dipole field at the chip, converted to counts by
+the chip's sensitivity. Pieces: sim/skin_physics.py. Parameter sources: docs/SKIN_PHYSICS.md.
 
 It supersedes what the empirical chain stood in for: the foundation-spring pressure weights
 and the tanh response (sim/contact.py, sim/taxel_response.py), `taxel_variation` (here the
 spread of rest readings and gains comes from where each magnet sits), `deformation` (the
 displacement field turns and shifts what each taxel reads on a curved skin) and `hysteresis`
-(creep and hysteresis). A scene naming one of those beside it is refused. The chip's noise and temperature
-effects (`taxel_noise`, `temperature_drift`) and `crosstalk` act on its counts as before.
+(its own creep and play). A scene naming one of those beside it is refused. The chip's noise
+and temperature effects (`taxel_noise`, `temperature_drift`) and `crosstalk` act on its counts
+as before.
 """
 from __future__ import annotations
 

@@ -18,6 +18,7 @@ TOOLS = {
     'bench_graph': 'bench_graph',   # node graph vs direct path: agreement, watchdog trips, rates
     'bench_messages': 'bench_messages',  # what the estimator's serialized fast path saves
     'bench_train': 'bench_train',   # cross-validation folds trained one at a time vs together
+    'skin_sensitivity': 'skin_sensitivity',  # Table I on the magnetic skin, per estimate +/-
     'sim_record': 'sim_record',     # simulated calibration sessions -> rosbag2 (mcap)
     'campaign': 'campaign',         # whole-hand calibration campaign: plan, verdicts, resume
     'bag_repair': 'bag_repair',     # bags cut off by a crash -> whole bags (complete chunks kept)

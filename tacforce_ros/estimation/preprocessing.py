@@ -97,10 +97,9 @@ def static_mask(force: np.ndarray, taxels: np.ndarray, fs: float = SAMPLE_RATE_H
     """Samples inside static no-contact segments: (N,) bool. taxels: (N, n, 3) counts.
 
     The no-contact reference comes from the recording itself, so an un-zeroed F/T bias of any
-    size does not hide the rests. Compression moves every taxel's Z count the same way (uSkin:
-    up, PROTOCOLS.md section 1), so the summed Z of the released samples sits at one end of its
-    range, tightly (noise only), while presses spread over the other side: the `rest_share` of
-    samples at the tight end are released ones (the operator rests between presses; the paper's
+    size does not hide the rests. Released, the F/T sensor reads its bias, one force through
+    every rest, while presses move through forces: the `rest_share` of samples nearest the
+    densest force reading are released ones (the operator rests between presses; the paper's
     sessions rest about a quarter of the time). Their median is the rest reading of the taxels
     and of the F/T sensor. Static = force within `force_threshold` [N] of the F/T's rest reading
     AND tactile activity below `activity_threshold` [counts, rms over channels of the deviation
@@ -135,18 +134,28 @@ def rest_reading(force: np.ndarray, taxels: np.ndarray, rest_share: float = 0.1
                          f'{force.shape}')
     if not 0.0 < rest_share < 0.5:
         raise ValueError(f'rest_share {rest_share} must lie in (0, 0.5)')
-    released = _released(taxels[:, :, 2].sum(axis=1), rest_share)
-    return (np.median(taxels.reshape(force.shape[0], -1)[released], axis=0),
-            np.median(force[released], axis=0))
+    flat = taxels.reshape(force.shape[0], -1)
+    released = _released(force, rest_share)
+    return np.median(flat[released], axis=0), np.median(force[released], axis=0)
 
 
-def _released(compression: np.ndarray, share: float) -> np.ndarray:
-    """(N,) bool: the `share` of samples at the tight end of the summed-Z distribution."""
-    low, low_edge, high_edge, high = np.quantile(
-        compression, [0.005, share, 1.0 - share, 0.995])
-    if low_edge - low <= high - high_edge:
-        return compression <= low_edge
-    return compression >= high_edge
+REST_RADIUS = 0.1      # N: a few times the F/T sensor's noise, well below a press
+DENSITY_PROBES = 256     # candidate samples, spread over the recording
+DENSITY_SAMPLES = 4000   # samples the candidates' neighbours are counted among
+
+
+def _released(force: np.ndarray, share: float) -> np.ndarray:
+    """(N,) bool: the `share` of samples whose force lies nearest the densest force reading.
+    Released, the F/T sensor reads one force (its bias; noise and drift only) through every
+    rest, while presses move through forces and hold each at a different one; the taxels are
+    no guide (a press moves their counts either way: a magnet pushed sideways reads less Z)."""
+    n = force.shape[0]
+    probes = force[np.linspace(0, n - 1, min(n, DENSITY_PROBES)).astype(np.int64)]
+    pool = force[::max(1, n // DENSITY_SAMPLES)]
+    density = [np.count_nonzero(np.sum((pool - p) ** 2, axis=1) <= REST_RADIUS ** 2)
+               for p in probes]
+    distance = np.sum((force - probes[int(np.argmax(density))]) ** 2, axis=1)
+    return distance <= np.quantile(distance, share)
 
 
 def true_runs(flags: np.ndarray) -> list[tuple[int, int]]:

@@ -14,24 +14,25 @@ import numpy as np
 from tacforce_ros.estimation.dataset import CalibrationDataset, DatasetError
 from tacforce_ros.estimation.preprocessing import common_span, lowpass, project_force, resample
 from tacforce_ros.sim import load_scene, make_simulator
-from tacforce_ros.sim.scene import calibration_scene_name, session_seed
+from tacforce_ros.sim.scene import Scene, calibration_scene_name, session_seed
 
 if TYPE_CHECKING:
     from tacforce_ros.hand.description import HandDescription
     from tacforce_ros.hand.kinematics import HandKinematics
 
 
-def simulate_calibration(hand: HandDescription, kinematics: HandKinematics, scene_name: str,
-                         seed: int, seconds: float, start: float = 0.0,
+def simulate_calibration(hand: HandDescription, kinematics: HandKinematics,
+                         scene_name: str | Scene, seed: int, seconds: float, start: float = 0.0,
                          zero_phase_tactile: bool = True) -> CalibrationDataset:
-    """Simulate `scene_name` with `seed` and keep the stamps in [start, seconds] (simulated s).
+    """Simulate `scene_name` (or a Scene as loaded and changed) with `seed` and keep the stamps
+    in [start, seconds] (simulated s).
 
     Stamps are the simulator's time at the end of each step, as sim_world stamps its messages,
     so a window cut from a node-recorded bag can be reproduced here exactly.
     `zero_phase_tactile` False keeps the tactile frames as the estimator receives them online
     (the force, the reference, is filtered either way).
     """
-    scene = load_scene(scene_name)
+    scene = scene_name if isinstance(scene_name, Scene) else load_scene(scene_name)
     sim = make_simulator(scene, hand, seed=seed)
     array = hand.array(scene.array)
     rows = array.flat_indices
@@ -49,7 +50,7 @@ def simulate_calibration(hand: HandDescription, kinematics: HandKinematics, scen
                 values[stream].append(np.asarray(value(), dtype=np.float64))
     for stream, samples in values.items():
         if len(samples) < 2:
-            raise DatasetError(f'{scene_name} seed {seed}: only {len(samples)} {stream} samples')
+            raise DatasetError(f'{scene.name} seed {seed}: only {len(samples)} {stream} samples')
     t_tac, t_ft, t_q = (np.asarray(times[s]) for s in ('tactile', 'ft', 'joints'))
     tactile = np.stack(values['tactile'])
     if zero_phase_tactile:

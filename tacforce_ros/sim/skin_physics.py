@@ -62,16 +62,17 @@ def half_space_displacement(offset: np.ndarray, force: np.ndarray, shear_modulus
     return scale * np.stack([ux, uy, uz], axis=-1)
 
 
-def layer_displacement(lateral: np.ndarray, depth: float, base_depth: float,
+def layer_displacement(lateral: np.ndarray, depth: float | np.ndarray, base_depth: float,
                        force: np.ndarray, shear_modulus: float, poisson: float) -> np.ndarray:
-    """(..., 3) m: displacement of a point at `depth` in a layer bonded at `base_depth` to a
-    rigid board, relative to the board below it, from surface point loads `force` at `lateral`
-    (..., 2) m from the point (frame z into the material). Steinbrenner's approximation: the
-    half-space displacement at the point less the one at the base."""
+    """(..., 3) m: displacement of a point at `depth` (broadcast over lateral's leading axes)
+    in a layer bonded at `base_depth` to a rigid board, relative to the board below it, from
+    surface point loads `force` at `lateral` (..., 2) m from the point (frame z into the
+    material). Steinbrenner's approximation: the half-space displacement at the point less the
+    one at the base."""
     lateral = np.asarray(lateral, np.float64)
-    shape = lateral.shape[:-1] + (1,)
-    at = np.concatenate([lateral, np.full(shape, depth)], axis=-1)
-    base = np.concatenate([lateral, np.full(shape, base_depth)], axis=-1)
+    shape = lateral.shape[:-1]
+    at = np.concatenate([lateral, np.broadcast_to(depth, shape)[..., None]], axis=-1)
+    base = np.concatenate([lateral, np.full(shape + (1,), base_depth)], axis=-1)
     return (half_space_displacement(at, force, shear_modulus, poisson)
             - half_space_displacement(base, force, shear_modulus, poisson))
 

@@ -27,6 +27,10 @@ from tacforce_ros.sim.effects import Effect
 
 # The chip's zero field reads mid-scale (MLX90393 unsigned output at RES_XYZ 2; docs).
 CHIP_ZERO = 32768.0
+# The parameters without a source (docs/SKIN_PHYSICS.md): skin_sensitivity varies these.
+ESTIMATES = ('magnet_diameter', 'magnet_thickness', 'layer_thickness', 'youngs_modulus',
+             'poisson', 'sensitivity_xy', 'sensitivity_z', 'closest', 'hysteresis_width',
+             'creep_share', 'creep_time_constant')
 
 
 @dataclass
@@ -123,8 +127,8 @@ class MagneticSkin(Effect):
         ctx.idle_counts = self.rest_counts
 
     def _location(self, contact, plate) -> None:
-        """Per contact location (the operator holds one through a press): the relative
-        curvature tensor, the tangent basis and the magnets and boards in the contact frame."""
+        """Per contact location (the operator holds one through a press): the principal
+        relative curvatures and their directions, and the array's footprint along them."""
         key = (contact.point.tobytes() + contact.normal.tobytes() + contact.axis.tobytes()
                + repr(plate).encode())
         if key == self._location_key:
@@ -144,14 +148,10 @@ class MagneticSkin(Effect):
         curvature, axes = np.linalg.eigh(skin + indenter)
         self._curvatures = np.maximum(curvature, 0.0)
         self._axes = axes.T @ np.stack([t1, t2])                    # (2, 3) principal directions
-        into = -contact.normal
-        self._frame = np.stack([self._axes[0], self._axes[1], into])  # rows: contact frame
         # Footprint of the array along the principal directions, half a pitch beyond its taxels.
         along = (self._positions - contact.point) @ self._axes.T
         self._footprint = (along.min(axis=0) - 0.5 * self._pitch,
                            along.max(axis=0) + 0.5 * self._pitch)
-        self._magnets = self._positions - self._magnet_depth[:, None] * self._normals
-        self._boards = self._positions - self.layer_thickness * self._normals
 
     def _loads(self, contact, normal_force: float) -> tuple[np.ndarray, np.ndarray]:
         """Load points (k, 2) in the principal tangent coordinates about the contact point and
@@ -183,7 +183,9 @@ class MagneticSkin(Effect):
 
     def displacement(self, contact, plate) -> np.ndarray:
         """(n, 3) m: each magnet's displacement relative to its chip, in its taxel frame, before
-        creep; zeros without a compressive contact."""
+        creep; zeros without a compressive contact. Each taxel sees the skin about it as a flat
+        layer (the load points at their offsets in its tangent plane, the loads in its frame):
+        on the curved fingertip a press at the apex loads a taxel on the side partly in shear."""
         normal_force = float(contact.force @ contact.normal)
         if not contact.active or normal_force <= 0.0:
             self.depth = 0.0
@@ -192,20 +194,17 @@ class MagneticSkin(Effect):
         points, shares = self._loads(contact, normal_force)
         sources = contact.point + points @ self._axes                      # (k, 3) in {S0}
         # contact.force is what the skin applies to the plate; the plate loads the skin with
-        # its opposite.
-        force = -shares[:, None] * (contact.force @ self._frame.T)         # (k, 3) contact frame
-        relative = []
-        for targets, depth in ((self._magnets, self._magnet_depth[:, None]),
-                               (self._boards, self.layer_thickness)):
-            offset = (targets[:, None, :] - sources[None]) @ self._frame.T   # (n, k, 3)
-            # Taxels around the curve from the contact sit above its tangent plane; the
-            # half-space solution needs them below, at least as deep as they are in the skin.
-            offset[..., 2] = np.maximum(offset[..., 2], depth)
-            relative.append(np.sum(phys.half_space_displacement(
-                offset, force[None], self.shear_modulus, self.poisson), axis=1))
-        moved = (relative[0] - relative[1]) @ self._frame                  # (n, 3) in {S0}
-        self.depth = float(np.max(-moved @ contact.normal))
-        return np.einsum('nji,nj->ni', self._rotations, moved)
+        # its opposite. Taxel frames have z out of the skin, the half-space's z points in.
+        flip = np.array([1.0, 1.0, -1.0])
+        loads = -np.einsum('nji,j->ni', self._rotations, contact.force) * flip   # (n, 3)
+        offset = np.einsum('nji,nkj->nki', self._rotations,
+                           self._positions[:, None, :] - sources[None])          # (n, k, 3)
+        moved = phys.layer_displacement(
+            offset[..., :2], self._magnet_depth[:, None], self.layer_thickness,
+            shares[None, :, None] * loads[:, None, :], self.shear_modulus, self.poisson)
+        moved = moved.sum(axis=1) * flip
+        self.depth = float(max(0.0, -moved[:, 2].min()))
+        return moved
 
     def counts(self, contact, plate) -> np.ndarray:
         """(n, 3) float counts of the pressed array for this frame."""
@@ -214,3 +213,11 @@ class MagneticSkin(Effect):
 
 
 EFFECT = MagneticSkin
+
+
+def with_magnetic_skin(effects: dict[str, dict], **params) -> dict[str, dict]:
+    """A scene's effects with the magnetic skin (first: the chip effects act on its counts) in
+    place of the effects it supersedes."""
+    return {MagneticSkin.name: dict(params),
+            **{name: value for name, value in effects.items()
+               if name not in MagneticSkin.supersedes and name != MagneticSkin.name}}

@@ -1,0 +1,171 @@
+"""skin_sensitivity: Table I on the magnetic skin, and how it moves with each estimated parameter.
+
+The paper's leave-one-plate-out benchmark (held-out e_hat per model, the Table I arrays by
+default) on calibration sessions simulated with the magnetic skin (sim/effects/magnetic_skin.py)
+in place of the empirical response: once at the parameters' values, then with each parameter
+that has no source (magnetic_skin.ESTIMATES, plus the chip noise) at --factors times its value
+(Poisson's ratio kept below 0.5). Each row also gives the ratios the simulated skin is judged by
+(issue 15): every model's e_hat over M3-lambda's and over the paper's.
+
+Writes skin_sensitivity.json and skin_sensitivity.md in --out (created before any work).
+Variants run in parallel (--jobs); the load average is recorded with them.
+"""
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import os
+import sys
+import time
+from concurrent.futures import ProcessPoolExecutor
+
+from tacforce_ros.experiments import paper_reference as paper
+from tacforce_ros.paths import output_folder
+
+ARRAYS = ('index_tip', 'index_middle')
+NOISE = ('taxel_noise', 'sigma')           # counts: an estimate too (sim/effects/taxel_noise.py)
+POISSON_LIMIT = 0.499
+
+
+def variants(factors: list[float], params: list[str]) -> list[dict]:
+    """[{'name', 'skin': {param: value}, 'noise': factor}] with the values first."""
+    from tacforce_ros.sim.effects.magnetic_skin import MagneticSkin
+    nominal = MagneticSkin()
+    rows = [{'name': 'values', 'skin': {}, 'noise': 1.0}]
+    for param in params:
+        for factor in factors:
+            name = f'{param} x{factor:g}'
+            if param == 'taxel_noise.sigma':
+                rows.append({'name': name, 'skin': {}, 'noise': factor})
+                continue
+            value = getattr(nominal, param) * factor
+            if param == 'poisson':
+                value = min(value, POISSON_LIMIT)
+            rows.append({'name': name, 'skin': {param: value}, 'noise': 1.0})
+    return rows
+
+
+def evaluate(variant: dict, arrays: list[str], sessions: int, seconds: float,
+             models: list[str], epochs: int, seed: int) -> dict:
+    """Table I rows of one variant: {array: {label: e_hat}} and the seconds it took."""
+    import numpy as np
+
+    from tacforce_ros.estimation.cross_validation import cross_validate
+    from tacforce_ros.estimation.dataset import concatenate
+    from tacforce_ros.estimation.registry import paper_configurations
+    from tacforce_ros.experiments.calibration_data import simulate_calibration
+    from tacforce_ros.hand.description import load_hand
+    from tacforce_ros.hand.kinematics import HandKinematics
+    from tacforce_ros.sim import load_scene
+    from tacforce_ros.sim.effects.magnetic_skin import with_magnetic_skin
+    from tacforce_ros.sim.scene import calibration_scene_name, session_seed
+
+    started = time.perf_counter()
+    hand = load_hand()
+    kinematics = HandKinematics.for_hand(hand)
+    configs = paper_configurations(seed, epochs)
+    rows = {}
+    for array in arrays:
+        parts = []
+        for plate in paper.TRAINING_PLATES:
+            scene = load_scene(calibration_scene_name(array, plate))
+            effects = with_magnetic_skin(scene.effects, **variant['skin'])
+            if NOISE[0] in effects and variant['noise'] != 1.0:
+                sigma = np.asarray(effects[NOISE[0]].get(NOISE[1], _noise_sigma()))
+                effects[NOISE[0]] = {**effects[NOISE[0]],
+                                     NOISE[1]: tuple(float(v) for v in sigma * variant['noise'])}
+            scene = dataclasses.replace(scene, effects=effects)
+            for k in range(sessions):
+                parts.append(simulate_calibration(hand, kinematics, scene,
+                                                  session_seed(seed, array, plate, k), seconds))
+        dataset = concatenate(parts)
+        X, F, _ = dataset.without_offsets(force_threshold=0.3)
+        rows[array] = {}
+        for label in models:
+            kind, hyper = configs[label]
+            summary = cross_validate(hand.array(array), kind, hyper, X, F,
+                                     dataset.plates).summary()
+            rows[array][label] = summary['e_hat_mean']
+    return {**variant, 'e_hat': rows, 'seconds': time.perf_counter() - started}
+
+
+def _noise_sigma():
+    from tacforce_ros.sim.effects.taxel_noise import TaxelNoise
+    return TaxelNoise().sigma
+
+
+def table(result: dict) -> str:
+    arrays, models = result['arrays'], result['models']
+    reference = 'M3-lambda' if 'M3-lambda' in models else None
+    head = ['variant'] + [f'{a} {m}' for a in arrays for m in models]
+    lines = [f"## Table I on the magnetic skin: held-out e_hat [N] (5-fold leave-one-plate-out)",
+             '', f"{result['sessions']} x {result['seconds']:g} s per plate and array, "
+             f"M4/M5 {result['epochs']} epochs, seed {result['seed']}; load average before / "
+             f"after: {result['load_before'][0]:.2f} / {result['load_after'][0]:.2f}", '',
+             '| ' + ' | '.join(head) + ' |', '|' + '---|' * len(head)]
+    paper_row = ['paper'] + [f"{paper.TABLE_I[a][m]['e_hat'][0]:.2f}" for a in arrays
+                             for m in models]
+    lines.append('| ' + ' | '.join(paper_row) + ' |')
+    for row in result['variants']:
+        cells = [row['name']]
+        for a in arrays:
+            for m in models:
+                value = row['e_hat'][a][m]
+                ratio = (f" ({value / row['e_hat'][a][reference]:.2f})"
+                         if reference and m != reference else '')
+                cells.append(f'{value:.3f}{ratio}')
+        lines.append('| ' + ' | '.join(cells) + ' |')
+    if reference:
+        lines += ['', f'In brackets: e_hat over {reference} of the same array and variant.']
+    return '\n'.join(lines) + '\n'
+
+
+def main(argv: list[str] | None = None) -> int:
+    from tacforce_ros.estimation.registry import PAPER_LABELS
+    from tacforce_ros.sim.effects.magnetic_skin import ESTIMATES
+
+    parser = argparse.ArgumentParser(prog='skin_sensitivity', description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument('--arrays', nargs='+', default=list(ARRAYS))
+    parser.add_argument('--sessions', type=int, default=1, help='per plate (paper: 4)')
+    parser.add_argument('--seconds', type=float, default=100.0, help='per session (paper: 100)')
+    parser.add_argument('--models', nargs='+', default=['M1', 'M2', 'M3', 'M3-lambda'],
+                        choices=PAPER_LABELS)
+    parser.add_argument('--epochs', type=int, default=40, help='M4/M5 epochs (paper: 40)')
+    parser.add_argument('--params', nargs='*', default=[*ESTIMATES, 'taxel_noise.sigma'],
+                        choices=[*ESTIMATES, 'taxel_noise.sigma'],
+                        help='estimates to vary (none: the values only)')
+    parser.add_argument('--factors', nargs='+', type=float, default=[0.5, 1.5])
+    parser.add_argument('--seed', type=int, default=0)
+    parser.add_argument('--jobs', type=int, default=os.cpu_count() or 1)
+    parser.add_argument('--out', type=output_folder, default='skin_sensitivity_out')
+    args = parser.parse_args(argv)
+    if args.sessions < 1 or args.seconds <= 0 or args.epochs < 1 or args.jobs < 1:
+        parser.error('--sessions, --seconds, --epochs and --jobs must be positive')
+    unknown = sorted(set(args.arrays) - set(paper.TABLE_I))
+    if unknown:
+        parser.error(f'--arrays: the paper has Table I rows for {sorted(paper.TABLE_I)} only, '
+                     f'not {unknown}')
+    rows = variants(args.factors, args.params)
+    result = {'arrays': args.arrays, 'models': args.models, 'sessions': args.sessions,
+              'seconds': args.seconds, 'epochs': args.epochs, 'seed': args.seed,
+              'load_before': os.getloadavg()}
+    with ProcessPoolExecutor(max_workers=min(args.jobs, len(rows))) as pool:
+        futures = [pool.submit(evaluate, row, args.arrays, args.sessions, args.seconds,
+                               args.models, args.epochs, args.seed) for row in rows]
+        done = []
+        for future in futures:
+            done.append(future.result())
+            print(f"{done[-1]['name']}: {done[-1]['seconds']:.0f} s", flush=True)
+    result.update(variants=done, load_after=os.getloadavg())
+    (args.out / 'skin_sensitivity.json').write_text(json.dumps(result, indent=2))
+    text = table(result)
+    (args.out / 'skin_sensitivity.md').write_text(text)
+    print(text)
+    print(f"wrote {args.out / 'skin_sensitivity.json'}, skin_sensitivity.md")
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -99,7 +99,7 @@ def table(result: dict) -> str:
     arrays, models = result['arrays'], result['models']
     reference = 'M3-lambda' if 'M3-lambda' in models else None
     head = ['variant'] + [f'{a} {m}' for a in arrays for m in models]
-    lines = [f"## Table I on the magnetic skin: held-out e_hat [N] (5-fold leave-one-plate-out)",
+    lines = ["## Table I on the magnetic skin: held-out e_hat [N] (5-fold leave-one-plate-out)",
              '', f"{result['sessions']} x {result['seconds']:g} s per plate and array, "
              f"M4/M5 {result['epochs']} epochs, seed {result['seed']}; load average before / "
              f"after: {result['load_before'][0]:.2f} / {result['load_after'][0]:.2f}", '',

@@ -81,3 +81,27 @@ def test_bench_sim_times_the_closed_loop_against_a_bare_mujoco_step(tmp_path, mo
     assert row['step_over_bare_mujoco'] > 1.0
     assert row['us_per_step'] == pytest.approx(
         row['step_over_bare_mujoco'] * row['bare_mujoco_us_per_step'])
+
+
+def test_skin_sensitivity_varies_each_estimate_and_writes_its_table(tmp_path):
+    from tacforce_ros.tools import skin_sensitivity
+    out = tmp_path / 'out'
+    assert skin_sensitivity.main(['--out', str(out), '--arrays', 'index_middle', '--seconds',
+                                  '15', '--models', 'M3', 'M3-lambda', '--params', 'poisson',
+                                  'taxel_noise.sigma', '--factors', '0.5', '1.5',
+                                  '--jobs', '1']) == 0
+    result = json.loads((out / 'skin_sensitivity.json').read_text())
+    names = [v['name'] for v in result['variants']]
+    assert names == ['values', 'poisson x0.5', 'poisson x1.5', 'taxel_noise.sigma x0.5',
+                     'taxel_noise.sigma x1.5']
+    assert result['variants'][2]['skin'] == {'poisson': skin_sensitivity.POISSON_LIMIT}
+    errors = [v['e_hat']['index_middle']['M3'] for v in result['variants']]
+    assert all(np.isfinite(errors)) and len(set(errors)) == len(errors)   # each one changed it
+    assert '| paper |' in (out / 'skin_sensitivity.md').read_text()
+
+
+def test_skin_sensitivity_refuses_an_array_without_a_table_i_row(tmp_path, capsys):
+    from tacforce_ros.tools import skin_sensitivity
+    with pytest.raises(SystemExit):
+        skin_sensitivity.main(['--out', str(tmp_path), '--arrays', 'palm_center'])
+    assert 'Table I rows' in capsys.readouterr().err

@@ -97,9 +97,9 @@ def static_mask(force: np.ndarray, taxels: np.ndarray, fs: float = SAMPLE_RATE_H
     """Samples inside static no-contact segments: (N,) bool. taxels: (N, n, 3) counts.
 
     The no-contact reference comes from the recording itself, so an un-zeroed F/T bias of any
-    size does not hide the rests. Released, the F/T sensor reads its bias, one force through
-    every rest, while presses move through forces: the `rest_share` of samples nearest the
-    densest force reading are released ones (the operator rests between presses; the paper's
+    size does not hide the rests. Released, the F/T sensor reads its bias, of one magnitude
+    through every rest, while presses sweep through forces: the `rest_share` of samples nearest
+    the densest force magnitude are released ones (the operator rests between presses; the paper's
     sessions rest about a quarter of the time). Their median is the rest reading of the taxels
     and of the F/T sensor. Static = force within `force_threshold` [N] of the F/T's rest reading
     AND tactile activity below `activity_threshold` [counts, rms over channels of the deviation
@@ -139,22 +139,23 @@ def rest_reading(force: np.ndarray, taxels: np.ndarray, rest_share: float = 0.1
     return np.median(flat[released], axis=0), np.median(force[released], axis=0)
 
 
-REST_RADIUS = 0.1      # N: a few times the F/T sensor's noise, well below a press
+REST_RADIUS = 0.03       # N: about the F/T sensor's noise, well below a press
 DENSITY_PROBES = 256     # candidate samples, spread over the recording
-DENSITY_SAMPLES = 4000   # samples the candidates' neighbours are counted among
 
 
 def _released(force: np.ndarray, share: float) -> np.ndarray:
-    """(N,) bool: the `share` of samples whose force lies nearest the densest force reading.
-    Released, the F/T sensor reads one force (its bias; noise and drift only) through every
-    rest, while presses move through forces and hold each at a different one; the taxels are
-    no guide (a press moves their counts either way: a magnet pushed sideways reads less Z)."""
-    n = force.shape[0]
-    probes = force[np.linspace(0, n - 1, min(n, DENSITY_PROBES)).astype(np.int64)]
-    pool = force[::max(1, n // DENSITY_SAMPLES)]
-    density = [np.count_nonzero(np.sum((pool - p) ** 2, axis=1) <= REST_RADIUS ** 2)
-               for p in probes]
-    distance = np.sum((force - probes[int(np.argmax(density))]) ** 2, axis=1)
+    """(N,) bool: the `share` of samples whose force magnitude lies nearest the densest one.
+    Released, the F/T sensor reads its bias, the same magnitude through every rest whatever
+    frame the force is expressed in as the hand moves between presses, while presses sweep
+    through magnitudes and hold each at a different one. The taxels are no guide: a press moves
+    their counts either way (a magnet pushed sideways reads less Z)."""
+    magnitude = np.sqrt(np.sum(force * force, axis=1))
+    ordered = np.sort(magnitude)
+    probes = ordered[np.linspace(0, len(ordered) - 1,
+                                 min(len(ordered), DENSITY_PROBES)).astype(np.int64)]
+    density = (np.searchsorted(ordered, probes + REST_RADIUS, side='right')
+               - np.searchsorted(ordered, probes - REST_RADIUS, side='left'))
+    distance = np.abs(magnitude - probes[int(np.argmax(density))])
     return distance <= np.quantile(distance, share)
 
 

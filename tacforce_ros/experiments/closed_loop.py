@@ -18,6 +18,7 @@ import numpy as np
 from tacforce_ros.control.finger_session import FingerSession, Transition
 from tacforce_ros.estimation.metrics import error_stats
 from tacforce_ros.sim import load_scene, make_simulator
+from tacforce_ros.sim.scene import Scene
 
 if TYPE_CHECKING:
     from tacforce_ros.control.command_sequence import ForceSequence
@@ -45,7 +46,8 @@ class ClosedLoopTrace:
                 'transitions': np.asarray(self.transitions, dtype=str)}
 
 
-def run_closed_loop(hand: HandDescription, kinematics: HandKinematics, scene: str | Path,
+def run_closed_loop(hand: HandDescription, kinematics: HandKinematics,
+                    scene: str | Path | Scene,
                     seed: int, config: ForceControllerConfig, sequence: ForceSequence,
                     models: ModelSet | None, control_rate: float = 100.0,
                     tare_frames: int = 50, settle_seconds: float = SETTLE_SECONDS,
@@ -64,7 +66,7 @@ def run_closed_loop(hand: HandDescription, kinematics: HandKinematics, scene: st
     session = FingerSession(config, kinematics)
     if models is None and not session.controller.open_loop:
         raise ValueError('a closed-loop controller (k_i != 0) needs force models')
-    scene = load_scene(scene)
+    scene = scene if isinstance(scene, Scene) else load_scene(scene)
     sim = make_simulator(scene, hand, seed=seed)
     if sim.finger != config.finger:
         raise ValueError(f'scene {scene.name} presses the {sim.finger} finger, the controller '

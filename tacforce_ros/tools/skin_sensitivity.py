@@ -61,6 +61,8 @@ def evaluate(variant: dict, arrays: list[str], sessions: int, seconds: float,
     from tacforce_ros.sim.effects.magnetic_skin import with_magnetic_skin
     from tacforce_ros.sim.scene import calibration_scene_name, session_seed
 
+    from tacforce_ros.sim.effects.magnetic_skin import SkinPlacementError
+
     started = time.perf_counter()
     hand = load_hand()
     kinematics = HandKinematics.for_hand(hand)
@@ -77,8 +79,12 @@ def evaluate(variant: dict, arrays: list[str], sessions: int, seconds: float,
                                      NOISE[1]: tuple(float(v) for v in sigma * variant['noise'])}
             scene = dataclasses.replace(scene, effects=effects)
             for k in range(sessions):
-                parts.append(simulate_calibration(hand, kinematics, scene,
-                                                  session_seed(seed, array, plate, k), seconds))
+                try:
+                    parts.append(simulate_calibration(
+                        hand, kinematics, scene, session_seed(seed, array, plate, k), seconds))
+                except SkinPlacementError as exc:     # a variant outside what the skin can be
+                    return {**variant, 'infeasible': str(exc), 'e_hat': None,
+                            'seconds': time.perf_counter() - started}
         dataset = concatenate(parts)
         X, F, _ = dataset.without_offsets(force_threshold=0.3)
         rows[array] = {}
@@ -87,7 +93,8 @@ def evaluate(variant: dict, arrays: list[str], sessions: int, seconds: float,
             summary = cross_validate(hand.array(array), kind, hyper, X, F,
                                      dataset.plates).summary()
             rows[array][label] = summary['e_hat_mean']
-    return {**variant, 'e_hat': rows, 'seconds': time.perf_counter() - started}
+    return {**variant, 'infeasible': None, 'e_hat': rows,
+            'seconds': time.perf_counter() - started}
 
 
 def _noise_sigma():
@@ -109,6 +116,9 @@ def table(result: dict) -> str:
     lines.append('| ' + ' | '.join(paper_row) + ' |')
     for row in result['variants']:
         cells = [row['name']]
+        if row['e_hat'] is None:
+            lines.append('| ' + ' | '.join(cells + ['infeasible'] * (len(head) - 1)) + ' |')
+            continue
         for a in arrays:
             for m in models:
                 value = row['e_hat'][a][m]
@@ -118,6 +128,8 @@ def table(result: dict) -> str:
         lines.append('| ' + ' | '.join(cells) + ' |')
     if reference:
         lines += ['', f'In brackets: e_hat over {reference} of the same array and variant.']
+    lines += [f"Infeasible, {row['name']}: {row['infeasible']}" for row in result['variants']
+              if row['e_hat'] is None]
     return '\n'.join(lines) + '\n'
 
 

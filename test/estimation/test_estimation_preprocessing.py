@@ -198,3 +198,35 @@ def test_standardiser_dead_channel_is_flagged_not_inf():
     np.testing.assert_allclose(scaler.inverse(out), data)
     with pytest.raises(ValueError, match='finite'):
         Standardiser.fit(np.full((3, 2), np.nan), floor=1.0)
+
+
+def test_static_segments_on_the_magnetic_skin_with_a_large_bias_turning_with_the_hand():
+    """Named case: the magnetic skin, whose presses lower the summed Z as often as not on the
+    fingertip (magnets pushed sideways read less), with an F/T bias beyond the 0.3 N threshold,
+    the force expressed in the array frame as the dataset does (the bias turns as the hand moves
+    between presses)."""
+    import dataclasses
+    import warnings
+
+    from tacforce_ros.hand.description import load_hand
+    from tacforce_ros.sim import load_scene, make_simulator
+    from tacforce_ros.sim.effects.magnetic_skin import with_magnetic_skin
+    hand = load_hand()
+    scene = load_scene('calibration_index_tip_convex')
+    effects = with_magnetic_skin({**scene.effects, 'ft_noise': {
+        'force_bias_sigma': 0.5, 'drift_per_sqrt_s': 0.0}})
+    with warnings.catch_warnings():
+        warnings.simplefilter('ignore')
+        sim = make_simulator(dataclasses.replace(scene, effects=effects), hand, seed=5)
+    rows = hand.array('index_tip').flat_indices
+    samples = [sim.step() for _ in range(4000)]
+    force = np.array([sim.rotation(s.q) @ s.ft_wrench[:3] for s in samples])
+    taxels = np.array([s.taxel_counts[rows] for s in samples], np.float64)
+    touching = np.array([s.in_contact for s in samples])
+    pressed = np.array([np.linalg.norm(s.true_force) > 0.05 for s in samples])  # above noise
+    bias = next(e for e in sim.pipeline.effects if e.name == 'ft_noise')._bias[:3]
+    assert np.linalg.norm(bias) > 0.3
+    summed = taxels[:, :, 2].sum(axis=1)
+    assert (summed[touching] < summed[~touching].min()).any()   # the old rule's failure
+    mask = static_mask(force, taxels)
+    assert mask.sum() > 200 and not (mask & pressed).any()

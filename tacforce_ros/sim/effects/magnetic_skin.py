@@ -25,12 +25,26 @@ import numpy as np
 from tacforce_ros.sim import skin_physics as phys
 from tacforce_ros.sim.effects import Effect
 
-# The chip's zero field reads mid-scale (MLX90393 unsigned output at RES_XYZ 2; docs).
+# The chip's zero field reads mid-scale, and it reads +/- 22000 counts about it at most
+# (MLX90393 datasheet, Table 21, unsigned output at RES_XYZ 2).
 CHIP_ZERO = 32768.0
+CHIP_RANGE = 22000.0
+# A principal relative curvature below this counts as flat: a 1 N Hertz contact on this
+# elastomer would be wider than an array (semi-axis ~9 mm at 10 /m). The fingertip is 74 /m.
+FLAT_CURVATURE = 10.0         # 1/m
+# A line contact's pressure along its line is tabulated once per location over these offsets
+# across it (m); the half-width of the edge and fillet plates stays inside at the operator's forces.
+LINE_REACH = 0.003
+LINE_TABLE_STEP = 0.00005
+LINE_PROFILE = (np.arange(8) + 0.5) / 4.0 - 1.0   # across-line sample points, in half-widths
 # The parameters without a source (docs/SKIN_PHYSICS.md): skin_sensitivity varies these.
 ESTIMATES = ('magnet_diameter', 'magnet_thickness', 'layer_thickness', 'youngs_modulus',
              'poisson', 'sensitivity_xy', 'sensitivity_z', 'closest', 'hysteresis_width',
              'creep_share', 'creep_time_constant')
+
+
+class SkinPlacementError(ValueError):
+    """The parameters put a magnet outside its layer."""
 
 
 @dataclass
@@ -92,6 +106,12 @@ class MagneticSkin(Effect):
             CHIP_ZERO + rng.uniform(-self.rest_xy_spread, self.rest_xy_spread, (n, 2)),
             rng.uniform(*self.rest_z_range, n)])
         self.lateral, self.height = self.placement(rest)
+        if self.height.max() >= self.layer_thickness:
+            raise SkinPlacementError(
+                f'magnetic_skin: a magnet must sit {self.height.max() * 1e3:.2f} mm above its '
+                f'chip to read the rest values, above the {self.layer_thickness * 1e3:.2f} mm '
+                'layer: these magnet, chip and layer parameters do not fit the measured rest '
+                'readings')
         self.rest_counts = self.counts_at(np.zeros((n, 3)), slice(None))
 
     def counts_at(self, displacement: np.ndarray, rows) -> np.ndarray:
@@ -102,7 +122,8 @@ class MagneticSkin(Effect):
         np.maximum(position[:, 2], self.closest, out=position[:, 2])
         moment = np.zeros_like(position)
         moment[:, 2] = self.moment
-        return CHIP_ZERO + phys.dipole_field(moment, -position) / self._sensitivity
+        counts = phys.dipole_field(moment, -position) / self._sensitivity
+        return CHIP_ZERO + np.clip(counts, -CHIP_RANGE, CHIP_RANGE)
 
     # -- a session -------------------------------------------------------------------------------
 
@@ -115,11 +136,7 @@ class MagneticSkin(Effect):
         self._pitch = float(np.min(np.sqrt(np.sum(
             (self._positions[:, None] - self._positions[None]) ** 2, axis=-1))
             + np.eye(array.n_taxels)))
-        height = self.height[self._rows]
-        self._magnet_depth = self.layer_thickness - height                 # (n,)
-        if np.any(self._magnet_depth <= 0.0):
-            raise ValueError(f'magnet_skin: magnets {height.max() * 1e3:.2f} mm above the chip '
-                             f'do not fit in a {self.layer_thickness * 1e3:.2f} mm layer')
+        self._magnet_depth = self.layer_thickness - self.height[self._rows]   # (n,) > 0
         self.creep.reset((array.n_taxels, 3), ctx.dt)
         self.play.reset((array.n_taxels, 3))
         self._location_key = b''
@@ -142,67 +159,120 @@ class MagneticSkin(Effect):
         elif plate.shape == 'cylinder':
             across = np.cross(contact.normal, contact.axis)
             direction = np.array([across @ t1, across @ t2])
+            length = float(np.sqrt(direction @ direction))
+            if length < 1e-6:
+                raise ValueError('magnetic_skin: a cylinder plate with its axis along the '
+                                 'contact normal')
+            direction /= length
             indenter = np.outer(direction, direction) / plate.radius
         else:
             indenter = np.zeros((2, 2))
         curvature, axes = np.linalg.eigh(skin + indenter)
+        # How far the contact can reach along each principal direction: a sphere's radius
+        # both ways, a cylinder's across its axis (eigh orders the larger curvature last).
+        self._plate_reach = {'sphere': (plate.radius, plate.radius),
+                             'cylinder': (np.inf, plate.radius)}.get(plate.shape,
+                                                                     (np.inf, np.inf))
         self._curvatures = np.maximum(curvature, 0.0)
         self._axes = axes.T @ np.stack([t1, t2])                    # (2, 3) principal directions
         # Footprint of the array along the principal directions, half a pitch beyond its taxels.
         along = (self._positions - contact.point) @ self._axes.T
         self._footprint = (along.min(axis=0) - 0.5 * self._pitch,
                            along.max(axis=0) + 0.5 * self._pitch)
+        self._point = contact.point
+        self._layouts()
 
-    def _loads(self, contact, normal_force: float) -> tuple[np.ndarray, np.ndarray]:
-        """Load points (k, 2) in the principal tangent coordinates about the contact point and
-        their shares (k,) of the contact force: Hertz ellipse, line or flat punch."""
-        k1, k2 = self._curvatures
+    def _influence(self, points: np.ndarray, forces: np.ndarray) -> np.ndarray:
+        """Magnet displacements relative to their chips (half-space frame, z into the skin)
+        from loads `forces` (broadcast to (n, k, ..., 3), each taxel's frame) at `points`
+        (k, 2) about the contact point: (n, k, ..., 3). Each taxel sees the skin about it as a
+        flat layer: a load point sits at its 3-D distance, in the direction it has in the
+        taxel's tangent plane (a press at the fingertip's apex loads a taxel on its side partly
+        in shear, and from as far as it is)."""
+        sources = self._point + points @ self._axes                       # (k, 3) in {S0}
+        offset = np.einsum('nji,nkj->nki', self._rotations,
+                           self._positions[:, None, :] - sources[None])    # (n, k, 3)
+        planar = np.sqrt(np.sum(offset[..., :2] ** 2, axis=-1, keepdims=True))
+        distance = np.sqrt(np.sum(offset ** 2, axis=-1, keepdims=True))
+        lateral = offset[..., :2] * (distance / np.maximum(planar, 1e-12))
+        extra = forces.ndim - 3       # axes of `forces` beyond (n, k, 3)
+        lateral = lateral.reshape(lateral.shape[:2] + (1,) * extra + (2,))
+        depth = self._magnet_depth.reshape((-1,) + (1,) * (1 + extra))
+        return phys.layer_displacement(lateral, depth, self.layer_thickness, forces,
+                                       self.shear_modulus, self.poisson)
+
+    def _unit_influence(self, points: np.ndarray, shares: np.ndarray) -> np.ndarray:
+        """(n, 3, 3): displacement per unit load (force axis, then displacement axis) of loads
+        spread over `points` by `shares`."""
+        unit = np.broadcast_to(np.eye(3), (1, 1, 3, 3))
+        return np.einsum('k,nkfd->nfd', shares, self._influence(points, unit))
+
+    def _layouts(self) -> None:
+        """Per location, the loads that do not change with the force, integrated once: a flat
+        plate's uniform pressure, and a line contact's pressure along its line (a table over the
+        offset across it). Points lie at most half the shallowest magnet's depth apart, so the
+        sum over them stands for the integral."""
         low, high = self._footprint
-        curved = self._curvatures > 1e-9
+        step = 0.5 * float(self._magnet_depth.min())
+        curved = self._curvatures > FLAT_CURVATURE
+        self._flat_influence = self._line_table = None
         if curved.all():
-            a, b = phys.hertz_semi_axes(normal_force, (k1, k2), self.contact_modulus)
-            return self._patch[0] * (a, b), self._patch[1]
-        grid = (np.arange(8) + 0.5) / 8.0
-        if not curved.any():   # a plate flatter than the skin's footprint: uniform pressure
-            u, v = np.meshgrid(low[0] + grid * (high[0] - low[0]),
-                               low[1] + grid * (high[1] - low[1]))
-            points = np.column_stack([u.ravel(), v.ravel()])
-            return points, np.full(len(points), 1.0 / len(points))
-        # Line contact along the flat direction, over the array's footprint there.
-        line, across = (0, 1) if curved[1] else (1, 0)
-        length = high[line] - low[line]
-        half = phys.line_contact_half_width(normal_force, length, self._curvatures[across],
-                                            self.contact_modulus)
-        offsets = 2.0 * grid - 1.0
-        shares = np.sqrt(1.0 - offsets ** 2)
-        points = np.zeros((64, 2))
-        points[:, line] = np.repeat(low[line] + grid * length, 8)
-        points[:, across] = np.tile(half * offsets, 8)
-        weights = np.tile(shares, 8)
-        return points, weights / weights.sum()
+            return
+        if not curved.any():
+            u, v = (np.arange(lo + 0.5 * step, hi, step) for lo, hi in zip(low, high))
+            points = np.stack(np.meshgrid(u, v, indexing='ij'), axis=-1).reshape(-1, 2)
+            self._flat_influence = self._unit_influence(points, np.full(len(points),
+                                                                        1.0 / len(points)))
+            return
+        line = 0 if curved[1] else 1
+        along = np.arange(low[line] + 0.5 * step, high[line], step)
+        self._line_across = np.arange(-LINE_REACH, LINE_REACH + 1e-12, LINE_TABLE_STEP)
+        table = []
+        for offset in self._line_across:
+            points = np.zeros((len(along), 2))
+            points[:, line], points[:, 1 - line] = along, offset
+            table.append(self._unit_influence(points, np.full(len(along), 1.0 / len(along))))
+        self._line_table = np.stack(table, axis=1)                  # (n, offsets, 3, 3)
+        self._line_length = high[line] - low[line]
+        self._line_curvature = self._curvatures[1 - line]
+
+    def _unit_displacement(self, normal_force: float) -> np.ndarray:
+        """(n, 3, 3) for this frame's force: Hertz ellipse, line contact or flat punch."""
+        if self._flat_influence is not None:
+            return self._flat_influence
+        if self._line_table is None:
+            a, b = phys.hertz_semi_axes(normal_force, tuple(self._curvatures),
+                                        self.contact_modulus)
+            # Hertz needs the contact small against the plate; pressed deeper, the plate's
+            # edge bounds it (the button's 2 mm radius is reached near 1 N on this elastomer).
+            a, b = np.minimum((a, b), self._plate_reach)
+            return self._unit_influence(self._patch[0] * (a, b), self._patch[1])
+        half = min(phys.line_contact_half_width(normal_force, self._line_length,
+                                                self._line_curvature, self.contact_modulus),
+                   self._plate_reach[1], LINE_REACH)
+        across = half * LINE_PROFILE
+        shares = np.sqrt(1.0 - LINE_PROFILE ** 2)
+        shares /= shares.sum()
+        position = np.interp(across, self._line_across, np.arange(len(self._line_across)))
+        below = np.minimum(position.astype(np.int64), len(self._line_across) - 2)
+        frac = (position - below)[None, :, None, None]
+        rows = (1.0 - frac) * self._line_table[:, below] + frac * self._line_table[:, below + 1]
+        return np.einsum('j,njfd->nfd', shares, rows)
 
     def displacement(self, contact, plate) -> np.ndarray:
         """(n, 3) m: each magnet's displacement relative to its chip, in its taxel frame, before
-        creep; zeros without a compressive contact. Each taxel sees the skin about it as a flat
-        layer (the load points at their offsets in its tangent plane, the loads in its frame):
-        on the curved fingertip a press at the apex loads a taxel on the side partly in shear."""
+        creep; zeros without a compressive contact. Shear traction follows the pressure, so
+        every load point carries the same share of the contact force."""
         normal_force = float(contact.force @ contact.normal)
         if not contact.active or normal_force <= 0.0:
             self.depth = 0.0
             return np.zeros((len(self._positions), 3))
         self._location(contact, plate)
-        points, shares = self._loads(contact, normal_force)
-        sources = contact.point + points @ self._axes                      # (k, 3) in {S0}
         # contact.force is what the skin applies to the plate; the plate loads the skin with
         # its opposite. Taxel frames have z out of the skin, the half-space's z points in.
         flip = np.array([1.0, 1.0, -1.0])
         loads = -np.einsum('nji,j->ni', self._rotations, contact.force) * flip   # (n, 3)
-        offset = np.einsum('nji,nkj->nki', self._rotations,
-                           self._positions[:, None, :] - sources[None])          # (n, k, 3)
-        moved = phys.layer_displacement(
-            offset[..., :2], self._magnet_depth[:, None], self.layer_thickness,
-            shares[None, :, None] * loads[:, None, :], self.shear_modulus, self.poisson)
-        moved = moved.sum(axis=1) * flip
+        moved = np.einsum('nf,nfd->nd', loads, self._unit_displacement(normal_force)) * flip
         self.depth = float(max(0.0, -moved[:, 2].min()))
         return moved
 

@@ -68,7 +68,6 @@ class TactileSensor:
         if self.skin is not None:
             counts = self.ctx.idle_counts.copy()
             counts[self.ctx.rows] = self.skin.counts(contact, self.plate)
-            state.depth = self.skin.depth
             self._finish(state, counts)
             return
         weights = self.pressure.weights(contact)

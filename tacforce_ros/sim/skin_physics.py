@@ -5,19 +5,17 @@ An indenter presses the layer; the pressure under it (Hertz) displaces the elast
 magnet (Boussinesq and Cerruti point-load solutions, summed over the contact patch); the layer
 is bonded to the chip's board, so what moves the magnet relative to the chip is the half-space
 displacement at the magnet's depth less the one at the board (Steinbrenner's approximation for a
-layer on a rigid base); the chip reads the displaced magnet's dipole field; the elastomer creeps
-(standard linear solid). Formulas: K. L. Johnson, Contact Mechanics (1985), sections 2.2, 3.2,
-3.4 and 4.2 (Hertz, Boussinesq, Cerruti, approximate ellipse ratio); J. D. Jackson, Classical
-Electrodynamics (1999), eq. 5.56 (dipole field). Parameter values live with their sources in
-docs/SKIN_PHYSICS.md and in sim/effects/magnetic_skin.py; this module holds no numbers of the
-hardware.
+layer on a rigid base); the chip reads the displaced magnet's dipole field (the elastomer's
+creep and hysteresis: sim/elastomer_memory.py). Formulas: K. L. Johnson, Contact Mechanics
+(1985), chapters 2-4 (Boussinesq, Cerruti, Hertz, the approximate ellipse ratio); J. D. Jackson,
+Classical Electrodynamics (1999), eq. 5.56 (dipole field). Parameter values live with their
+sources in docs/SKIN_PHYSICS.md and in sim/effects/magnetic_skin.py; this module holds no
+numbers of the hardware.
 
 Frames: `half_space_displacement` works in a frame with z pointing INTO the material (Johnson's
 convention); everything else takes vectors in the caller's frame.
 """
 from __future__ import annotations
-
-from dataclasses import dataclass
 
 import numpy as np
 
@@ -113,16 +111,11 @@ def elliptic_patch(n_rings: int = 6, n_spokes: int = 12) -> tuple[np.ndarray, np
     return points, weights / weights.sum()
 
 
-def tangent_basis(normal: np.ndarray, first: np.ndarray | None = None
-                  ) -> tuple[np.ndarray, np.ndarray]:
-    """Two unit tangents (t1, t2) with t1 x t2 = normal; t1 along `first` projected onto the
-    tangent plane when given (and not parallel to the normal)."""
+def tangent_basis(normal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Two unit tangents (t1, t2) with t1 x t2 = normal (unit)."""
     normal = np.asarray(normal, np.float64)
-    seed = np.eye(3)[np.argmin(np.abs(normal))] if first is None else np.asarray(first, float)
+    seed = np.eye(3)[np.argmin(np.abs(normal))]     # the axis least along the normal
     t1 = seed - (seed @ normal) * normal
-    if t1 @ t1 < 1e-12:
-        t1 = np.eye(3)[np.argmin(np.abs(normal))]
-        t1 = t1 - (t1 @ normal) * normal
     t1 /= np.sqrt(t1 @ t1)
     return t1, np.cross(normal, t1)
 
@@ -143,47 +136,3 @@ def skin_curvature(positions: np.ndarray, normals: np.ndarray, point: np.ndarray
         return np.zeros((2, 2))
     solution, *_ = np.linalg.lstsq(weight * offset, weight * turn, rcond=None)
     return 0.5 * (solution + solution.T)
-
-
-@dataclass
-class Creep:
-    """Standard-linear-solid creep of the elastomer, per displacement component: under a held
-    load the displacement grows from its instantaneous value u to (1 + share) u with the time
-    constant `tau`; released, the extra part decays with it. Exact for loads held over a step."""
-    share: float      # creep compliance over the instantaneous one
-    tau: float        # s
-
-    def __post_init__(self) -> None:
-        if self.share < 0.0 or self.tau <= 0.0:
-            raise ValueError(f'creep needs share >= 0 and tau > 0, got {self.share}, {self.tau}')
-        self._state: np.ndarray | None = None
-        self._decay = 0.0
-
-    def reset(self, shape: tuple[int, ...], dt: float) -> None:
-        self._state = np.zeros(shape)
-        self._decay = float(np.exp(-dt / self.tau))
-
-    def __call__(self, instantaneous: np.ndarray) -> np.ndarray:
-        self._state *= self._decay
-        self._state += (1.0 - self._decay) * self.share * instantaneous
-        return instantaneous + self._state
-
-
-@dataclass
-class Play:
-    """Rate-independent hysteresis (a play operator), per component: the output holds until the
-    input moves more than the half-width `relative * |input| + width` away from it, then
-    follows at that distance. A load cycle reads a loop whose width grows with the load."""
-    relative: float
-    width: float
-
-    def __post_init__(self) -> None:
-        self._output: np.ndarray | None = None
-
-    def reset(self, shape: tuple[int, ...]) -> None:
-        self._output = np.zeros(shape)
-
-    def __call__(self, value: np.ndarray) -> np.ndarray:
-        half = self.relative * np.abs(value) + self.width
-        np.clip(self._output, value - half, value + half, out=self._output)
-        return self._output.copy()

@@ -9,7 +9,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from tacforce_ros.sim.effects import Effect
-from tacforce_ros.sim.skin_physics import Play
+from tacforce_ros.sim.elastomer_memory import Play
 
 
 @dataclass

@@ -24,6 +24,7 @@ import numpy as np
 
 from tacforce_ros.sim import skin_physics as phys
 from tacforce_ros.sim.effects import Effect
+from tacforce_ros.sim.elastomer_memory import Creep, Play
 
 # The chip's zero field reads mid-scale, and it reads +/- 22000 counts about it at most
 # (MLX90393 datasheet, Table 21, unsigned output at RES_XYZ 2).
@@ -38,8 +39,10 @@ LINE_REACH = 0.003
 LINE_TABLE_STEP = 0.00005
 LINE_PROFILE = (np.arange(8) + 0.5) / 4.0 - 1.0   # across-line sample points, in half-widths
 # The parameters without a source (docs/SKIN_PHYSICS.md): skin_sensitivity varies these.
-ESTIMATES = ('magnet_diameter', 'magnet_thickness', 'layer_thickness', 'youngs_modulus',
-             'poisson', 'sensitivity_xy', 'sensitivity_z', 'closest', 'hysteresis_width',
+# The magnet acts only through its moment (diameter^2 x thickness x remanence): its thickness
+# stands for all three (the moment scales with it).
+ESTIMATES = ('magnet_thickness', 'layer_thickness', 'youngs_modulus', 'poisson',
+             'sensitivity_xy', 'sensitivity_z', 'closest', 'play_relative', 'play_width',
              'creep_share', 'creep_time_constant')
 
 
@@ -63,8 +66,10 @@ class MagneticSkin(Effect):
     rest_z_range: tuple[float, float] = (33600.0, 37600.0)   # counts at rest (PROTOCOLS.md)
     rest_xy_spread: float = 1350.0          # counts, +/- about mid-scale at rest (PROTOCOLS.md)
     closest: float = 0.0005                 # m, magnet centre over the chip fully pressed, estimate
-    hysteresis: float = 0.05                # share of the displacement: a 10 % loop (Tomo 2018)
-    hysteresis_width: float = 1e-6          # m, estimate
+    # Play on the displacement: uSkin's loop is 10 % of its normal force range (Tomo 2018); a
+    # half-width of 5 % of the displacement is our estimate of what gives it, beside creep.
+    play_relative: float = 0.05
+    play_width: float = 1e-6                # m, estimate
     creep_share: float = 0.1                # estimate
     creep_time_constant: float = 1.0        # s, estimate
 
@@ -75,8 +80,8 @@ class MagneticSkin(Effect):
         self.contact_modulus = self.youngs_modulus / (1.0 - self.poisson ** 2)
         self._sensitivity = np.array([self.sensitivity_xy, self.sensitivity_xy,
                                       self.sensitivity_z])
-        self.creep = phys.Creep(self.creep_share, self.creep_time_constant)
-        self.play = phys.Play(self.hysteresis, self.hysteresis_width)
+        self.creep = Creep(self.creep_share, self.creep_time_constant)
+        self.play = Play(self.play_relative, self.play_width)
         self._patch = phys.elliptic_patch()
 
     # -- the hand: where each magnet sits ------------------------------------------------------
@@ -140,7 +145,6 @@ class MagneticSkin(Effect):
         self.creep.reset((array.n_taxels, 3), ctx.dt)
         self.play.reset((array.n_taxels, 3))
         self._location_key = b''
-        self.depth = 0.0
         ctx.idle_counts = self.rest_counts
 
     def _location(self, contact, plate) -> None:
@@ -265,7 +269,6 @@ class MagneticSkin(Effect):
         every load point carries the same share of the contact force."""
         normal_force = float(contact.force @ contact.normal)
         if not contact.active or normal_force <= 0.0:
-            self.depth = 0.0
             return np.zeros((len(self._positions), 3))
         self._location(contact, plate)
         # contact.force is what the skin applies to the plate; the plate loads the skin with
@@ -273,7 +276,6 @@ class MagneticSkin(Effect):
         flip = np.array([1.0, 1.0, -1.0])
         loads = -np.einsum('nji,j->ni', self._rotations, contact.force) * flip   # (n, 3)
         moved = np.einsum('nf,nfd->nd', loads, self._unit_displacement(normal_force)) * flip
-        self.depth = float(max(0.0, -moved[:, 2].min()))
         return moved
 
     def counts(self, contact, plate) -> np.ndarray:

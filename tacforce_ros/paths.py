@@ -1,6 +1,7 @@
 """Where the package's data (config/, launch/) lives, installed or in the source tree; and the
 check every tool makes of its output folder before long work."""
 import argparse
+import json
 import os
 import tempfile
 from pathlib import Path
@@ -68,3 +69,12 @@ def output_file(value: str) -> Path:
     path = Path(value)
     output_folder(str(path.parent))
     return path
+
+
+def write_results(folder: Path, stem: str, result: dict, table: str) -> None:
+    """A benchmark's results as <stem>.json and its readable table as <stem>.md, which is also
+    printed, with where both went."""
+    (folder / f'{stem}.json').write_text(json.dumps(result, indent=2))
+    (folder / f'{stem}.md').write_text(table)
+    print(table)
+    print(f"wrote {folder / f'{stem}.json'}, {stem}.md")

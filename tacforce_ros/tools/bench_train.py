@@ -11,7 +11,6 @@ Writes bench_train.json and bench_train.md in --out; the load average is recorde
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import platform
 import sys
@@ -24,7 +23,7 @@ from tacforce_ros.estimation.cross_validation import cross_validate
 from tacforce_ros.estimation.preprocessing import SAMPLE_RATE_HZ
 from tacforce_ros.estimation.registry import PAPER_LABELS, paper_configurations
 from tacforce_ros.estimation.synthetic import PLATES, synthetic_dataset
-from tacforce_ros.paths import output_folder
+from tacforce_ros.paths import output_folder, write_results
 
 
 def run_both(array, kind: str, hyper: dict, X: np.ndarray, F: np.ndarray,
@@ -103,11 +102,7 @@ def main(argv: list[str] | None = None) -> int:
         result['models'][label] = run_both(array, kind, hyper, X, F, dataset.plates)
         print(f"{label}: {result['models'][label]['speed_up']:.2f}x", flush=True)
     result['load_after'] = os.getloadavg()
-    (args.out / 'bench_train.json').write_text(json.dumps(result, indent=2))
-    text = table(result)
-    (args.out / 'bench_train.md').write_text(text)
-    print(text)
-    print(f"wrote {args.out / 'bench_train.json'}, bench_train.md")
+    write_results(args.out, 'bench_train', result, table(result))
     return 0
 
 

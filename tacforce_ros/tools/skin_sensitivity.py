@@ -14,14 +14,13 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import os
 import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
 
 from tacforce_ros.experiments import paper_reference as paper
-from tacforce_ros.paths import output_folder
+from tacforce_ros.paths import output_folder, write_results
 
 ARRAYS = ('index_tip', 'index_middle')
 NOISE = ('taxel_noise', 'sigma')           # counts: an estimate too (sim/effects/taxel_noise.py)
@@ -171,11 +170,7 @@ def main(argv: list[str] | None = None) -> int:
             done.append(future.result())
             print(f"{done[-1]['name']}: {done[-1]['seconds']:.0f} s", flush=True)
     result.update(variants=done, load_after=os.getloadavg())
-    (args.out / 'skin_sensitivity.json').write_text(json.dumps(result, indent=2))
-    text = table(result)
-    (args.out / 'skin_sensitivity.md').write_text(text)
-    print(text)
-    print(f"wrote {args.out / 'skin_sensitivity.json'}, skin_sensitivity.md")
+    write_results(args.out, 'skin_sensitivity', result, table(result))
     return 0
 
 

@@ -4,8 +4,10 @@ The paper's leave-one-plate-out benchmark (held-out e_hat per model, the Table I
 default) on calibration sessions simulated with the magnetic skin (sim/effects/magnetic_skin.py)
 in place of the empirical response: once at the parameters' values, then with each parameter
 that has no source (magnetic_skin.ESTIMATES, plus the chip noise) at --factors times its value
-(Poisson's ratio kept below 0.5). Each row also gives the ratios the simulated skin is judged by
-(issue 15): every model's e_hat over M3-lambda's and over the paper's.
+(Poisson's ratio kept below 0.5); a variant whose magnets cannot sit in their layer is reported
+as infeasible. Each row also gives every model's e_hat over M3-lambda's, the ratios the
+simulated skin is judged by (issue 15). At the values, the paper's closed loop runs too (open
+loop, and closed with each --closed-loop model fitted on the fingertip's sessions).
 
 Writes skin_sensitivity.json and skin_sensitivity.md in --out (created before any work).
 Variants run in parallel (--jobs); the load average is recorded with them.
@@ -23,6 +25,7 @@ from tacforce_ros.experiments import paper_reference as paper
 from tacforce_ros.paths import output_folder, write_results
 
 ARRAYS = ('index_tip', 'index_middle')
+LOOP_ARRAY, LOOP_SCENE = 'index_tip', 'closed_loop_spherical'   # the paper's Table III
 NOISE = ('taxel_noise', 'sigma')           # counts: an estimate too (sim/effects/taxel_noise.py)
 POISSON_LIMIT = 0.499
 
@@ -46,8 +49,9 @@ def variants(factors: list[float], params: list[str]) -> list[dict]:
 
 
 def evaluate(variant: dict, arrays: list[str], sessions: int, seconds: float,
-             models: list[str], epochs: int, seed: int) -> dict:
-    """Table I rows of one variant: {array: {label: e_hat}} and the seconds it took."""
+             models: list[str], epochs: int, seed: int, loop_models: list[str]) -> dict:
+    """Table I rows of one variant: {array: {label: e_hat}}, the closed loop of `loop_models`
+    (trained on the fingertip's sessions) and the seconds it took."""
     import numpy as np
 
     from tacforce_ros.estimation.cross_validation import cross_validate
@@ -58,25 +62,27 @@ def evaluate(variant: dict, arrays: list[str], sessions: int, seconds: float,
     from tacforce_ros.hand.kinematics import HandKinematics
     from tacforce_ros.sim import load_scene
     from tacforce_ros.sim.effects.magnetic_skin import with_magnetic_skin
+    from tacforce_ros.sim.effects.magnetic_skin import SkinPlacementError
     from tacforce_ros.sim.scene import calibration_scene_name, session_seed
 
-    from tacforce_ros.sim.effects.magnetic_skin import SkinPlacementError
+    def magnetic(name: str):
+        scene = load_scene(name)
+        effects = with_magnetic_skin(scene.effects, **variant['skin'])
+        if NOISE[0] in effects and variant['noise'] != 1.0:
+            sigma = np.asarray(effects[NOISE[0]].get(NOISE[1], _noise_sigma()))
+            effects[NOISE[0]] = {**effects[NOISE[0]],
+                                 NOISE[1]: tuple(float(v) for v in sigma * variant['noise'])}
+        return dataclasses.replace(scene, effects=effects)
 
     started = time.perf_counter()
     hand = load_hand()
     kinematics = HandKinematics.for_hand(hand)
     configs = paper_configurations(seed, epochs)
-    rows = {}
+    rows, loop = {}, None
     for array in arrays:
         parts = []
         for plate in paper.TRAINING_PLATES:
-            scene = load_scene(calibration_scene_name(array, plate))
-            effects = with_magnetic_skin(scene.effects, **variant['skin'])
-            if NOISE[0] in effects and variant['noise'] != 1.0:
-                sigma = np.asarray(effects[NOISE[0]].get(NOISE[1], _noise_sigma()))
-                effects[NOISE[0]] = {**effects[NOISE[0]],
-                                     NOISE[1]: tuple(float(v) for v in sigma * variant['noise'])}
-            scene = dataclasses.replace(scene, effects=effects)
+            scene = magnetic(calibration_scene_name(array, plate))
             for k in range(sessions):
                 try:
                     parts.append(simulate_calibration(
@@ -85,15 +91,59 @@ def evaluate(variant: dict, arrays: list[str], sessions: int, seconds: float,
                     return {**variant, 'infeasible': str(exc), 'e_hat': None,
                             'seconds': time.perf_counter() - started}
         dataset = concatenate(parts)
-        X, F, _ = dataset.without_offsets(force_threshold=0.3)
+        X, F, offset = dataset.without_offsets(force_threshold=0.3)
         rows[array] = {}
         for label in models:
             kind, hyper = configs[label]
             summary = cross_validate(hand.array(array), kind, hyper, X, F,
                                      dataset.plates).summary()
             rows[array][label] = summary['e_hat_mean']
+        if array == LOOP_ARRAY and loop_models:
+            loop = closed_loop(hand, kinematics, magnetic(LOOP_SCENE), loop_models, configs,
+                               X, F, dataset.plates, offset, seed)
     return {**variant, 'infeasible': None, 'e_hat': rows,
+            'closed_loop': loop,
             'seconds': time.perf_counter() - started}
+
+
+def closed_loop(hand, kinematics, scene, labels: list[str], configs: dict, X, F, plates,
+                offset, seed: int) -> dict:
+    """The paper's closed loop (70 s sequence, spherical plate) on this skin: open loop, and
+    closed with each of `labels` fitted on the fingertip's training plates, as the main job
+    runs it: {'open_loop': e~, label: {e_tilde, e_track, e_hat, reduction}}."""
+    import tempfile
+    from pathlib import Path
+
+    from tacforce_ros.control.command_sequence import ForceSequence
+    from tacforce_ros.estimation.model_io import save_model
+    from tacforce_ros.estimation.model_set import load_model_set, write_model_config
+    from tacforce_ros.estimation.training import fit_bundle
+    from tacforce_ros.experiments.closed_loop import run_closed_loop, trace_metrics
+    from tacforce_ros.experiments.pipeline import controller_config
+
+    sequence = ForceSequence.load('paper_70s')
+    open_loop = trace_metrics([run_closed_loop(hand, kinematics, scene, seed,
+                                               controller_config('open_loop'), sequence, None)])
+    result = {'open_loop': open_loop['e_tilde_mean']}
+    provenance = {'dataset': 'skin_sensitivity: magnetic skin sessions', 'date':
+                  time.strftime('%Y-%m-%dT%H:%M:%S%z'), 'seed': seed, 'code_version': '',
+                  'metrics': None, 'plates': list(dict.fromkeys(plates.tolist())),
+                  'samples': int(X.shape[0])}
+    with tempfile.TemporaryDirectory() as folder:
+        for label in labels:
+            kind, hyper = configs[label]
+            bundle = fit_bundle(hand.array(LOOP_ARRAY), kind, hyper, X, F, plates,
+                                x_offset=offset, provenance=provenance)
+            save_model(Path(folder) / f'{label}.npz', bundle)
+            models = load_model_set(write_model_config(
+                Path(folder) / 'models.yaml', {LOOP_ARRAY: f'{label}.npz'}), hand)
+            closed = trace_metrics([run_closed_loop(hand, kinematics, scene, seed,
+                                                    controller_config(label), sequence,
+                                                    models)])
+            result[label] = {'e_tilde': closed['e_tilde_mean'],
+                             'e_track': closed['e_track_mean'], 'e_hat': closed['e_hat_mean'],
+                             'reduction': 1.0 - closed['e_tilde_mean'] / result['open_loop']}
+    return result
 
 
 def _noise_sigma():
@@ -129,6 +179,17 @@ def table(result: dict) -> str:
         lines += ['', f'In brackets: e_hat over {reference} of the same array and variant.']
     lines += [f"Infeasible, {row['name']}: {row['infeasible']}" for row in result['variants']
               if row['e_hat'] is None]
+    for row in result['variants']:
+        loop = row.get('closed_loop')
+        if not loop:
+            continue
+        lines += ['', f"Closed loop at the {row['name']} ({LOOP_ARRAY}, paper sequence, "
+                  f"{LOOP_SCENE}): open loop e~ {loop['open_loop']:.3f} N", '',
+                  '| model | e~ [N] | reduction | e_track [N] | e_hat [N] |',
+                  '|---|---|---|---|---|']
+        lines += [f"| {label} | {m['e_tilde']:.3f} | {100 * m['reduction']:.1f} % | "
+                  f"{m['e_track']:.3f} | {m['e_hat']:.3f} |"
+                  for label, m in loop.items() if label != 'open_loop']
     return '\n'.join(lines) + '\n'
 
 
@@ -148,6 +209,9 @@ def main(argv: list[str] | None = None) -> int:
                         choices=[*ESTIMATES, 'taxel_noise.sigma'],
                         help='estimates to vary (none: the values only)')
     parser.add_argument('--factors', nargs='+', type=float, default=[0.5, 1.5])
+    parser.add_argument('--closed-loop', nargs='*', default=['M3-lambda', 'M4'],
+                        choices=PAPER_LABELS, metavar='MODEL',
+                        help='models of the closed loop run at the values (none: no loop)')
     parser.add_argument('--seed', type=int, default=0)
     parser.add_argument('--jobs', type=int, default=os.cpu_count() or 1)
     parser.add_argument('--out', type=output_folder, default='skin_sensitivity_out')
@@ -164,7 +228,9 @@ def main(argv: list[str] | None = None) -> int:
               'load_before': os.getloadavg()}
     with ProcessPoolExecutor(max_workers=min(args.jobs, len(rows))) as pool:
         futures = [pool.submit(evaluate, row, args.arrays, args.sessions, args.seconds,
-                               args.models, args.epochs, args.seed) for row in rows]
+                               args.models, args.epochs, args.seed,
+                               args.closed_loop if row['name'] == 'values' else [])
+                   for row in rows]
         done = []
         for future in futures:
             done.append(future.result())

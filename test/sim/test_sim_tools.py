@@ -89,7 +89,7 @@ def test_skin_sensitivity_varies_each_estimate_and_writes_its_table(tmp_path):
     assert skin_sensitivity.main(['--out', str(out), '--arrays', 'index_middle', '--seconds',
                                   '15', '--models', 'M3', 'M3-lambda', '--params', 'poisson',
                                   'taxel_noise.sigma', '--factors', '0.5', '1.5',
-                                  '--jobs', '1']) == 0
+                                  '--closed-loop', '--jobs', '1']) == 0
     result = json.loads((out / 'skin_sensitivity.json').read_text())
     names = [v['name'] for v in result['variants']]
     assert names == ['values', 'poisson x0.5', 'poisson x1.5', 'taxel_noise.sigma x0.5',

@@ -83,11 +83,11 @@ class Pipeline:
         for hook in self.hooks[stage]:
             hook(state)
 
-    def __contains__(self, name: str) -> bool:
-        return any(e.name == name for e in self.effects)
-
     def get(self, name: str) -> Effect | None:
         return next((e for e in self.effects if e.name == name), None)
+
+    def __contains__(self, name: str) -> bool:
+        return self.get(name) is not None
 
 
 def _registry() -> dict[str, type[Effect]]:

@@ -15,7 +15,10 @@ import numpy as np
 # replayer ranges); Z rises up to ~+10,085 counts above baseline and XELA warns against more
 # than 3 N normal per cell, so the Z span is ~10,000 counts reached near 3 N. Shear sensitivity
 # about half the normal one (Tomo et al. 2018, uSkin); slopes are our estimates.
-BASELINE = (32768.0, 32768.0, 35000.0)
+# The Hall chip reads zero field at mid-scale (MLX90393 unsigned output at RES_XYZ 2,
+# datasheet Table 21): X/Y rest there, Z above it with the magnet's field.
+CHIP_ZERO = 32768.0
+BASELINE = (CHIP_ZERO, CHIP_ZERO, 35000.0)
 SLOPE = (2500.0, 2500.0, 5000.0)      # counts/N at small load
 SPAN = (6000.0, 6000.0, 10500.0)      # counts at saturation
 COUNT_MAX = 65535.0

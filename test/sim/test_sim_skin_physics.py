@@ -13,8 +13,9 @@ from tacforce_ros.sim import skin_physics as phys
 from tacforce_ros.sim.contact import Contact
 from tacforce_ros.sim.elastomer_memory import Creep, Play
 from tacforce_ros.sim.effects import Pipeline
-from tacforce_ros.sim.effects.magnetic_skin import CHIP_ZERO, MagneticSkin
+from tacforce_ros.sim.effects.magnetic_skin import MagneticSkin
 from tacforce_ros.sim.scene import Plate
+from tacforce_ros.sim.taxel_response import CHIP_ZERO
 
 G, NU = 30e3, 0.45          # Pa, -: a soft silicone
 MAGNETIC = {'magnetic_skin': {}}

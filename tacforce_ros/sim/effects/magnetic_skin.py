@@ -25,10 +25,9 @@ import numpy as np
 from tacforce_ros.sim import skin_physics as phys
 from tacforce_ros.sim.effects import Effect
 from tacforce_ros.sim.elastomer_memory import Creep, Play
+from tacforce_ros.sim.taxel_response import CHIP_ZERO
 
-# The chip's zero field reads mid-scale, and it reads +/- 22000 counts about it at most
-# (MLX90393 datasheet, Table 21, unsigned output at RES_XYZ 2).
-CHIP_ZERO = 32768.0
+# The chip reads +/- 22000 counts about its zero at most (MLX90393 datasheet, Table 21, RES_XYZ 2).
 CHIP_RANGE = 22000.0
 # A principal relative curvature below this counts as flat: a 1 N Hertz contact on this
 # elastomer would be wider than an array (semi-axis ~9 mm at 10 /m). The fingertip is 74 /m.

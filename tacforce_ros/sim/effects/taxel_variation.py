@@ -6,6 +6,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from tacforce_ros.sim.effects import Effect
+from tacforce_ros.sim.taxel_response import CHIP_ZERO
 
 
 @dataclass
@@ -22,7 +23,7 @@ class TaxelVariation(Effect):
     def draw_hand(self, rng: np.random.Generator, ctx) -> None:
         n = ctx.n_taxels
         self._baseline = np.column_stack([
-            32768.0 + rng.uniform(-self.baseline_xy_spread, self.baseline_xy_spread, (n, 2)),
+            CHIP_ZERO + rng.uniform(-self.baseline_xy_spread, self.baseline_xy_spread, (n, 2)),
             rng.uniform(*self.baseline_z_range, n)])
         self._gain = np.exp(rng.normal(0.0, self.gain_sigma, (n, 3)))
         self._coupling = np.eye(3) + rng.normal(0.0, self.coupling_sigma, (n, 3, 3)) * (

@@ -6,6 +6,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from tacforce_ros.sim.effects import Effect
+from tacforce_ros.sim.taxel_response import CHIP_ZERO
 
 
 @dataclass
@@ -39,7 +40,7 @@ class TemperatureDrift(Effect):
                         + innovation * self._rng.standard_normal(self._wander.shape))
         delta = self._wander[self._array_of] + self._offset
         state.temperatures = state.temperatures + delta
-        field = state.counts - 32768.0   # field relative to the chip's zero
+        field = state.counts - CHIP_ZERO
         state.counts += (self.remanence_coefficient * field + self._drift) * delta[:, None]
 
 

@@ -216,8 +216,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--jobs', type=int, default=os.cpu_count() or 1)
     parser.add_argument('--out', type=output_folder, default='skin_sensitivity_out')
     args = parser.parse_args(argv)
-    if args.sessions < 1 or args.seconds <= 0 or args.epochs < 1 or args.jobs < 1:
-        parser.error('--sessions, --seconds, --epochs and --jobs must be positive')
+    if (args.sessions < 1 or args.seconds <= 0 or args.epochs < 1 or args.jobs < 1
+            or min(args.factors) <= 0):
+        parser.error('--sessions, --seconds, --epochs, --jobs and --factors must be positive')
     unknown = sorted(set(args.arrays) - set(paper.TABLE_I))
     if unknown:
         parser.error(f'--arrays: the paper has Table I rows for {sorted(paper.TABLE_I)} only, '

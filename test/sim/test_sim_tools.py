@@ -105,3 +105,6 @@ def test_skin_sensitivity_refuses_an_array_without_a_table_i_row(tmp_path, capsy
     with pytest.raises(SystemExit):
         skin_sensitivity.main(['--out', str(tmp_path), '--arrays', 'palm_center'])
     assert 'Table I rows' in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        skin_sensitivity.main(['--out', str(tmp_path), '--factors', '0', '1.5'])
+    assert '--factors must be positive' in capsys.readouterr().err

@@ -11,6 +11,7 @@ from tacforce_ros.estimation.metrics import ErrorStats, average_folds, error_sta
 from tacforce_ros.estimation.training import fit_bundles
 
 if TYPE_CHECKING:
+    from tacforce_ros.estimation.model_io import ModelBundle
     from tacforce_ros.hand.description import TaxelArray
 
 
@@ -27,6 +28,7 @@ class CrossValidation:
     kind: str
     folds: list[Fold] = field(default_factory=list)
     n_parameters: int = 0
+    final: ModelBundle | None = None    # fitted on every plate (cross_validate(final=True))
 
     def summary(self) -> dict[str, Any]:
         return {**average_folds([f.stats for f in self.folds]),
@@ -38,12 +40,15 @@ class CrossValidation:
 
 
 def cross_validate(array: TaxelArray, kind: str, hyper: dict[str, Any], X: np.ndarray,
-                   F: np.ndarray, plates: np.ndarray, together: bool = True) -> CrossValidation:
+                   F: np.ndarray, plates: np.ndarray, together: bool = True,
+                   final: bool = False) -> CrossValidation:
     """X counts and F newtons with offsets removed; one fold per distinct plate.
 
     together: fit the folds' models in one fit_bundles call (M4 and M5 then train as one
-    network, and each fold's train_seconds is the call's time over the folds); False fits them
+    network, and each fold's train_seconds is the call's time over the models); False fits them
     one at a time, each timed alone (bench_train compares the two).
+    final: also fit the model on every plate (CrossValidation.final), in the same call as the
+    folds: the model to ship is one more member of the stacked network, not a training alone.
     """
     plates = np.asarray(plates)
     labels = list(dict.fromkeys(plates.tolist()))
@@ -51,10 +56,12 @@ def cross_validate(array: TaxelArray, kind: str, hyper: dict[str, Any], X: np.nd
         raise ValueError(f'cross-validation needs >= 2 plates, got {labels}')
     folds = [(plate, plates == plate) for plate in labels]
     data = [(X[~test], F[~test], plates[~test]) for _, test in folds]
+    if final:
+        data.append((X, F, plates))
     if together:
         started = time.perf_counter()
         bundles = fit_bundles(array, kind, hyper, data)
-        seconds = [(time.perf_counter() - started) / len(folds)] * len(folds)
+        seconds = [(time.perf_counter() - started) / len(data)] * len(data)
     else:
         bundles, seconds = [], []
         for fold in data:
@@ -68,4 +75,6 @@ def cross_validate(array: TaxelArray, kind: str, hyper: dict[str, Any], X: np.nd
                                  train_seconds=fold_seconds,
                                  hyperparameters=bundle.model.hyperparameters()))
         result.n_parameters = bundle.model.n_parameters()
+    if final:
+        result.final = bundles[-1]
     return result

@@ -24,6 +24,12 @@ def fit_bundle(array: TaxelArray, kind: str, hyper: dict[str, Any], X: np.ndarra
     held-out plate never shapes them.
     """
     bundle, = fit_bundles(array, kind, hyper, [(X, F, plates)])
+    return for_deployment(bundle, x_offset, provenance)
+
+
+def for_deployment(bundle: ModelBundle, x_offset: np.ndarray | None,
+                   provenance: dict[str, Any] | None) -> ModelBundle:
+    """The bundle with the counts' offset it removes at run time and where it came from."""
     if x_offset is not None:
         bundle.x_offset = x_offset
     bundle.provenance.update(provenance or {})

@@ -33,7 +33,7 @@ from tacforce_ros.estimation.preprocessing import CUTOFF_HZ, SAMPLE_RATE_HZ
 from tacforce_ros.estimation.registry import paper_configurations
 from tacforce_ros.estimation.runtime import RuntimeEstimator
 from tacforce_ros.estimation.synthetic import synthetic_hand_estimator
-from tacforce_ros.estimation.training import fit_bundle
+from tacforce_ros.estimation.training import fit_bundles, for_deployment
 from tacforce_ros.experiments import node_path
 from tacforce_ros.experiments import paper_reference as paper
 from tacforce_ros.experiments.cache import (StageCache, atomic_write, digest, file_digest,
@@ -160,16 +160,19 @@ def job_cross_validation(array: str, kind: str, hyper: dict, training_set: str) 
     return cross_validate(hand.array(array), kind, hyper, X, F, plates).summary()
 
 
-def job_final_model(array: str, kind: str, hyper: dict, training_set: str, provenance: dict,
-                    target: str) -> str:
+def job_benchmark(array: str, kind: str, hyper: dict, training_set: str, provenance: dict,
+                  target: str) -> dict:
+    """Cross-validation and the model on every plate in one fit (cross_validate(final=True));
+    writes the model to `target` with the cross-validation in its provenance; returns that."""
     hand, _ = _hand()
     X, F, plates, offset = load_training(training_set)
-    provenance = {**provenance, 'plates': list(dict.fromkeys(plates.tolist())),
-                  'samples': int(X.shape[0])}
-    bundle = fit_bundle(hand.array(array), kind, hyper, X, F, plates, x_offset=offset,
-                        provenance=provenance)
+    cv = cross_validate(hand.array(array), kind, hyper, X, F, plates, final=True)
+    summary = cv.summary()
+    bundle = for_deployment(cv.final, offset, {
+        **provenance, 'plates': list(dict.fromkeys(plates.tolist())), 'samples': int(X.shape[0]),
+        'metrics': summary})
     atomic_write(target, lambda tmp: save_model(tmp, bundle))
-    return target
+    return summary
 
 
 def job_closed_loop(scene: str, seed: int, controller: str, model_config: str | None,
@@ -275,7 +278,7 @@ def _training_key(paths: list[str], label: str, settings: Settings) -> str:
     return digest({'data': sorted(Path(p).stem for p in paths),
                    'model': model_hyper(label, settings),
                    'static_force': settings.static_force,
-                   'code': source_digest(cross_validate, fit_bundle)})
+                   'code': source_digest(cross_validate, fit_bundles, for_deployment)})
 
 
 def training_sets(ctx: Context, title: str, sessions: dict[str, list[str]]) -> dict[str, str]:
@@ -301,7 +304,7 @@ def benchmark_stage(ctx: Context, layout: dict) -> tuple[dict, dict]:
     s = ctx.settings
     sets = training_sets(ctx, 'training sets', {
         array: [p for plate in PLATES for p in layout[array][plate]] for array in ARRAYS})
-    cv_jobs, fit_jobs, cv, models, keys = [], [], {}, {}, {}
+    jobs, cv, models, keys = [], {}, {}, {}
     for array in ARRAYS:
         paths = [p for plate in PLATES for p in layout[array][plate]]
         for label in s.models:
@@ -309,33 +312,27 @@ def benchmark_stage(ctx: Context, layout: dict) -> tuple[dict, dict]:
             key = _training_key(paths, label, s)
             name = f'{array}/{label}'
             keys[name] = key
-            cached = ctx.cache.load_json('cross_validation', key)
-            if cached is None:
-                cv_jobs.append((name, job_cross_validation, (array, kind, hyper, sets[array])))
-            else:
-                cv.setdefault(array, {})[label] = cached
             target = ctx.cache.path('models', key, '.npz')
             models.setdefault(array, {})[label] = str(target)
-            if ctx.cache.lookup('models', key, '.npz') is None:
-                target.parent.mkdir(parents=True, exist_ok=True)
-                provenance = {'dataset': f'reproduce cache {key[:24]}', 'date':
-                              time.strftime('%Y-%m-%dT%H:%M:%S%z'), 'seed': s.seed,
-                              'code_version': source_digest(fit_bundle)[:12], 'metrics': None}
-                fit_jobs.append((name, job_final_model, (array, kind, hyper, sets[array],
-                                                         provenance, str(target))))
-    ctx.log(f'stage benchmark: {len(cv_jobs)} cross-validations and {len(fit_jobs)} final fits '
-            f'to run ({len(ARRAYS) * len(s.models)} each in all)')
+            cached = ctx.cache.load_json('cross_validation', key)
+            if cached is not None and ctx.cache.lookup('models', key, '.npz') is not None:
+                cv.setdefault(array, {})[label] = cached
+                continue
+            target.parent.mkdir(parents=True, exist_ok=True)
+            provenance = {'dataset': f'reproduce cache {key[:24]}', 'date':
+                          time.strftime('%Y-%m-%dT%H:%M:%S%z'), 'seed': s.seed,
+                          'code_version': source_digest(fit_bundles)[:12]}
+            jobs.append((name, job_benchmark, (array, kind, hyper, sets[array], provenance,
+                                               str(target))))
+    ctx.log(f'stage benchmark: {len(jobs)} of {len(ARRAYS) * len(s.models)} cross-validations, '
+            f'each with its final model in the same fit, to run')
     # Slow (torch) units first, so the pool does not end on one long job.
-    slow = ('M4', 'M5')
-    order = sorted(cv_jobs + fit_jobs, key=lambda u: not u[0].endswith(slow))
-    results = run_units(ctx, 'benchmark fits', [
-        (('cv:' if job is job_cross_validation else 'fit:') + name, job, args)
-        for name, job, args in order])
-    for name, value in results.items():
-        if name.startswith('cv:'):
-            array, label = name[3:].split('/')
-            ctx.cache.store_json('cross_validation', keys[name[3:]], value)
-            cv.setdefault(array, {})[label] = value
+    slow = ('M5', 'M4')
+    order = sorted(jobs, key=lambda u: [u[0].endswith(k) for k in slow], reverse=True)
+    for name, value in run_units(ctx, 'benchmark fits', order).items():
+        ctx.cache.store_json('cross_validation', keys[name], value)
+        array, label = name.split('/')
+        cv.setdefault(array, {})[label] = value
     # Rows in the settings' model order, whatever order the units finished in.
     return {a: {label: cv[a][label] for label in s.models} for a in ARRAYS}, models
 

@@ -30,7 +30,7 @@ from tacforce_ros.estimation.model_io import save_model
 from tacforce_ros.estimation.model_set import write_model_config
 from tacforce_ros.estimation.preprocessing import StaticSegmentError
 from tacforce_ros.estimation.registry import MODEL_KINDS
-from tacforce_ros.estimation.training import fit_bundle
+from tacforce_ros.estimation.training import fit_bundle, for_deployment
 from tacforce_ros.hand.description import (ARRAY_KIND_TITLES, DEFAULT_SIDE, SIDES,
                                            HandDescription, hand_config, load_hand, side_of)
 from tacforce_ros.paths import output_folder
@@ -229,14 +229,17 @@ def main(argv: list[str] | None = None) -> int:
                 return 2
         dataset, X, F, x_offset = prepared[name]
         hyper = model_hyper(kind, args.seed, args.lambda_cv, args.lam)
-        cv = None if args.no_cv else cross_validate(array, kind, hyper, X, F,
-                                                    dataset.plates).summary()
+        # The shipped model trains in the cross-validation's own fit (final=True).
+        validation = None if args.no_cv else cross_validate(array, kind, hyper, X, F,
+                                                            dataset.plates, final=True)
+        cv = None if validation is None else validation.summary()
         provenance = {'dataset': sorted({str(p) for p in args.inputs}),
                       'source': dataset.source, 'plates': dataset.plate_names(),
                       'samples': int(X.shape[0]), 'date': date, 'seed': args.seed,
                       'code_version': version, 'metrics': cv}
-        bundle = fit_bundle(array, kind, hyper, X, F, dataset.plates, x_offset=x_offset,
-                            provenance=provenance)
+        bundle = (fit_bundle(array, kind, hyper, X, F, dataset.plates, x_offset=x_offset,
+                             provenance=provenance) if validation is None else
+                  for_deployment(validation.final, x_offset, provenance))
         path = save_model(args.out / f"{name}_{kind}.npz", bundle)
         report['models'].append({'array': name, 'array_type': array.kind, 'kind': kind,
                                  'file': path.name,

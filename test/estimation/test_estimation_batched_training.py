@@ -11,6 +11,7 @@ from tacforce_ros.estimation.m4_mlp import MLPModel
 from tacforce_ros.estimation.m5_cnn import CNNModel, conv_as_matrix_index
 from tacforce_ros.estimation.torch_batched import fit_stacked
 from tacforce_ros.estimation.torch_training import TorchTraining
+from tacforce_ros.estimation.training import fit_bundle
 from tacforce_ros.hand.description import load_hand
 
 HAND = load_hand()
@@ -111,6 +112,21 @@ def test_cross_validation_folds_together_match_folds_one_at_a_time(tip_data):
     for a, b in zip(alone.folds, together.folds):
         assert b.stats.e_hat_mean == pytest.approx(a.stats.e_hat_mean, rel=1e-4)
         assert b.train_seconds > 0
+
+
+def test_the_final_model_trains_with_the_folds_as_it_would_alone(tip_data):
+    """cross_validate(final=True): the folds are unchanged and the model on every plate equals
+    fit_bundle's on the same data (what the main job and train ship)."""
+    data, X, F, _ = tip_data
+    hyper = dict(epochs=2, batch_size=128, learning_rate=LEARNING_RATE)
+    with_final = cross_validate(TIP, 'M4', hyper, X, F, data.plates, final=True)
+    folds_only = cross_validate(TIP, 'M4', hyper, X, F, data.plates)
+    assert folds_only.final is None
+    for a, b in zip(folds_only.folds, with_final.folds):
+        assert b.stats.e_hat_mean == pytest.approx(a.stats.e_hat_mean, rel=1e-4)
+    alone = fit_bundle(TIP, 'M4', hyper, X, F, data.plates)
+    assert_same_training([alone.model], [with_final.final.model])
+    np.testing.assert_allclose(with_final.final.predict(X), alone.predict(X), atol=1e-4)
 
 
 def test_networks_trained_together_must_share_their_optimiser_settings():

@@ -221,6 +221,11 @@ class _Memory:
     faded_gain: float = 1.0             # hold_gain at that moment
 
 
+def ramp(value: float, target: float, step: float) -> float:
+    """`value` moved towards `target` by at most `step` (np.clip's arithmetic, on floats)."""
+    return float(min(max(target, value - step), value + step))
+
+
 def saturation_scale(tau: np.ndarray, limits: np.ndarray) -> float:
     """Largest common factor in (0, 1] that brings every |tau_j| within limits_j."""
     over = np.abs(tau) / limits
@@ -245,10 +250,7 @@ class ForceController:
         self._q_d = np.asarray(config.q_d)
         self._limits = config.joint_torque_limits
         self._mem = _Memory()
-
-    @property
-    def open_loop(self) -> bool:
-        return not np.any(self._k_i)
+        self.open_loop = not np.any(self._k_i)   # K_i = 0: the paper's open loop
 
     def set_position_target(self, q_d: np.ndarray) -> None:
         """Finger joint target q_d (4,), chosen so the fingertip stays in contact."""
@@ -266,7 +268,7 @@ class ForceController:
         old."""
         f_hat = np.asarray(f_hat, dtype=np.float64)
         return bool(f_hat.shape == (3,) and f_hat_age <= self.config.estimate_timeout
-                    and np.all(np.isfinite(f_hat)))
+                    and np.isfinite(f_hat).all())
 
     def _reason(self, joints_fresh: bool, estimate_fresh: bool, q_age: float,
                 f_hat_age: float) -> str:
@@ -294,7 +296,7 @@ class ForceController:
         f_hat = np.asarray(f_hat, dtype=np.float64)
         if q.shape != (16,) or qdot.shape != (16,):
             raise ValueError(f'q and qdot must hold all 16 joints, got {q.shape}, {qdot.shape}')
-        if f_d.shape != (3,) or not np.all(np.isfinite(f_d)):
+        if f_d.shape != (3,) or not np.isfinite(f_d).all():
             raise ValueError(f'f_d must be 3 finite numbers, got {f_d!r}')
 
         # A clock that went back (sim reset) or the first tick: no time has passed.
@@ -304,17 +306,17 @@ class ForceController:
         elapsed = 0.0 if mem.t is None else t - mem.t
         mem.t = t
 
-        joints_fresh = bool(q_age <= cfg.joints_timeout and np.all(np.isfinite(q))
-                            and np.all(np.isfinite(qdot)))
+        joints_fresh = bool(q_age <= cfg.joints_timeout and np.isfinite(q).all()
+                            and np.isfinite(qdot).all())
         estimate_fresh = self.estimate_fresh(f_hat, f_hat_age)
         reason = self._reason(joints_fresh, estimate_fresh, q_age, f_hat_age)
         step = elapsed / cfg.ramp_time
         # Open loop does not use the estimate, so only closed loop depends on its freshness.
         force_target = 1.0 if joints_fresh and (estimate_fresh or self.open_loop) else 0.0
-        mem.force_gain = float(np.clip(force_target, mem.force_gain - step, mem.force_gain + step))
+        mem.force_gain = ramp(mem.force_gain, force_target, step)
         hold_target = 1.0 if joints_fresh else 0.0
         hold_gain_before = mem.hold_gain
-        mem.hold_gain = float(np.clip(hold_target, mem.hold_gain - step, mem.hold_gain + step))
+        mem.hold_gain = ramp(mem.hold_gain, hold_target, step)
 
         qf, qdf = q[self.joints], qdot[self.joints]
         if force_target == 0.0 and mem.f_hold is None:
@@ -341,7 +343,7 @@ class ForceController:
         error = f_d - f_hat if estimate_fresh else np.zeros(3)
         # A long gap between ticks must not integrate as one big step.
         dt = min(elapsed, cfg.estimate_timeout)
-        if force_target == 1.0 and dt > 0.0 and not self.open_loop and np.any(f_d != 0.0):
+        if force_target == 1.0 and dt > 0.0 and not self.open_loop and (f_d != 0.0).any():
             rate = np.clip(error, -cfg.integral_rate_limit, cfg.integral_rate_limit)
             candidate = np.clip(mem.integral + dt * rate, -cfg.integral_limit, cfg.integral_limit)
             tau_candidate = torque(f_d + self._k_i * candidate)

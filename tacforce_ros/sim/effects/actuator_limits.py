@@ -25,15 +25,17 @@ class ActuatorLimits(Effect):
 
     def reset(self, rng: np.random.Generator, ctx) -> None:
         self._clamp = np.array(FINGER_CLAMP * 3 + THUMB_CLAMP)
+        self._negative_clamp = -self._clamp
         self._alpha = ctx.physics_dt / self.time_constant
         self.heat = np.zeros(16)
         self.throttled = np.zeros(16, bool)
 
     def on_torque(self, state) -> None:
-        tau = np.minimum(np.maximum(state.torque, -self._clamp), self._clamp)   # np.clip, cheaper
+        tau = np.minimum(np.maximum(state.torque, self._negative_clamp), self._clamp)  # np.clip
         self.heat += self._alpha * ((tau / self.threshold) ** 2 - self.heat)
         self.throttled = (self.heat > 1.0) | (self.throttled & (self.heat > self.recover))
-        state.torque = np.where(self.throttled, self.throttled_scale * tau, tau)
+        state.torque = (np.where(self.throttled, self.throttled_scale * tau, tau)
+                        if self.throttled.any() else tau)
 
 
 EFFECT = ActuatorLimits

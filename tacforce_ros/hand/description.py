@@ -62,6 +62,15 @@ class TaxelArray:
     neighbours: tuple[str, ...]
     hand_side: str             # 'right' | 'left': the right hand's index_tip is not the left's
 
+    @property
+    def flat_rows(self) -> slice | np.ndarray:
+        """flat_indices as a slice where they are contiguous (numpy then indexes with views,
+        not copies: the simulator's step path), else the indices."""
+        first = int(self.flat_indices[0])
+        if np.array_equal(self.flat_indices, np.arange(first, first + self.n_taxels)):
+            return slice(first, first + self.n_taxels)
+        return self.flat_indices
+
 
 @dataclass(frozen=True, eq=False)
 class HandDescription:

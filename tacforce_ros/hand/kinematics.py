@@ -35,6 +35,7 @@ class HandKinematics:
         # Allegro index -> Pinocchio configuration index (revolute joints: nq == nv == 1 each).
         self._to_pin = np.array([self.model.joints[self.model.getJointId(n)].idx_q
                                  for n in self.joint_names], dtype=np.int64)
+        self._frame_ids: dict[str, int] = {}
         self._tip_frames = {f: self._frame_id(link) for f, link in TIP_LINKS.items()}
         self._q_last: np.ndarray | None = None
 
@@ -117,9 +118,12 @@ class HandKinematics:
     # ------------------------------------------------------------------ internals
 
     def _frame_id(self, frame: str) -> int:
-        if not self.model.existFrame(frame):
-            raise KeyError(f'frame {frame!r} is not in the URDF')
-        return self.model.getFrameId(frame)
+        frame_id = self._frame_ids.get(frame)
+        if frame_id is None:    # looked up by name once: the controller asks every tick
+            if not self.model.existFrame(frame):
+                raise KeyError(f'frame {frame!r} is not in the URDF')
+            frame_id = self._frame_ids[frame] = self.model.getFrameId(frame)
+        return frame_id
 
     def _pin_q(self, q16: np.ndarray) -> np.ndarray:
         q16 = np.asarray(q16, dtype=np.float64)

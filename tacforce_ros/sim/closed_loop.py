@@ -67,6 +67,7 @@ class ClosedLoopSimulator:
         others = np.ones(16, bool)
         others[self.joints] = False
         self.held = np.flatnonzero(others)
+        self._driven = ~others        # (16,) the pressing finger's joints
         self.held_pose = np.asarray(finger['others'], np.float64)
         self.held_kp, self.held_kd = float(finger['others_kp']), float(finger['others_kd'])
         self.tip_radius = float(finger['tip_radius'])
@@ -195,8 +196,7 @@ class ClosedLoopSimulator:
         if command.shape != (16,) or not np.isfinite(command).all():
             raise ValueError('joint_torques must be 16 finite values (N m), Allegro order')
         t = self.step_index * self.dt
-        torque = command.copy()
-        torque[self.held] = 0.0   # held by their joint springs (see _compile)
+        torque = np.where(self._driven, command, 0.0)   # the others: their joint springs
         state = StepState(t=t, contact=None, torque=torque)
         self.pipeline.run('torque', state)
         force, point, normal, active = self._contact_force()
@@ -239,14 +239,14 @@ class ClosedLoopSimulator:
         if self.obj is None:
             return -force_on_finger          # rigid plate: the sensor carries the contact force
         obj, dt = self.obj, self.dt
-        push = force_on_finger @ self.up   # the object's push on the finger = its load
+        push = float(force_on_finger @ self.up)   # the object's push on the finger: its load
         spring = obj.stiffness * self.obj_x + obj.damping * self.obj_v
         # Semi-implicit Euler; the object cannot lift off the sensor (it is taped on).
         self.obj_v += dt * (push - spring) / obj.mass
         self.obj_x = max(self.obj_x + dt * self.obj_v, 0.0)
         if self.obj_x == 0.0:
             self.obj_v = max(self.obj_v, 0.0)
-        shear = -(force_on_finger - (force_on_finger @ self.up) * self.up)
+        shear = -(force_on_finger - push * self.up)
         return -spring * self.up + shear
 
     # ------------------------------------------------------------------ exact model access

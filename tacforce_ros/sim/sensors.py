@@ -43,6 +43,7 @@ class TactileSensor:
         self.plate = plate
         self.pressure = PressureModel(self.array.positions, plate)
         self.skin = pipeline.get('magnetic_skin')   # None: the empirical response
+        self._rows = self.array.flat_rows
         array_of = np.empty(hand.n_taxels, np.int64)
         for index, array in enumerate(hand.arrays):
             array_of[array.flat_indices] = index
@@ -60,6 +61,11 @@ class TactileSensor:
         if self.skin is None:
             ctx.idle_counts = counts_from_loads(np.zeros((ctx.n_taxels, 3)), ctx.params,
                                                 slice(None))
+        # The array's rows of the response, gathered once: they are fixed from here on.
+        rows, p = ctx.rows, ctx.params
+        self._array_params = ResponseParams(
+            baseline=p.baseline[rows], slope=p.slope[rows], span=p.span[rows],
+            coupling=None if p.coupling is None else p.coupling[rows])
         self._warm = np.full(ctx.n_taxels, WARM_TEMPERATURE)
 
     def measure(self, state: StepState) -> None:
@@ -67,7 +73,7 @@ class TactileSensor:
         contact, run = state.contact, self.pipeline.run
         if self.skin is not None:
             counts = self.ctx.idle_counts.copy()
-            counts[self.ctx.rows] = self.skin.counts(contact, self.plate)
+            counts[self._rows] = self.skin.counts(contact, self.plate)
             self._finish(state, counts)
             return
         weights = self.pressure.weights(contact)
@@ -78,8 +84,8 @@ class TactileSensor:
         state.local_force = np.einsum('nji,nj->ni', self.array.rotations, state.taxel_force)
         run('local_force', state)
         counts = self.ctx.idle_counts.copy()
-        counts[self.ctx.rows] = counts_from_loads(taxel_loads(state.local_force), self.ctx.params,
-                                                  self.ctx.rows)
+        counts[self._rows] = counts_from_loads(taxel_loads(state.local_force),
+                                               self._array_params, slice(None))
         self._finish(state, counts)
 
     def _finish(self, state: StepState, counts: np.ndarray) -> None:

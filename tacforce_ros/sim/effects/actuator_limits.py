@@ -29,13 +29,17 @@ class ActuatorLimits(Effect):
         self._alpha = ctx.physics_dt / self.time_constant
         self.heat = np.zeros(16)
         self.throttled = np.zeros(16, bool)
+        self.throttling = False     # any joint throttled
 
     def on_torque(self, state) -> None:
         tau = np.minimum(np.maximum(state.torque, self._negative_clamp), self._clamp)  # np.clip
         self.heat += self._alpha * ((tau / self.threshold) ** 2 - self.heat)
+        if not self.throttling and self.heat.max() <= 1.0:    # the usual step: nothing to do
+            state.torque = tau
+            return
         self.throttled = (self.heat > 1.0) | (self.throttled & (self.heat > self.recover))
-        state.torque = (np.where(self.throttled, self.throttled_scale * tau, tau)
-                        if self.throttled.any() else tau)
+        self.throttling = bool(self.throttled.any())
+        state.torque = np.where(self.throttled, self.throttled_scale * tau, tau)
 
 
 EFFECT = ActuatorLimits

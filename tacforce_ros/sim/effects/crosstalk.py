@@ -16,7 +16,7 @@ class Crosstalk(Effect):
     coupling: float = 0.03
 
     def draw_hand(self, rng: np.random.Generator, ctx) -> None:
-        self._source = ctx.rows
+        self._source = ctx.array.flat_rows
         names = ctx.array.neighbours
         self._targets = (np.concatenate([ctx.hand.array(n).flat_indices for n in names])
                          if names else np.zeros(0, np.int64))

@@ -7,6 +7,8 @@ import numpy as np
 
 from tacforce_ros.sim.effects import Effect
 
+BLOCK = 256   # steps of draws made at once
+
 
 @dataclass
 class FTNoise(Effect):
@@ -25,10 +27,18 @@ class FTNoise(Effect):
         self._bias = rng.normal(0.0, 1.0, 6) * np.array(
             [self.force_bias_sigma] * 3 + [self.torque_bias_sigma] * 3)
         self._step = self.drift_per_sqrt_s * np.sqrt(ctx.physics_dt)
+        self._next = BLOCK
 
     def on_wrench(self, state) -> None:
-        self._bias[:3] += self._step * self._rng.standard_normal(3)
-        state.wrench = state.wrench + self._bias + self._sigma * self._rng.standard_normal(6)
+        if self._next == BLOCK:
+            # A block of steps' draws at once: the same numbers, in the same order, as three
+            # and six per step, at a fraction of the calls.
+            self._block = self._rng.standard_normal((BLOCK, 9))
+            self._next = 0
+        draws = self._block[self._next]
+        self._next += 1
+        self._bias[:3] += self._step * draws[:3]
+        state.wrench = state.wrench + self._bias + self._sigma * draws[3:]
 
 
 EFFECT = FTNoise

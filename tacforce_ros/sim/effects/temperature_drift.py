@@ -8,6 +8,8 @@ import numpy as np
 from tacforce_ros.sim.effects import Effect
 from tacforce_ros.sim.taxel_response import CHIP_ZERO
 
+BLOCK = 128   # frames of draws made at once
+
 
 @dataclass
 class TemperatureDrift(Effect):
@@ -33,11 +35,15 @@ class TemperatureDrift(Effect):
         self._array_of = ctx.array_of_taxel
         n_arrays = int(self._array_of.max()) + 1
         self._wander = rng.normal(0.0, self.sigma, n_arrays)
+        self._innovation = self.sigma * np.sqrt(1.0 - self._decay ** 2)
+        self._next = BLOCK
 
     def on_counts(self, state) -> None:
-        innovation = self.sigma * np.sqrt(1.0 - self._decay ** 2)
-        self._wander = (self._decay * self._wander
-                        + innovation * self._rng.standard_normal(self._wander.shape))
+        if self._next == BLOCK:     # the same draws, in order, as one frame's at a time
+            self._block = self._rng.standard_normal((BLOCK, len(self._wander)))
+            self._next = 0
+        self._wander = (self._decay * self._wander + self._innovation * self._block[self._next])
+        self._next += 1
         delta = self._wander[self._array_of] + self._offset
         state.temperatures = state.temperatures + delta
         field = state.counts - CHIP_ZERO

@@ -55,10 +55,11 @@ class Transport(Effect):
         self._next += 1
         for stream, history, fields, delay, lost in zip(self._streams, self._history,
                                                          self._fields, delays, dropped):
-            history.append(tuple(getattr(state, f) for f in fields))
-            past = history[max(len(history) - 1 - delay, 0)]
-            for name, value in zip(fields, past):
-                setattr(state, name, value)
+            history.append(tuple([getattr(state, f) for f in fields]))
+            if delay:   # (no delay: the step's own values go out as they are)
+                past = history[max(len(history) - 1 - delay, 0)]
+                for name, value in zip(fields, past):
+                    setattr(state, name, value)
             if lost:
                 state.delivered[stream] = False
 

@@ -143,6 +143,14 @@ class ClosedLoopSimulator:
         mujoco.mj_forward(self.model, self.data)
         self.step_index = 0
         self._jac = np.zeros((3, self.model.nv))
+        # Views into MjData's buffers, made once per model: they follow every step.
+        data = self.data
+        self._tip_rotation = data.xmat[self.tip].reshape(3, 3)
+        self._tip_position, self._tip_com = data.xpos[self.tip], data.xipos[self.tip]
+        self._tip_force, self._tip_torque = (data.xfrc_applied[self.tip, :3],
+                                             data.xfrc_applied[self.tip, 3:])
+        self._s0_rotation, self._s0_position = data.xmat[self.s0].reshape(3, 3), data.xpos[self.s0]
+        self._qvel = data.qvel
         self._last_frame: tuple | None = None
         self._contact = (np.zeros(3), surface, self.up, False)
 
@@ -150,7 +158,7 @@ class ClosedLoopSimulator:
 
     def contact_point(self) -> np.ndarray:
         """Current contact point on the fingertip sphere, base frame."""
-        centre = self.data.xpos[self.tip] + self.data.xmat[self.tip].reshape(3, 3) @ self.offset
+        centre = self._tip_position + self._tip_rotation @ self.offset
         return centre - self.radius * self._surface(centre)[0]
 
     def _surface(self, centre: np.ndarray) -> tuple[np.ndarray, float]:
@@ -163,15 +171,14 @@ class ClosedLoopSimulator:
 
     def _contact_force(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
         """(force on the finger, contact point, normal, active), base frame."""
-        rot = self.data.xmat[self.tip].reshape(3, 3)
-        centre = self.data.xpos[self.tip] + rot @ self.offset
+        centre = self._tip_position + self._tip_rotation @ self.offset
         normal, depth = self._surface(centre)
         point = centre - self.radius * normal
         if depth <= 0.0:
             self.anchor = None
             return np.zeros(3), point, normal, False
         mujoco.mj_jac(self.model, self.data, self._jac, None, point, self.tip)
-        velocity = self._jac @ self.data.qvel
+        velocity = self._jac @ self._qvel
         relative = velocity + self.obj_v * self.up if self.obj is not None else velocity
         approach = relative @ normal
         normal_force = max(self.skin_k * depth - self.skin_c * approach, 0.0)
@@ -202,11 +209,11 @@ class ClosedLoopSimulator:
         force, point, normal, active = self._contact_force()
         on_sensor = self._advance_object(force, normal)
         data.qfrc_applied[:] = state.torque
-        data.xfrc_applied[self.tip, :3] = force
-        mujoco.mju_cross(data.xfrc_applied[self.tip, 3:], point - data.xipos[self.tip], force)
+        self._tip_force[:] = force
+        mujoco.mju_cross(self._tip_torque, point - self._tip_com, force)
         mujoco.mj_step(self.model, data)
         # Ground truth and tactile frame in {S0}: the force the array applies (= -force on it).
-        rot_s0 = data.xmat[self.s0].reshape(3, 3)
+        rot_s0 = self._s0_rotation
         true_force = rot_s0.T @ -force
         state.q, state.qdot = data.qpos.copy(), data.qvel.copy()
         fresh = self.step_index % self.frame_every == 0
@@ -214,7 +221,7 @@ class ClosedLoopSimulator:
             # The dynamics' tip sphere only approximates the skin: the sensor sees the contact
             # where the skin is, with the skin's own normal; the force's tilt from it is shear.
             point_s0, skin_normal = skin_surface(self._taxel_positions, self._taxel_normals,
-                                                 rot_s0.T @ (point - data.xpos[self.s0]))
+                                                 rot_s0.T @ (point - self._s0_position))
             state.contact = Contact(true_force, point_s0, skin_normal,
                                     self.sensor.array.rotations[0][:, 0], active)
             self.sensor.measure(state)

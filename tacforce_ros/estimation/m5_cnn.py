@@ -137,7 +137,7 @@ class CNNModel(ForceModel):
         fit_models_stacked(same_kind_models(cls, models), [(X, F) for X, F, _ in data],
                            lambda m: (m.grid.shape, m.channels, m.dense),
                            lambda m, X: m.images(X),
-                           stacked_cnn_forward)
+                           forward=stacked_cnn_forward)
 
     def _set_state(self, arrays: dict[str, np.ndarray]) -> CNNModel:
         state = checked_state(arrays, self._state_shapes(), self.kind)

@@ -3,7 +3,8 @@
 The folds of a cross-validation, the arrays of a campaign and the repeats of a search are tiny
 networks on same-shaped data; trained one at a time, each step is dominated by per-operation
 overhead, not arithmetic. Here one step runs all k: a batched forward over weights stacked on a
-leading model axis (batched matmuls), one backward, one Adam update.
+leading model axis (batched matmuls), one backward, one Adam update. The backward is autograd's,
+or the network's own hand-written gradient where it has one (StackedGradient).
 
 Each network keeps what one-at-a-time training (torch_training.fit_torch_regressor) gives it: its
 initial weights (built under its own seed), its shuffling generator, its minibatches (the short
@@ -46,14 +47,25 @@ class StackedForward(Protocol):
         """
 
 
+class StackedGradient(Protocol):
+    def __call__(self, torch: Any, params: dict[str, torch.Tensor], x: torch.Tensor,
+                 targets: torch.Tensor, weights: torch.Tensor) -> dict[str, torch.Tensor]:
+        """Gradient, per parameter of params, of sum(weights * (f(x) - targets) ** 2) / 2 for
+        the k stacked networks f: x (k, B, ...), targets (k, B, 3), weights (k, B, 1), zero for
+        the samples that are not real. Called without autograd; for networks without
+        statistics."""
+
+
 def fit_models_stacked(models: Sequence[Any], data: Sequence[tuple[np.ndarray, np.ndarray]],
                        architecture: Callable[[Any], Hashable],
                        network_inputs: Callable[[Any, np.ndarray], np.ndarray],
-                       forward: StackedForward) -> None:
+                       forward: StackedForward | None = None,
+                       gradient: StackedGradient | None = None) -> None:
     """Fit models[i] (M4 or M5) on data[i] = (X, F), stacking those of one architecture and
     training settings; a model alone in its group trains one at a time (model.fit).
 
-    architecture(model) keys the groups; network_inputs(model, X) is what its network reads.
+    architecture(model) keys the groups; network_inputs(model, X) is what its network reads;
+    forward or gradient as in fit_stacked.
     """
     groups: dict[Hashable, list[int]] = {}
     for i, model in enumerate(models):
@@ -65,26 +77,31 @@ def fit_models_stacked(models: Sequence[Any], data: Sequence[tuple[np.ndarray, n
             models[rows[0]].fit(*data[rows[0]])
             continue
         checked = [check_inputs(data[i][0], models[i].array.n_taxels, data[i][1]) for i in rows]
-        states = fit_stacked([models[i]._build for i in rows], forward,
+        states = fit_stacked([models[i]._build for i in rows],
                              [network_inputs(models[i], X).astype(np.float32)
                               for i, X in zip(rows, checked)],
                              [np.asarray(data[i][1], dtype=np.float64) for i in rows],
-                             [models[i].training for i in rows])
+                             [models[i].training for i in rows], forward=forward,
+                             gradient=gradient)
         for i, state in zip(rows, states):
             models[i]._set_state(state)
 
 
-def fit_stacked(builds: Sequence[Callable[[Any], torch.nn.Module]], forward: StackedForward,
+def fit_stacked(builds: Sequence[Callable[[Any], torch.nn.Module]],
                 inputs: Sequence[np.ndarray], targets: Sequence[np.ndarray],
-                trainings: Sequence[TorchTraining]) -> list[dict[str, np.ndarray]]:
+                trainings: Sequence[TorchTraining], *, forward: StackedForward | None = None,
+                gradient: StackedGradient | None = None) -> list[dict[str, np.ndarray]]:
     """Train build_i(torch) on (inputs_i, targets_i) with Adam + MSE, all k in one loop.
 
     Every build must give the same architecture, every input the same per-sample shape, and every
-    training the same epochs, batch size, learning rate and threads (seeds may differ). Returns
+    training the same epochs, batch size, learning rate and threads (seeds may differ). The
+    networks' forward (autograd differentiates it) or their gradient is given, not both. Returns
     each network's state as torch_training.module_state would.
     """
     import torch
 
+    if (forward is None) == (gradient is None):
+        raise ValueError('fit_stacked needs a forward or a gradient, not both')
     k = len(builds)
     if not (k == len(inputs) == len(targets) == len(trainings)) or k == 0:
         raise ValueError('fit_stacked needs one build, input, target and training per network')
@@ -101,7 +118,9 @@ def fit_stacked(builds: Sequence[Callable[[Any], torch.nn.Module]], forward: Sta
             with torch.random.fork_rng(devices=[]):
                 torch.manual_seed(training.seed)
                 modules.append(build(torch).to(torch.float32))
-        weights = _StackedWeights(torch, modules)
+        weights = _StackedWeights(torch, modules, requires_grad=gradient is None)
+        # Without autograd the parameter views need no rebuilding: Adam updates them in place.
+        params = weights.params()
         adam = _MaskedAdam(torch, weights.flat, learning_rate)
         shuffles = [torch.Generator().manual_seed(t.seed) for t in trainings]
         sizes = np.array([len(x) for x in inputs])
@@ -127,15 +146,25 @@ def fit_stacked(builds: Sequence[Callable[[Any], torch.nn.Module]], forward: Sta
                 mask = real[:, start:start + batch_size]
                 batch = samples.index_select(0, order[:, start:start + batch_size].reshape(-1))
                 batch = batch.view(k, batch_size, width + outputs)
-                prediction = forward(torch, weights.params(), weights.buffers,
-                                     batch[..., :width].view(k, batch_size, *feature_shape), mask)
-                squared = (prediction - batch[..., width:]).square().sum(dim=2)
-                if counts.min() < batch_size:
-                    squared = squared * mask
+                x = batch[..., :width].view(k, batch_size, *feature_shape)
+                # Each network's loss is torch's MSELoss over its real samples.
                 denominator = torch.from_numpy(outputs * np.maximum(counts, 1.0)).float()
-                loss = (squared.sum(dim=1) / denominator).sum()
-                weights.flat.grad = None
-                loss.backward()
+                if gradient is None:
+                    prediction = forward(torch, weights.params(), weights.buffers, x, mask)
+                    squared = (prediction - batch[..., width:]).square().sum(dim=2)
+                    if counts.min() < batch_size:
+                        squared = squared * mask
+                    loss = (squared.sum(dim=1) / denominator).sum()
+                    weights.flat.grad = None
+                    loss.backward()
+                else:
+                    sample_weights = (2.0 / denominator)[:, None, None]     # the /2's 2
+                    if counts.min() < batch_size:
+                        sample_weights = sample_weights * mask[..., None]
+                    with torch.no_grad():
+                        grads = gradient(torch, params, x, batch[..., width:], sample_weights)
+                        weights.flat.grad = torch.cat([grads[name].reshape(k, -1)
+                                                       for name in weights.shapes], dim=1)
                 adam.step(counts > 0)
         return weights.states()
 
@@ -144,13 +173,14 @@ class _StackedWeights:
     """The k modules' parameters as one (k, P) leaf tensor (one Adam update for all), their
     buffers stacked (k, ...), and the per-parameter views the forward reads."""
 
-    def __init__(self, torch: Any, modules: Sequence[torch.nn.Module]) -> None:
+    def __init__(self, torch: Any, modules: Sequence[torch.nn.Module],
+                 requires_grad: bool) -> None:
         self.k = len(modules)
         states = [m.state_dict() for m in modules]
         parameter_names = [name for name, _ in modules[0].named_parameters()]
         self.shapes = {name: tuple(states[0][name].shape) for name in parameter_names}
         self.flat = torch.cat([torch.stack([s[name].reshape(-1) for s in states])
-                               for name in parameter_names], dim=1).requires_grad_(True)
+                               for name in parameter_names], dim=1).requires_grad_(requires_grad)
         self.buffers = {name: torch.stack([s[name] for s in states])
                         for name, _ in modules[0].named_buffers()
                         if not name.endswith(SKIPPED_TORCH_STATE)}

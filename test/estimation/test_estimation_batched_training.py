@@ -7,7 +7,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from tacforce_ros.estimation.cross_validation import cross_validate
-from tacforce_ros.estimation.m4_mlp import MLPModel
+from tacforce_ros.estimation.m4_mlp import MLPModel, stacked_mlp_gradient
 from tacforce_ros.estimation.m5_cnn import CNNModel, conv_as_matrix_index
 from tacforce_ros.estimation.torch_batched import fit_stacked
 from tacforce_ros.estimation.torch_training import TorchTraining
@@ -133,8 +133,47 @@ def test_networks_trained_together_must_share_their_optimiser_settings():
     build = MLPModel(TIP)._build
     X, F = np.zeros((4, 90)), np.zeros((4, 3))
     with pytest.raises(ValueError, match='must share epochs'):
-        fit_stacked([build, build], lambda *a: None, [X, X], [F, F],
-                    [TorchTraining(epochs=1), TorchTraining(epochs=2)])
+        fit_stacked([build, build], [X, X], [F, F],
+                    [TorchTraining(epochs=1), TorchTraining(epochs=2)], gradient=lambda *a: None)
+
+
+@pytest.mark.parametrize('ways', [{}, {'forward': lambda *a: None, 'gradient': lambda *a: None}])
+def test_stacked_training_takes_a_forward_or_a_gradient(ways):
+    build = MLPModel(TIP)._build
+    X, F = np.zeros((4, 90)), np.zeros((4, 3))
+    with pytest.raises(ValueError, match='a forward or a gradient, not both'):
+        fit_stacked([build], [X], [F], [TorchTraining()], **ways)
+
+
+@settings(max_examples=20, deadline=None)
+@given(k=st.integers(1, 4), batch=st.integers(1, 20), hidden=st.integers(1, 8),
+       seed=st.integers(0, 2 ** 16))
+def test_the_hand_written_mlp_gradient_is_autograds(k, batch, hidden, seed):
+    """Weighted squared error with some samples weighted zero (not real), and hidden units
+    below their ReLU threshold (biases drawn around zero)."""
+    import torch
+
+    rng = np.random.default_rng(seed)
+    n_in = 9
+
+    def tensor(*shape):
+        return torch.as_tensor(rng.standard_normal(shape), dtype=torch.float32)
+
+    params = {'hidden.weight': tensor(k, hidden, n_in), 'hidden.bias': tensor(k, hidden),
+              'output.weight': tensor(k, 3, hidden), 'output.bias': tensor(k, 3)}
+    x, targets = tensor(k, batch, n_in), tensor(k, batch, 3)
+    weights = torch.as_tensor(rng.uniform(0, 1, (k, batch, 1)) * (rng.uniform(size=(k, batch, 1))
+                                                                   > 0.3), dtype=torch.float32)
+    with torch.no_grad():
+        by_hand = stacked_mlp_gradient(torch, params, x, targets, weights)
+    leaves = {name: value.clone().requires_grad_(True) for name, value in params.items()}
+    hidden_out = torch.relu(x @ leaves['hidden.weight'].transpose(1, 2)
+                            + leaves['hidden.bias'][:, None])
+    output = hidden_out @ leaves['output.weight'].transpose(1, 2) + leaves['output.bias'][:, None]
+    ((weights * (output - targets) ** 2).sum() / 2).backward()
+    for name, leaf in leaves.items():
+        np.testing.assert_allclose(by_hand[name].numpy(), leaf.grad.numpy(), rtol=1e-5,
+                                   atol=1e-5, err_msg=name)
 
 
 def test_the_dense_form_of_a_valid_convolution_is_the_convolution():

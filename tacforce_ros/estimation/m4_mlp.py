@@ -65,7 +65,8 @@ def stacked_mlp_gradient(torch: Any, params: dict, x: torch.Tensor, targets: tor
     hidden = torch.baddbmm(params['hidden.bias'][:, None], x, w1.transpose(1, 2)).relu_()
     d_output = torch.baddbmm(params['output.bias'][:, None], hidden, w2.transpose(1, 2))
     d_output.sub_(targets).mul_(weights)
-    d_hidden = torch.bmm(d_output, w2).mul_(hidden > 0)     # ReLU's gradient, 0 at 0 as torch's
+    # ReLU's backward as autograd runs it (zero where the unit is off, at 0 too), one kernel.
+    d_hidden = torch.ops.aten.threshold_backward(torch.bmm(d_output, w2), hidden, 0.0)
     return {'hidden.weight': torch.bmm(d_hidden.transpose(1, 2), x),
             'hidden.bias': d_hidden.sum(dim=1),
             'output.weight': torch.bmm(d_output.transpose(1, 2), hidden),

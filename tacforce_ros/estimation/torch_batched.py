@@ -136,6 +136,12 @@ def fit_stacked(builds: Sequence[Callable[[Any], torch.nn.Module]],
         first_rows, samples = torch.arange(k)[:, None] * samples.shape[1], samples.flatten(0, 1)
         steps = -(-int(sizes.max()) // batch_size)
         real = torch.arange(steps * batch_size)[None] < torch.as_tensor(sizes)[:, None]
+
+        def mse_denominator(counts: np.ndarray) -> torch.Tensor:
+            # Each network's loss is torch's MSELoss over its real samples.
+            return torch.from_numpy(outputs * np.maximum(counts, 1.0)).float()
+
+        full_weights = (2.0 / mse_denominator(np.full(k, batch_size)))[:, None, None]
         for _ in range(epochs):
             order = torch.zeros((k, steps * batch_size), dtype=torch.long)
             for i, (size, shuffle) in enumerate(zip(sizes, shuffles)):
@@ -147,20 +153,20 @@ def fit_stacked(builds: Sequence[Callable[[Any], torch.nn.Module]],
                 batch = samples.index_select(0, order[:, start:start + batch_size].reshape(-1))
                 batch = batch.view(k, batch_size, width + outputs)
                 x = batch[..., :width].view(k, batch_size, *feature_shape)
-                # Each network's loss is torch's MSELoss over its real samples.
-                denominator = torch.from_numpy(outputs * np.maximum(counts, 1.0)).float()
+                partial = counts.min() < batch_size
                 if gradient is None:
                     prediction = forward(torch, weights.params(), weights.buffers, x, mask)
                     squared = (prediction - batch[..., width:]).square().sum(dim=2)
-                    if counts.min() < batch_size:
+                    if partial:
                         squared = squared * mask
-                    loss = (squared.sum(dim=1) / denominator).sum()
+                    loss = (squared.sum(dim=1) / mse_denominator(counts)).sum()
                     weights.flat.grad = None
                     loss.backward()
                 else:
-                    sample_weights = (2.0 / denominator)[:, None, None]     # the /2's 2
-                    if counts.min() < batch_size:
-                        sample_weights = sample_weights * mask[..., None]
+                    sample_weights = full_weights           # 2 / denominator: the /2's 2
+                    if partial:
+                        sample_weights = ((2.0 / mse_denominator(counts))[:, None, None]
+                                          * mask[..., None])
                     with torch.no_grad():
                         grads = gradient(torch, params, x, batch[..., width:], sample_weights)
                         weights.flat.grad = torch.cat([grads[name].reshape(k, -1)
@@ -232,8 +238,8 @@ class _MaskedAdam:
             # Bias corrections in float64, then float32, as Adam's python-float scalars are.
             step_size = torch.from_numpy(self.learning_rate / (1 - beta1 ** steps)).float()
             correction2 = torch.from_numpy(np.sqrt(1 - beta2 ** steps)).float()
-            denominator = (second.sqrt() / correction2[:, None]).add_(ADAM_EPS)
-            param.sub_(step_size[:, None] * (first / denominator))
+            denominator = second.sqrt().div_(correction2[:, None]).add_(ADAM_EPS)
+            param.sub_(first.div(denominator).mul_(step_size[:, None]))
             if rows is not None:
                 self.flat.index_copy_(0, rows, param)
                 self.first.index_copy_(0, rows, first)

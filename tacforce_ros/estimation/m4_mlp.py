@@ -52,8 +52,8 @@ def mlp_forward(x: np.ndarray, w1: np.ndarray, b1: np.ndarray,
     return relu(x @ w1 + b1) @ w2 + b2
 
 
-def stacked_mlp_gradient(torch: Any, params: dict, x: torch.Tensor, targets: torch.Tensor,
-                         weights: torch.Tensor) -> dict:
+def stacked_mlp_gradient(torch: Any, params: dict, buffers: dict, x: torch.Tensor,
+                         mask: torch.Tensor, targets: torch.Tensor, weights: torch.Tensor) -> dict:
     """Training gradient of k stacked M4 networks (torch_batched.StackedGradient), by hand.
 
     Why not autograd: a step of 5 networks at bench_train's size (index_tip, 160 000 samples

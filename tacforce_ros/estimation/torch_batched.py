@@ -2,9 +2,10 @@
 
 The folds of a cross-validation, the arrays of a campaign and the repeats of a search are tiny
 networks on same-shaped data; trained one at a time, each step is dominated by per-operation
-overhead, not arithmetic. Here one step runs all k: a batched forward over weights stacked on a
-leading model axis (batched matmuls), one backward, one Adam update. The backward is autograd's,
-or the network's own hand-written gradient where it has one (StackedGradient).
+overhead, not arithmetic. Here one step runs all k: a batched forward and backward over weights
+stacked on a leading model axis (batched matmuls), then one Adam update. The architecture brings
+its gradient, written by hand (StackedGradient): autograd's bookkeeping was a fifth to a quarter
+of a step at these sizes (the measurements are beside each gradient).
 
 Each network keeps what one-at-a-time training (torch_training.fit_torch_regressor) gives it: its
 initial weights (built under its own seed), its shuffling generator, its minibatches (the short
@@ -35,37 +36,27 @@ ADAM_BETAS = (0.9, 0.999)
 ADAM_EPS = 1e-8
 
 
-class StackedForward(Protocol):
-    def __call__(self, torch: Any, params: dict[str, torch.Tensor],
-                 buffers: dict[str, torch.Tensor], x: torch.Tensor,
-                 mask: torch.Tensor) -> torch.Tensor:
-        """x (k, B, ...) inputs, mask (k, B) bool of real samples -> (k, B, 3) outputs.
-
-        params and buffers are the modules' state_dict entries stacked on a leading k axis; a
-        training-mode layer with statistics (BatchNorm) updates its buffers in place, for the
-        networks with at least one real sample only.
-        """
-
-
 class StackedGradient(Protocol):
-    def __call__(self, torch: Any, params: dict[str, torch.Tensor], x: torch.Tensor,
+    def __call__(self, torch: Any, params: dict[str, torch.Tensor],
+                 buffers: dict[str, torch.Tensor], x: torch.Tensor, mask: torch.Tensor,
                  targets: torch.Tensor, weights: torch.Tensor) -> dict[str, torch.Tensor]:
         """Gradient, per parameter of params, of sum(weights * (f(x) - targets) ** 2) / 2 for
-        the k stacked networks f: x (k, B, ...), targets (k, B, 3), weights (k, B, 1), zero for
-        the samples that are not real. Called without autograd; for networks without
-        statistics."""
+        the k stacked networks f in training mode: x (k, B, ...), mask (k, B) bool of real
+        samples, targets (k, B, 3), weights (k, B, 1), zero where mask is False.
+
+        params and buffers are the modules' state_dict entries stacked on a leading k axis; a
+        layer with statistics (BatchNorm) updates its buffers in place from the real samples.
+        """
 
 
 def fit_models_stacked(models: Sequence[Any], data: Sequence[tuple[np.ndarray, np.ndarray]],
                        architecture: Callable[[Any], Hashable],
                        network_inputs: Callable[[Any, np.ndarray], np.ndarray],
-                       forward: StackedForward | None = None,
-                       gradient: StackedGradient | None = None) -> None:
+                       gradient: StackedGradient) -> None:
     """Fit models[i] (M4 or M5) on data[i] = (X, F), stacking those of one architecture and
     training settings; a model alone in its group trains one at a time (model.fit).
 
-    architecture(model) keys the groups; network_inputs(model, X) is what its network reads;
-    forward or gradient as in fit_stacked.
+    architecture(model) keys the groups; network_inputs(model, X) is what its network reads.
     """
     groups: dict[Hashable, list[int]] = {}
     for i, model in enumerate(models):
@@ -81,27 +72,24 @@ def fit_models_stacked(models: Sequence[Any], data: Sequence[tuple[np.ndarray, n
                              [network_inputs(models[i], X).astype(np.float32)
                               for i, X in zip(rows, checked)],
                              [np.asarray(data[i][1], dtype=np.float64) for i in rows],
-                             [models[i].training for i in rows], forward=forward,
-                             gradient=gradient)
+                             [models[i].training for i in rows], gradient)
         for i, state in zip(rows, states):
             models[i]._set_state(state)
 
 
 def fit_stacked(builds: Sequence[Callable[[Any], torch.nn.Module]],
                 inputs: Sequence[np.ndarray], targets: Sequence[np.ndarray],
-                trainings: Sequence[TorchTraining], *, forward: StackedForward | None = None,
-                gradient: StackedGradient | None = None) -> list[dict[str, np.ndarray]]:
+                trainings: Sequence[TorchTraining],
+                gradient: StackedGradient) -> list[dict[str, np.ndarray]]:
     """Train build_i(torch) on (inputs_i, targets_i) with Adam + MSE, all k in one loop.
 
     Every build must give the same architecture, every input the same per-sample shape, and every
-    training the same epochs, batch size, learning rate and threads (seeds may differ). The
-    networks' forward (autograd differentiates it) or their gradient is given, not both. Returns
-    each network's state as torch_training.module_state would.
+    training the same epochs, batch size, learning rate and threads (seeds may differ).
+    gradient is the architecture's. Returns each network's state as
+    torch_training.module_state would.
     """
     import torch
 
-    if (forward is None) == (gradient is None):
-        raise ValueError('fit_stacked needs a forward or a gradient, not both')
     k = len(builds)
     if not (k == len(inputs) == len(targets) == len(trainings)) or k == 0:
         raise ValueError('fit_stacked needs one build, input, target and training per network')
@@ -118,9 +106,8 @@ def fit_stacked(builds: Sequence[Callable[[Any], torch.nn.Module]],
             with torch.random.fork_rng(devices=[]):
                 torch.manual_seed(training.seed)
                 modules.append(build(torch).to(torch.float32))
-        weights = _StackedWeights(torch, modules, requires_grad=gradient is None)
-        # Without autograd the parameter views need no rebuilding: Adam updates them in place.
-        params = weights.params()
+        weights = _StackedWeights(torch, modules)
+        params = weights.params()       # views: Adam updates them in place
         adam = _MaskedAdam(torch, weights.flat, learning_rate)
         shuffles = [torch.Generator().manual_seed(t.seed) for t in trainings]
         sizes = np.array([len(x) for x in inputs])
@@ -137,11 +124,13 @@ def fit_stacked(builds: Sequence[Callable[[Any], torch.nn.Module]],
         steps = -(-int(sizes.max()) // batch_size)
         real = torch.arange(steps * batch_size)[None] < torch.as_tensor(sizes)[:, None]
 
-        def mse_denominator(counts: np.ndarray) -> torch.Tensor:
-            # Each network's loss is torch's MSELoss over its real samples.
-            return torch.from_numpy(outputs * np.maximum(counts, 1.0)).float()
+        def sample_weights(counts: np.ndarray) -> torch.Tensor:
+            # Each network's loss is torch's MSELoss over its real samples: the gradient's
+            # weights are 2 / (outputs * real samples) (the 2 of StackedGradient's / 2).
+            return (2.0 / torch.from_numpy(outputs * np.maximum(counts, 1.0)).float())[:, None,
+                                                                                        None]
 
-        full_weights = (2.0 / mse_denominator(np.full(k, batch_size)))[:, None, None]
+        full_weights = sample_weights(np.full(k, batch_size))
         for _ in range(epochs):
             order = torch.zeros((k, steps * batch_size), dtype=torch.long)
             for i, (size, shuffle) in enumerate(zip(sizes, shuffles)):
@@ -153,53 +142,39 @@ def fit_stacked(builds: Sequence[Callable[[Any], torch.nn.Module]],
                 batch = samples.index_select(0, order[:, start:start + batch_size].reshape(-1))
                 batch = batch.view(k, batch_size, width + outputs)
                 x = batch[..., :width].view(k, batch_size, *feature_shape)
-                partial = counts.min() < batch_size
-                if gradient is None:
-                    prediction = forward(torch, weights.params(), weights.buffers, x, mask)
-                    squared = (prediction - batch[..., width:]).square().sum(dim=2)
-                    if partial:
-                        squared = squared * mask
-                    loss = (squared.sum(dim=1) / mse_denominator(counts)).sum()
-                    weights.flat.grad = None
-                    loss.backward()
-                else:
-                    sample_weights = full_weights           # 2 / denominator: the /2's 2
-                    if partial:
-                        sample_weights = ((2.0 / mse_denominator(counts))[:, None, None]
-                                          * mask[..., None])
-                    with torch.no_grad():
-                        grads = gradient(torch, params, x, batch[..., width:], sample_weights)
-                        weights.flat.grad = torch.cat([grads[name].reshape(k, -1)
-                                                       for name in weights.shapes], dim=1)
+                step_weights = full_weights
+                if counts.min() < batch_size:
+                    step_weights = sample_weights(counts) * mask[..., None]
+                grads = gradient(torch, params, weights.buffers, x, mask, batch[..., width:],
+                                 step_weights)
+                weights.flat.grad = torch.cat([grads[name].reshape(k, -1)
+                                               for name in weights.shapes], dim=1)
                 adam.step(counts > 0)
         return weights.states()
 
 
 class _StackedWeights:
-    """The k modules' parameters as one (k, P) leaf tensor (one Adam update for all), their
-    buffers stacked (k, ...), and the per-parameter views the forward reads."""
+    """The k modules' parameters as one (k, P) tensor (one Adam update for all), their buffers
+    stacked (k, ...), and the per-parameter views the gradient reads."""
 
-    def __init__(self, torch: Any, modules: Sequence[torch.nn.Module],
-                 requires_grad: bool) -> None:
+    def __init__(self, torch: Any, modules: Sequence[torch.nn.Module]) -> None:
         self.k = len(modules)
         states = [m.state_dict() for m in modules]
         parameter_names = [name for name, _ in modules[0].named_parameters()]
         self.shapes = {name: tuple(states[0][name].shape) for name in parameter_names}
         self.flat = torch.cat([torch.stack([s[name].reshape(-1) for s in states])
-                               for name in parameter_names], dim=1).requires_grad_(requires_grad)
+                               for name in parameter_names], dim=1)
         self.buffers = {name: torch.stack([s[name] for s in states])
                         for name, _ in modules[0].named_buffers()
                         if not name.endswith(SKIPPED_TORCH_STATE)}
 
     def params(self) -> dict[str, torch.Tensor]:
-        # split, not slicing: its backward concatenates the parts' gradients in one tensor, where
-        # each slice's backward fills a zero (k, P) tensor first.
         sizes = [int(np.prod(shape)) for shape in self.shapes.values()]
         return {name: part.view(self.k, *shape) for (name, shape), part
                 in zip(self.shapes.items(), self.flat.split(sizes, dim=1))}
 
     def states(self) -> list[dict[str, np.ndarray]]:
-        tensors = {**{n: v.detach() for n, v in self.params().items()}, **self.buffers}
+        tensors = {**self.params(), **self.buffers}
         return [{state_name(name): value[i].cpu().numpy().astype(STATE_DTYPE)
                  for name, value in tensors.items()} for i in range(self.k)]
 

@@ -8,7 +8,7 @@ from hypothesis import strategies as st
 
 from tacforce_ros.estimation.cross_validation import cross_validate
 from tacforce_ros.estimation.m4_mlp import MLPModel, stacked_mlp_gradient
-from tacforce_ros.estimation.m5_cnn import CNNModel, conv_as_matrix_index
+from tacforce_ros.estimation.m5_cnn import CNNModel, conv_as_matrix_index, stacked_cnn_gradient
 from tacforce_ros.estimation.torch_batched import fit_stacked
 from tacforce_ros.estimation.torch_training import TorchTraining
 from tacforce_ros.estimation.training import fit_bundle
@@ -134,15 +134,7 @@ def test_networks_trained_together_must_share_their_optimiser_settings():
     X, F = np.zeros((4, 90)), np.zeros((4, 3))
     with pytest.raises(ValueError, match='must share epochs'):
         fit_stacked([build, build], [X, X], [F, F],
-                    [TorchTraining(epochs=1), TorchTraining(epochs=2)], gradient=lambda *a: None)
-
-
-@pytest.mark.parametrize('ways', [{}, {'forward': lambda *a: None, 'gradient': lambda *a: None}])
-def test_stacked_training_takes_a_forward_or_a_gradient(ways):
-    build = MLPModel(TIP)._build
-    X, F = np.zeros((4, 90)), np.zeros((4, 3))
-    with pytest.raises(ValueError, match='a forward or a gradient, not both'):
-        fit_stacked([build], [X], [F], [TorchTraining()], **ways)
+                    [TorchTraining(epochs=1), TorchTraining(epochs=2)], lambda *a: None)
 
 
 @settings(max_examples=20, deadline=None)
@@ -165,7 +157,8 @@ def test_the_hand_written_mlp_gradient_is_autograds(k, batch, hidden, seed):
     weights = torch.as_tensor(rng.uniform(0, 1, (k, batch, 1)) * (rng.uniform(size=(k, batch, 1))
                                                                    > 0.3), dtype=torch.float32)
     with torch.no_grad():
-        by_hand = stacked_mlp_gradient(torch, params, x, targets, weights)
+        by_hand = stacked_mlp_gradient(torch, params, {}, x, weights[..., 0] > 0, targets,
+                                       weights)
     leaves = {name: value.clone().requires_grad_(True) for name, value in params.items()}
     hidden_out = torch.relu(x @ leaves['hidden.weight'].transpose(1, 2)
                             + leaves['hidden.bias'][:, None])
@@ -174,6 +167,46 @@ def test_the_hand_written_mlp_gradient_is_autograds(k, batch, hidden, seed):
     for name, leaf in leaves.items():
         np.testing.assert_allclose(by_hand[name].numpy(), leaf.grad.numpy(), rtol=1e-5,
                                    atol=1e-5, err_msg=name)
+
+
+@settings(max_examples=10, deadline=None)
+@given(real=st.lists(st.integers(2, 9), min_size=1, max_size=3), seed=st.integers(0, 2 ** 16),
+       phalanx=st.booleans())
+def test_the_hand_written_cnn_gradient_is_torchs_modules(real, seed, phalanx):
+    """Each network's gradient and BatchNorm statistics against its own torch module in training
+    mode with MSELoss on its real samples; the batch holds 9 samples, the rest not real."""
+    import torch
+
+    array = PHALANX if phalanx else TIP
+    rng = np.random.default_rng(seed)
+    batch, k = 9, len(real)
+    modules = []
+    for i in range(k):
+        torch.manual_seed(seed + i)
+        modules.append(CNNModel(array)._build(torch).train())
+    images = CNNModel(array).images(rng.standard_normal((k * batch, array.n_taxels, 3)))
+    x = torch.as_tensor(images, dtype=torch.float32).view(k, batch, *images.shape[1:])
+    targets = torch.as_tensor(rng.standard_normal((k, batch, 3)), dtype=torch.float32)
+    mask = torch.as_tensor(np.arange(batch)[None] < np.array(real)[:, None])
+    weights = (mask / (1.5 * torch.as_tensor(real, dtype=torch.float32))[:, None])[..., None]
+    states = [m.state_dict() for m in modules]
+    params = {name: torch.stack([s[name] for s in states]).clone()
+              for name, _ in modules[0].named_parameters()}
+    buffers = {name: torch.stack([s[name] for s in states]).clone()
+               for name in ('norm.running_mean', 'norm.running_var')}
+    with torch.no_grad():
+        by_hand = stacked_cnn_gradient(torch, params, buffers, x, mask, targets, weights)
+    for i, module in enumerate(modules):
+        n = real[i]
+        prediction = module(x[i, :n].permute(0, 3, 1, 2))
+        torch.nn.functional.mse_loss(prediction, targets[i, :n]).backward()
+        for name, parameter in module.named_parameters():
+            np.testing.assert_allclose(by_hand[name][i].numpy(), parameter.grad.numpy(),
+                                       rtol=1e-4, atol=1e-5, err_msg=name)
+        for name in buffers:
+            np.testing.assert_allclose(buffers[name][i].numpy(),
+                                       module.state_dict()[name].numpy(), rtol=1e-5,
+                                       atol=1e-6, err_msg=name)
 
 
 def test_the_dense_form_of_a_valid_convolution_is_the_convolution():

@@ -21,7 +21,6 @@ from __future__ import annotations
 
 from collections import OrderedDict
 from collections.abc import Callable, Sequence
-from dataclasses import asdict
 from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
@@ -80,12 +79,12 @@ class MLPModel(ForceModel):
 
     def __init__(self, array: TaxelArray, *, hidden: int = 16, epochs: int = 40,
                  batch_size: int = 256, learning_rate: float = 2.5e-4, seed: int = 0,
-                 threads: int = 1) -> None:
+                 threads: int = 1, device: str = 'cpu') -> None:
         super().__init__(array)
         if int(hidden) < 1:
             raise ValueError(f'hidden must be >= 1, got {hidden}')
         self.hidden = int(hidden)
-        self.training = TorchTraining(epochs, batch_size, learning_rate, seed, threads)
+        self.training = TorchTraining(epochs, batch_size, learning_rate, seed, threads, device)
         self._state: dict[str, np.ndarray] | None = None
 
     def _state_shapes(self) -> dict[str, tuple[int, ...]]:
@@ -143,7 +142,7 @@ class MLPModel(ForceModel):
         return sum(int(np.prod(shape)) for shape in self._state_shapes().values())
 
     def hyperparameters(self) -> dict:
-        return {'hidden': self.hidden, **asdict(self.training)}
+        return {'hidden': self.hidden, **self.training.hyperparameters()}
 
     def state_arrays(self) -> dict[str, np.ndarray]:
         return {name: value.copy() for name, value in self._fitted_state().items()}

@@ -22,7 +22,6 @@ from __future__ import annotations
 import functools
 from collections import OrderedDict
 from collections.abc import Callable, Sequence
-from dataclasses import asdict
 from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
@@ -43,6 +42,7 @@ if TYPE_CHECKING:
 KERNELS = (3, 3, 2)                       # paper: two 3x3 convolutions, then one 2x2
 MIN_GRID = sum(k - 1 for k in KERNELS) + 1  # smallest image the valid convolutions accept: 6
 BN_EPS = 1e-5                             # torch's BatchNorm2d default, needed again to fold it
+BN_MOMENTUM = 0.1                         # torch's BatchNorm2d default, which _build keeps
 PREDICT_CHUNK = 4096                      # samples per numpy pass: bounds the im2col copies (~7 MB)
 
 
@@ -76,14 +76,15 @@ class CNNModel(ForceModel):
 
     def __init__(self, array: TaxelArray, *, channels: Sequence[int] = (6, 12, 24),
                  dense: int = 16, epochs: int = 40, batch_size: int = 256,
-                 learning_rate: float = 2.5e-4, seed: int = 0, threads: int = 1) -> None:
+                 learning_rate: float = 2.5e-4, seed: int = 0, threads: int = 1,
+                 device: str = 'cpu') -> None:
         super().__init__(array)
         self.channels = tuple(int(c) for c in channels)
         self.dense = int(dense)
         if len(self.channels) != len(KERNELS) or min(self.channels) < 1 or self.dense < 1:
             raise ValueError(f'channels must be {len(KERNELS)} positive widths and dense >= 1, '
                              f'got channels={channels}, dense={dense}')
-        self.training = TorchTraining(epochs, batch_size, learning_rate, seed, threads)
+        self.training = TorchTraining(epochs, batch_size, learning_rate, seed, threads, device)
         self.grid = padded_grid(array.grid_index)
         placed = np.sort(self.grid[self.grid >= 0])
         if not np.array_equal(placed, np.arange(array.n_taxels)):
@@ -201,7 +202,8 @@ class CNNModel(ForceModel):
         return sum(int(np.prod(shape)) for shape in shapes.values())
 
     def hyperparameters(self) -> dict:
-        return {'channels': list(self.channels), 'dense': self.dense, **asdict(self.training)}
+        return {'channels': list(self.channels), 'dense': self.dense,
+                **self.training.hyperparameters()}
 
     def state_arrays(self) -> dict[str, np.ndarray]:
         return {name: value.copy() for name, value in self._fitted_state().items()}
@@ -279,7 +281,9 @@ def stacked_cnn_gradient(torch: Any, params: dict, buffers: dict, x: torch.Tenso
     each step. The first layer, whose input needs no gradient, runs one row of outputs at a time
     with the small matrix all rows share (its full matrix is three-quarters zeros): 4% off a
     step (with autograd's backward). Per step for 5 networks, torch's grouped convolution and
-    im2col with batched matmuls each took longer than the dense matrices.
+    im2col with batched matmuls each took longer than the dense matrices. The BatchNorm, which
+    conv3 follows, is folded into conv3's matrix with the batch's statistics (BatchNormFold):
+    the activations are never normalised, and its backward rides on conv3's.
     Why by hand, not autograd: 5 networks on index_tip, 80 000 samples each, one epoch per fit,
     the two ways alternating in one process (2026-11-25): 5.38-6.24 ms per step (set-up
     included) against 6.43-8.74 ms with autograd over the same forward. It agrees with torch's
@@ -295,7 +299,7 @@ def stacked_cnn_gradient(torch: Any, params: dict, buffers: dict, x: torch.Tenso
         padded = torch.cat([weight.reshape(k, -1), weight.new_zeros(k, 1)], dim=1)
         banded = name == 'conv1'
         index = torch.as_tensor(conv_as_matrix_index(
-            (kernel, *shape[1:]) if banded else shape, out_channels, kernel))
+            (kernel, *shape[1:]) if banded else shape, out_channels, kernel), device=x.device)
         matrix = padded.index_select(1, index.reshape(-1)).view(k, *index.shape)
         if banded:
             row = shape[1] * shape[2]
@@ -305,13 +309,13 @@ def stacked_cnn_gradient(torch: Any, params: dict, buffers: dict, x: torch.Tenso
         else:
             inputs = [y]
             bias = params[f'{name}.bias'].repeat(1, out_shape[0] * out_shape[1])[:, None]
-            y = torch.baddbmm(bias, y, matrix).relu_()
+            applied = matrix
+            if name == 'conv3':
+                norm = BatchNormFold(torch, y, mask, shape[2], params, buffers)
+                applied, bias = norm.fold(matrix, bias)
+            y = torch.baddbmm(bias, y, applied).relu_()
         layers.append((name, inputs, matrix, index, weight.numel() // k, y))
         shape = out_shape
-        if name == 'conv2':
-            norm = _masked_batch_norm(torch, y.view(k, batch, -1, out_channels), mask, params,
-                                      buffers)
-            y = norm[0].view(k, batch, -1)
     h, w, c = shape
     flat = y.view(k, batch, h, w, c).permute(0, 1, 4, 2, 3).reshape(k, batch, -1)   # torch order
     dense = torch.baddbmm(params['dense.bias'][:, None], flat,
@@ -328,8 +332,6 @@ def stacked_cnn_gradient(torch: Any, params: dict, buffers: dict, x: torch.Tenso
     d_y = torch.bmm(d_dense, params['dense.weight'])
     d_y = d_y.view(k, batch, c, h, w).permute(0, 1, 3, 4, 2).reshape(k, batch, -1)
     for name, inputs, matrix, index, size, out in reversed(layers):
-        if name == 'conv2':
-            d_y = _masked_batch_norm_backward(torch, d_y, norm, params, grads)
         d_z = torch.ops.aten.threshold_backward(d_y, out, 0.0)
         channels = params[f'{name}.weight'].shape[1]
         grads[f'{name}.bias'] = d_z.view(k, -1, channels).sum(dim=1)
@@ -338,6 +340,8 @@ def stacked_cnn_gradient(torch: Any, params: dict, buffers: dict, x: torch.Tenso
             d_matrix = torch.bmm(inputs[0].transpose(1, 2), d_z[:, :, :width])
             for r, band in enumerate(inputs[1:], start=1):
                 d_matrix.baddbmm_(band.transpose(1, 2), d_z[:, :, r * width:(r + 1) * width])
+        elif name == 'conv3':
+            d_matrix, d_y = norm.backward(d_z, matrix, grads)
         else:
             d_matrix = torch.bmm(inputs[0].transpose(1, 2), d_z)
             d_y = torch.bmm(d_z, matrix.transpose(1, 2))
@@ -348,51 +352,86 @@ def stacked_cnn_gradient(torch: Any, params: dict, buffers: dict, x: torch.Tenso
     return grads
 
 
-def _masked_batch_norm(torch: Any, y: torch.Tensor, mask: torch.Tensor, params: dict,
-                       buffers: dict) -> tuple:
-    """Training-mode BatchNorm2d of channels-last y (k, B, h*w, C) per network over its real
-    samples, and its running statistics updated as torch's (momentum 0.1, unbiased variance).
-    Returns (output, normalised y, real-sample weights or None, their count per network) for
-    the backward."""
-    momentum = 0.1                       # torch's BatchNorm2d default, as in _build
-    counts = mask.sum(dim=1) * y.shape[2]
-    n = counts.clamp(min=1).to(y.dtype)[:, None]
-    weight = None if bool(mask.all()) else mask.to(y.dtype)[:, :, None, None]
-    mean = (y if weight is None else y * weight).sum(dim=(1, 2)) / n
-    centred = y - mean[:, None, None]
-    squared = centred.square()
-    variance = (squared if weight is None else squared * weight).sum(dim=(1, 2)) / n
-    inverse_std = torch.rsqrt(variance + BN_EPS)
-    update = (counts > 1)[:, None]
-    unbiased = variance * n / (n - 1).clamp(min=1)
-    for name, value in (('norm.running_mean', mean), ('norm.running_var', unbiased)):
-        running = buffers[name]
-        running.copy_(torch.where(update, (1 - momentum) * running + momentum * value, running))
-    normalised = centred.mul_(inverse_std[:, None, None])
-    output = normalised * params['norm.weight'][:, None, None] + params['norm.bias'][:, None, None]
-    return output, normalised, weight, n, inverse_std
-
-
-def _masked_batch_norm_backward(torch: Any, d_output: torch.Tensor, norm: tuple, params: dict,
-                                grads: dict) -> torch.Tensor:
-    """Gradient of _masked_batch_norm's input from its output's (both (k, B, h*w*C) flat);
-    stores the scale's and shift's gradients in grads.
-
-    With g the output's gradient (zero on samples that are not real, whose loss weight is zero)
-    and x^ the normalised input, the statistics over the real samples give
-    d_input = gamma / std * (g - w * (sum(g) + x^ * sum(g * x^)) / n), w the real-sample weights.
+class BatchNormFold:
+    """Training-mode BatchNorm2d of channels-last y (k, B, cells * C), per network over its
+    real samples, folded into the matmul that follows it: (y * s + t) @ M = y @ (s M) + t @ M,
+    with s = gamma / std and t = beta - mean * s from the batch's statistics. Its backward
+    takes the gradient of that matmul's output (zero on samples that are not real) and needs
+    only small reductions beside the matmul's own products, so the activations are never
+    normalised. The running statistics are updated as torch's (momentum 0.1, unbiased variance).
+    Why: written out on the activations, the batch norm and its backward took 574 of 2705 us
+    of a gradient; folded, the whole gradient took 2252 us (5 networks on index_tip, batch 256,
+    the two alternating in one process, 2026-11-26).
     """
-    _, normalised, weight, n, inverse_std = norm
-    k, batch, cells, channels = normalised.shape
-    g = d_output.view(k, batch, cells, channels)
-    shift_grad = g.sum(dim=(1, 2))
-    scale_grad = (g * normalised).sum(dim=(1, 2))
-    grads['norm.bias'], grads['norm.weight'] = shift_grad, scale_grad
-    correction = normalised * (scale_grad / n)[:, None, None] + (shift_grad / n)[:, None, None]
-    if weight is not None:
-        correction = correction * weight
-    factor = (params['norm.weight'] * inverse_std)[:, None, None]
-    return ((g - correction) * factor).view(k, batch, -1)
+
+    def __init__(self, torch: Any, y: torch.Tensor, mask: torch.Tensor, channels: int,
+                 params: dict, buffers: dict) -> None:
+        k, batch = mask.shape
+        self.torch, self.y, self.params = torch, y, params
+        self.cells = y.shape[2] // channels
+        values = y.view(k, batch * self.cells, channels)
+        real = mask.sum(dim=1)
+        self.mask = None if bool(real.min() == batch) else mask
+        if self.mask is None:
+            mean, variance = _mean_and_variance(values, dim=1)
+        else:                            # each network's real samples are its first ones
+            stats = [_mean_and_variance(values[i, :n * self.cells], dim=0) if n
+                     else (values.new_zeros(channels), values.new_ones(channels))
+                     for i, n in enumerate(real.tolist())]
+            mean, variance = (torch.stack(s) for s in zip(*stats))
+        count = (real * self.cells).to(y.dtype)[:, None]
+        moved = (real * self.cells > 1)[:, None]
+        unbiased = variance * count / (count - 1).clamp(min=1)
+        for name, value in (('norm.running_mean', mean), ('norm.running_var', unbiased)):
+            running = buffers[name]
+            running.copy_(torch.where(moved, (1 - BN_MOMENTUM) * running + BN_MOMENTUM * value,
+                                      running))
+        self.mean, self.count = mean, count.clamp(min=1)
+        self.inverse_std = torch.rsqrt(variance + BN_EPS)
+        self.scale = params['norm.weight'] * self.inverse_std
+        self.shift = params['norm.bias'] - mean * self.scale
+
+    def per_cell(self, value: torch.Tensor) -> torch.Tensor:
+        """(k, C) per channel -> (k, cells * C) in the activations' channels-last order."""
+        return value.repeat(1, self.cells)
+
+    def fold(self, matrix: torch.Tensor, bias: torch.Tensor) -> tuple:
+        """The matmul's matrix and bias with the normalisation folded in."""
+        self.applied = matrix * self.per_cell(self.scale)[:, :, None]
+        return self.applied, self.torch.baddbmm(bias, self.per_cell(self.shift)[:, None], matrix)
+
+    def backward(self, d_z: torch.Tensor, matrix: torch.Tensor, grads: dict) -> tuple:
+        """From the folded matmul's output gradient d_z: the gradient of the unfolded matrix and
+        of y; stores the BatchNorm's scale and shift gradients in grads.
+
+        With g = d_z @ M^T the gradient of the normalised activations and x^ = (y - mean) / std:
+        d_beta = sum(g), d_gamma = sum(g * x^), both from sum(d_z) and y^T d_z; then
+        d_y = s g - s (d_beta + x^ d_gamma) / n = d_z @ (s M)^T + a y + b per channel.
+        """
+        torch, k, channels = self.torch, d_z.shape[0], self.mean.shape[1]
+        y_d_z = torch.bmm(self.y.transpose(1, 2), d_z)               # (k, cells * C, outputs)
+        column_sums = d_z.sum(dim=1)
+        d_matrix = (y_d_z * self.per_cell(self.scale)[:, :, None]
+                    + self.per_cell(self.shift)[:, :, None] * column_sums[:, None])
+        per_channel = (lambda v: v.view(k, self.cells, channels).sum(dim=1))
+        g_sum = per_channel(torch.bmm(column_sums[:, None], matrix.transpose(1, 2))[:, 0])
+        g_y = per_channel((matrix * y_d_z).sum(dim=2))
+        d_gamma = (g_y - self.mean * g_sum) * self.inverse_std
+        grads['norm.weight'], grads['norm.bias'] = d_gamma, g_sum
+        slope = -self.scale * self.inverse_std * d_gamma / self.count
+        offset = -self.scale * g_sum / self.count - slope * self.mean
+        d_y = torch.baddbmm(self.per_cell(offset)[:, None], d_z, self.applied.transpose(1, 2))
+        d_y.addcmul_(self.y, self.per_cell(slope)[:, None])
+        if self.mask is not None:
+            d_y.mul_(self.mask[:, :, None])
+        return d_matrix, d_y
+
+
+def _mean_and_variance(values: torch.Tensor, dim: int) -> tuple:
+    """Mean and biased variance along dim, two passes: torch.var_mean over a non-innermost
+    dimension took 350 us against 30 us for (5, 1024, 12) values (2026-11-26)."""
+    mean = values.mean(dim=dim, keepdim=True)
+    return mean.squeeze(dim), (values - mean).square_().mean(dim=dim)
 
 
 def _cnn_forward(images: np.ndarray, weights: Sequence[np.ndarray]) -> np.ndarray:

@@ -11,6 +11,8 @@ from tacforce_ros.estimation.m5_cnn import CNNModel
 
 MODEL_KINDS: dict[str, type[ForceModel]] = {
     cls.kind: cls for cls in (M1Linear, M2Quadratic, M3Linear, M3Lambda, MLPModel, CNNModel)}
+# Trained by torch from a seeded random start: they take a seed and a training device.
+TORCH_KINDS = (MLPModel.kind, CNNModel.kind)
 
 
 def model_class(kind: str) -> type[ForceModel]:

@@ -26,7 +26,7 @@ import numpy as np
 from tacforce_ros.estimation.base import check_inputs
 from tacforce_ros.estimation.torch_training import (SKIPPED_TORCH_STATE, STATE_DTYPE,
                                                     TorchTraining, reproducible_torch,
-                                                    state_name)
+                                                    state_name, torch_device)
 
 if TYPE_CHECKING:
     import torch
@@ -61,7 +61,8 @@ def fit_models_stacked(models: Sequence[Any], data: Sequence[tuple[np.ndarray, n
     groups: dict[Hashable, list[int]] = {}
     for i, model in enumerate(models):
         t = model.training
-        key = (architecture(model), t.epochs, t.batch_size, t.learning_rate, t.threads)
+        key = (architecture(model), t.epochs, t.batch_size, t.learning_rate, t.threads,
+               t.device)
         groups.setdefault(key, []).append(i)
     for rows in groups.values():
         if len(rows) == 1:
@@ -84,7 +85,7 @@ def fit_stacked(builds: Sequence[Callable[[Any], torch.nn.Module]],
     """Train build_i(torch) on (inputs_i, targets_i) with Adam + MSE, all k in one loop.
 
     Every build must give the same architecture, every input the same per-sample shape, and every
-    training the same epochs, batch size, learning rate and threads (seeds may differ).
+    training the same epochs, batch size, learning rate, threads and device (seeds may differ).
     gradient is the architecture's. Returns each network's state as
     torch_training.module_state would.
     """
@@ -93,23 +94,25 @@ def fit_stacked(builds: Sequence[Callable[[Any], torch.nn.Module]],
     k = len(builds)
     if not (k == len(inputs) == len(targets) == len(trainings)) or k == 0:
         raise ValueError('fit_stacked needs one build, input, target and training per network')
-    settings = {(t.epochs, t.batch_size, t.learning_rate, t.threads) for t in trainings}
+    settings = {(t.epochs, t.batch_size, t.learning_rate, t.threads, t.device)
+                for t in trainings}
     if len(settings) != 1:
         raise ValueError(f'networks trained together must share epochs, batch size, learning '
-                         f'rate and threads; got {sorted(settings)}')
+                         f'rate, threads and device; got {sorted(settings)}')
     if len({np.shape(x)[1:] for x in inputs}) != 1 or min(len(x) for x in inputs) < 1:
         raise ValueError('inputs must be non-empty and of one per-sample shape')
-    epochs, batch_size, learning_rate, threads = settings.pop()
-    with reproducible_torch(threads):
+    epochs, batch_size, learning_rate, threads, device_name = settings.pop()
+    device = torch_device(device_name)
+    with reproducible_torch(threads, device):
         modules = []
         for build, training in zip(builds, trainings):
             with torch.random.fork_rng(devices=[]):
                 torch.manual_seed(training.seed)
                 modules.append(build(torch).to(torch.float32))
-        weights = _StackedWeights(torch, modules)
+        weights = _StackedWeights(torch, modules, device)
         params = weights.params()       # views: Adam updates them in place
         adam = _MaskedAdam(torch, weights.flat, learning_rate)
-        shuffles = [torch.Generator().manual_seed(t.seed) for t in trainings]
+        shuffles = [torch.Generator().manual_seed(t.seed) for t in trainings]   # on the CPU
         sizes = np.array([len(x) for x in inputs])
         feature_shape, width = np.shape(inputs[0])[1:], int(np.prod(np.shape(inputs[0])[1:]))
         outputs = np.shape(targets[0])[1]
@@ -120,22 +123,24 @@ def fit_stacked(builds: Sequence[Callable[[Any], torch.nn.Module]],
             samples[i, :len(x), :width] = torch.as_tensor(np.reshape(x, (len(x), width)),
                                                           dtype=torch.float32)
             samples[i, :len(y), width:] = torch.as_tensor(y, dtype=torch.float32)
-        first_rows, samples = torch.arange(k)[:, None] * samples.shape[1], samples.flatten(0, 1)
+        first_rows = torch.arange(k)[:, None] * samples.shape[1]
+        samples = samples.flatten(0, 1).to(device)
         steps = -(-int(sizes.max()) // batch_size)
         real = torch.arange(steps * batch_size)[None] < torch.as_tensor(sizes)[:, None]
+        real = real.to(device)
 
         def sample_weights(counts: np.ndarray) -> torch.Tensor:
             # Each network's loss is torch's MSELoss over its real samples: the gradient's
             # weights are 2 / (outputs * real samples) (the 2 of StackedGradient's / 2).
-            return (2.0 / torch.from_numpy(outputs * np.maximum(counts, 1.0)).float())[:, None,
-                                                                                        None]
+            return (2.0 / torch.from_numpy(outputs * np.maximum(counts, 1.0)).float())[
+                :, None, None].to(device)
 
         full_weights = sample_weights(np.full(k, batch_size))
         for _ in range(epochs):
             order = torch.zeros((k, steps * batch_size), dtype=torch.long)
             for i, (size, shuffle) in enumerate(zip(sizes, shuffles)):
                 order[i, :size] = torch.randperm(int(size), generator=shuffle)
-            order += first_rows
+            order = (order + first_rows).to(device)
             for start in range(0, steps * batch_size, batch_size):
                 counts = np.clip(sizes - start, 0, batch_size)
                 mask = real[:, start:start + batch_size]
@@ -157,14 +162,15 @@ class _StackedWeights:
     """The k modules' parameters as one (k, P) tensor (one Adam update for all), their buffers
     stacked (k, ...), and the per-parameter views the gradient reads."""
 
-    def __init__(self, torch: Any, modules: Sequence[torch.nn.Module]) -> None:
+    def __init__(self, torch: Any, modules: Sequence[torch.nn.Module],
+                 device: torch.device) -> None:
         self.k = len(modules)
         states = [m.state_dict() for m in modules]
         parameter_names = [name for name, _ in modules[0].named_parameters()]
         self.shapes = {name: tuple(states[0][name].shape) for name in parameter_names}
         self.flat = torch.cat([torch.stack([s[name].reshape(-1) for s in states])
-                               for name in parameter_names], dim=1)
-        self.buffers = {name: torch.stack([s[name] for s in states])
+                               for name in parameter_names], dim=1).to(device)
+        self.buffers = {name: torch.stack([s[name] for s in states]).to(device)
                         for name, _ in modules[0].named_buffers()
                         if not name.endswith(SKIPPED_TORCH_STATE)}
 
@@ -204,15 +210,17 @@ class _MaskedAdam:
                 rows, steps = None, self.steps
                 param, first, second, grad = self.flat, self.first, self.second, self.flat.grad
             else:
-                rows = torch.from_numpy(np.flatnonzero(active))
+                rows = torch.from_numpy(np.flatnonzero(active)).to(self.flat.device)
                 steps = self.steps[active]
                 param, first, second = self.flat[rows], self.first[rows], self.second[rows]
                 grad = self.flat.grad[rows]
             first.lerp_(grad, 1 - beta1)
             second.mul_(beta2).addcmul_(grad, grad, value=1 - beta2)
             # Bias corrections in float64, then float32, as Adam's python-float scalars are.
-            step_size = torch.from_numpy(self.learning_rate / (1 - beta1 ** steps)).float()
-            correction2 = torch.from_numpy(np.sqrt(1 - beta2 ** steps)).float()
+            step_size = torch.from_numpy(self.learning_rate / (1 - beta1 ** steps)).float().to(
+                self.flat.device)
+            correction2 = torch.from_numpy(np.sqrt(1 - beta2 ** steps)).float().to(
+                self.flat.device)
             denominator = second.sqrt().div_(correction2[:, None]).add_(ADAM_EPS)
             param.sub_(first.div(denominator).mul_(step_size[:, None]))
             if rows is not None:

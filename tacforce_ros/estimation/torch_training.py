@@ -1,13 +1,17 @@
 """Training and state conversion shared by the torch-trained models (M4, M5).
 
 Torch is imported inside the functions that need it, never at module import, so loading a model
-file and the 100 Hz inference stay torch-free.
+file and the 100 Hz inference stay torch-free. Training runs on the CPU unless a model is given
+another torch device (`device='cuda'`, the `--device` of train and bench_train); the weights
+are initialised on the CPU either way, so a seed gives the same start on every device, and the
+state comes back to the CPU as numpy arrays.
 """
 from __future__ import annotations
 
+import os
 from collections.abc import Callable, Iterator, Mapping
 from contextlib import contextmanager
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -29,6 +33,7 @@ class TorchTraining:
     learning_rate: float = 2.5e-4
     seed: int = 0
     threads: int = 1        # torch intra-op threads during fit; fixed so runs are reproducible
+    device: str = 'cpu'     # torch device the fit runs on: where, not what, so not saved
 
     def __post_init__(self) -> None:
         for name in ('epochs', 'batch_size', 'threads'):
@@ -42,18 +47,52 @@ class TorchTraining:
         object.__setattr__(self, 'learning_rate', float(self.learning_rate))
         object.__setattr__(self, 'seed', int(self.seed))
         object.__setattr__(self, 'threads', int(self.threads))
+        object.__setattr__(self, 'device', str(self.device))
+
+    def hyperparameters(self) -> dict:
+        """The settings that define the trained model (what a model file keeps): all but the
+        device."""
+        settings = asdict(self)
+        del settings['device']
+        return settings
+
+
+def torch_device(name: str) -> torch.device:
+    """The torch device called name ('cpu', 'cuda', 'cuda:1'), refused with the reason where
+    this machine cannot train on it."""
+    import torch
+
+    try:
+        device = torch.device(name)
+    except (RuntimeError, TypeError) as exc:
+        raise ValueError(f'unknown torch device {name!r}: {exc}') from None
+    if device.type == 'cuda':
+        if not torch.cuda.is_available():
+            raise ValueError(f'torch device {name!r}: torch {torch.__version__} sees no CUDA GPU '
+                             f'here (built for CUDA: {torch.version.cuda or "no"})')
+        if device.index is not None and device.index >= torch.cuda.device_count():
+            raise ValueError(f'torch device {name!r}: this machine has '
+                             f'{torch.cuda.device_count()} CUDA GPU(s)')
+    elif device.type != 'cpu':
+        raise ValueError(f'torch device {name!r}: training runs on cpu or cuda')
+    return device
 
 
 @contextmanager
-def reproducible_torch(threads: int) -> Iterator[None]:
+def reproducible_torch(threads: int, device: torch.device) -> Iterator[None]:
     """Torch set up for a reproducible fit, the caller's settings restored after.
 
     Fixed intra-op threads and deterministic algorithms, but without filling new memory with NaN
     (a debugging aid deterministic mode turns on; it changes no result of correct code and was a
-    quarter of a batched M4 step in torch's profiler).
+    quarter of a batched M4 step in torch's profiler). On a CUDA device, cuBLAS needs a fixed
+    workspace to be deterministic (torch.use_deterministic_algorithms refuses matmuls without
+    one), set here unless the caller chose one.
     """
     import torch
     import torch.utils.deterministic
+
+    if device.type == 'cuda':
+        os.environ.setdefault('CUBLAS_WORKSPACE_CONFIG', ':4096:8')
 
     saved = (torch.get_num_threads(), torch.are_deterministic_algorithms_enabled(),
              torch.utils.deterministic.fill_uninitialized_memory)
@@ -80,18 +119,19 @@ def fit_torch_regressor(build: Callable[[Any], torch.nn.Module], inputs: np.ndar
 
     if len(inputs) < 1:
         raise ValueError('cannot fit on an empty dataset')
-    with reproducible_torch(training.threads):
+    device = torch_device(training.device)
+    with reproducible_torch(training.threads, device):
         with torch.random.fork_rng(devices=[]):
             torch.manual_seed(training.seed)
-            module = build(torch).to(torch.float32)
-        x = torch.as_tensor(inputs, dtype=torch.float32)
-        y = torch.as_tensor(targets, dtype=torch.float32)
-        shuffle = torch.Generator().manual_seed(training.seed)
+            module = build(torch).to(torch.float32).to(device)
+        x = torch.as_tensor(inputs, dtype=torch.float32, device=device)
+        y = torch.as_tensor(targets, dtype=torch.float32, device=device)
+        shuffle = torch.Generator().manual_seed(training.seed)   # on the CPU: one order anywhere
         optimiser = torch.optim.Adam(module.parameters(), lr=training.learning_rate)
         loss_fn = torch.nn.MSELoss()
         module.train()
         for _ in range(training.epochs):
-            order = torch.randperm(len(x), generator=shuffle)
+            order = torch.randperm(len(x), generator=shuffle).to(device)
             for start in range(0, len(x), training.batch_size):
                 batch = order[start:start + training.batch_size]
                 optimiser.zero_grad(set_to_none=True)

@@ -6,6 +6,8 @@ fitting the folds one at a time (cross_validate(together=False), torch's own Ada
 all together (fit_bundles: M4 and M5 train as one stacked network, torch_batched.py). Both ways
 start from the same seeds, so their held-out errors must agree to float32 rounding; the table
 shows the seconds of each way, their ratio, and the largest per-fold e_hat difference.
+`--device cuda` trains M4 and M5 on a GPU (both ways; the data on the GPU, the shuffles
+drawn on the CPU as there), the GPU's name recorded with the results.
 Writes bench_train.json and bench_train.md in --out; the load average is recorded with them.
 """
 from __future__ import annotations
@@ -21,7 +23,7 @@ import numpy as np
 
 from tacforce_ros.estimation.cross_validation import cross_validate
 from tacforce_ros.estimation.preprocessing import SAMPLE_RATE_HZ
-from tacforce_ros.estimation.registry import PAPER_LABELS, paper_configurations
+from tacforce_ros.estimation.registry import PAPER_LABELS, TORCH_KINDS, paper_configurations
 from tacforce_ros.estimation.synthetic import PLATES, synthetic_dataset
 from tacforce_ros.paths import output_folder, write_results
 
@@ -43,10 +45,17 @@ def run_both(array, kind: str, hyper: dict, X: np.ndarray, F: np.ndarray,
             'e_hat_max_difference': float(difference.max())}
 
 
+def torch_gpu_name(device) -> str | None:
+    import torch
+
+    return torch.cuda.get_device_name(device) if device.type == 'cuda' else None
+
+
 def table(result: dict) -> str:
     lines = [f"## Training: {result['folds']} folds one at a time vs together",
              '', f"{result['array']} ({result['n_taxels']} taxels), {result['samples']} "
-             f"{result['source']} samples, {result['epochs']} epochs (M4, M5), "
+             f"{result['source']} samples, {result['epochs']} epochs (M4, M5, on "
+             f"{result['device']}), "
              f"load average before / after: {result['load_before'][0]:.2f} / "
              f"{result['load_after'][0]:.2f}", '',
              '| model | one at a time [s] | together [s] | speed-up | e_hat [N] one / together '
@@ -71,15 +80,19 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--models', nargs='+', default=['M3-lambda', 'M4', 'M5'],
                         choices=PAPER_LABELS)
     parser.add_argument('--seed', type=int, default=0)
+    parser.add_argument('--device', default='cpu',
+                        help="torch device that trains M4 and M5: 'cpu' (default), 'cuda'")
     parser.add_argument('--out', type=output_folder, default='bench_train_out')
     args = parser.parse_args(argv)
     if args.samples < 100 * args.folds or args.epochs < 1:
         parser.error('--samples must give >= 100 per plate and --epochs must be >= 1')
 
+    from tacforce_ros.estimation.torch_training import torch_device
     from tacforce_ros.hand.description import load_hand
     try:
         array = load_hand().array(args.array)
-    except KeyError as exc:
+        device = torch_device(args.device)
+    except (KeyError, ValueError) as exc:
         print(f'bench_train: {exc}', file=sys.stderr)
         return 2
     seconds = args.samples / args.folds / SAMPLE_RATE_HZ
@@ -90,12 +103,15 @@ def main(argv: list[str] | None = None) -> int:
     result = {'array': array.name, 'n_taxels': array.n_taxels, 'source': dataset.source,
               'samples': int(X.shape[0]), 'folds': args.folds, 'epochs': args.epochs,
               'python': platform.python_version(), 'torch': version('torch'),
-              'cpus': os.cpu_count(),
+              'cpus': os.cpu_count(), 'device': args.device,
+              'gpu': torch_gpu_name(device),
               'load_before': os.getloadavg(), 'models': {}}
     warm_up = np.concatenate([np.flatnonzero(dataset.plates == plate)[:200]
                               for plate in dataset.plate_names()])     # 200 samples per plate
     for label in args.models:
         kind, hyper = configs[label]
+        if kind in TORCH_KINDS:
+            hyper = {**hyper, 'device': args.device}
         # Torch's import and first calls cost seconds; pay them before the clock runs.
         run_both(array, kind, {**hyper, 'epochs': 1} if 'epochs' in hyper else hyper,
                  X[warm_up], F[warm_up], dataset.plates[warm_up])

@@ -29,13 +29,11 @@ from tacforce_ros.estimation.m3_lambda import DEFAULT_GRID
 from tacforce_ros.estimation.model_io import save_model
 from tacforce_ros.estimation.model_set import write_model_config
 from tacforce_ros.estimation.preprocessing import StaticSegmentError
-from tacforce_ros.estimation.registry import MODEL_KINDS
+from tacforce_ros.estimation.registry import MODEL_KINDS, TORCH_KINDS
 from tacforce_ros.estimation.training import fit_bundle, for_deployment
 from tacforce_ros.hand.description import (ARRAY_KIND_TITLES, DEFAULT_SIDE, SIDES,
                                            HandDescription, hand_config, load_hand, side_of)
 from tacforce_ros.paths import output_folder
-
-RANDOM_KINDS = ('M4', 'M5')     # trained from a random initialisation: they take a seed
 
 
 def code_version() -> str:
@@ -53,9 +51,9 @@ def code_version() -> str:
             return 'unknown'
 
 
-def model_hyper(kind: str, seed: int, lambda_cv: bool, lam: float) -> dict:
-    if kind in RANDOM_KINDS:
-        return {'seed': seed}
+def model_hyper(kind: str, seed: int, lambda_cv: bool, lam: float, device: str) -> dict:
+    if kind in TORCH_KINDS:
+        return {'seed': seed, 'device': device}
     if kind == 'M3-lambda':
         return {'lam': lam, 'lambda_grid': list(DEFAULT_GRID) if lambda_cv else None}
     return {}
@@ -176,6 +174,9 @@ def main(argv: list[str] | None = None) -> int:
                         help='choose the M3-lambda damping by CV nested in the training plates')
     parser.add_argument('--no-cv', action='store_true', help='skip leave-one-plate-out CV')
     parser.add_argument('--seed', type=int, default=0, help='seed of the random models (M4, M5)')
+    parser.add_argument('--device', default='cpu',
+                        help="torch device that trains M4 and M5: 'cpu' (default) or 'cuda', "
+                             "'cuda:N'")
     parser.add_argument('--static-force', type=float, default=0.3,
                         help='static segments: force within this of the F/T no-contact '
                              'reading [N] (default 0.3)')
@@ -190,6 +191,12 @@ def main(argv: list[str] | None = None) -> int:
     missing = [str(p) for p in args.inputs if not p.exists()]
     if missing:
         parser.error(f'inputs not found: {missing}')
+    if args.device != 'cpu' and set(args.kinds) & set(TORCH_KINDS):
+        from tacforce_ros.estimation.torch_training import torch_device
+        try:
+            torch_device(args.device)
+        except ValueError as exc:
+            parser.error(str(exc))
     try:
         read: dict = {}
         hand, by_array, dropped = load_inputs(expand_campaigns(args.inputs, read),
@@ -228,7 +235,7 @@ def main(argv: list[str] | None = None) -> int:
                 print(f'train: {name}: {exc}', file=sys.stderr)
                 return 2
         dataset, X, F, x_offset = prepared[name]
-        hyper = model_hyper(kind, args.seed, args.lambda_cv, args.lam)
+        hyper = model_hyper(kind, args.seed, args.lambda_cv, args.lam, args.device)
         # The shipped model trains in the cross-validation's own fit (final=True).
         validation = None if args.no_cv else cross_validate(array, kind, hyper, X, F,
                                                             dataset.plates, final=True)
@@ -236,7 +243,8 @@ def main(argv: list[str] | None = None) -> int:
         provenance = {'dataset': sorted({str(p) for p in args.inputs}),
                       'source': dataset.source, 'plates': dataset.plate_names(),
                       'samples': int(X.shape[0]), 'date': date, 'seed': args.seed,
-                      'code_version': version, 'metrics': cv}
+                      'code_version': version, 'metrics': cv,
+                      **({'trained_on': args.device} if kind in TORCH_KINDS else {})}
         bundle = (fit_bundle(array, kind, hyper, X, F, dataset.plates, x_offset=x_offset,
                              provenance=provenance) if validation is None else
                   for_deployment(validation.final, x_offset, provenance))

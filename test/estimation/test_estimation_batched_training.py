@@ -170,11 +170,12 @@ def test_the_hand_written_mlp_gradient_is_autograds(k, batch, hidden, seed):
 
 
 @settings(max_examples=10, deadline=None)
-@given(real=st.lists(st.integers(2, 9), min_size=1, max_size=3), seed=st.integers(0, 2 ** 16),
+@given(real=st.lists(st.integers(0, 9), min_size=1, max_size=3), seed=st.integers(0, 2 ** 16),
        phalanx=st.booleans())
 def test_the_hand_written_cnn_gradient_is_torchs_modules(real, seed, phalanx):
     """Each network's gradient and BatchNorm statistics against its own torch module in training
-    mode with MSELoss on its real samples; the batch holds 9 samples, the rest not real."""
+    mode with MSELoss on its real samples; the batch holds 9 samples, the rest not real. A
+    network with none (its epoch over) gets no gradient and keeps its statistics."""
     import torch
 
     array = PHALANX if phalanx else TIP
@@ -188,16 +189,24 @@ def test_the_hand_written_cnn_gradient_is_torchs_modules(real, seed, phalanx):
     x = torch.as_tensor(images, dtype=torch.float32).view(k, batch, *images.shape[1:])
     targets = torch.as_tensor(rng.standard_normal((k, batch, 3)), dtype=torch.float32)
     mask = torch.as_tensor(np.arange(batch)[None] < np.array(real)[:, None])
-    weights = (mask / (1.5 * torch.as_tensor(real, dtype=torch.float32))[:, None])[..., None]
+    weights = (mask / (1.5 * torch.as_tensor(real, dtype=torch.float32).clamp(min=1))[:, None])[
+        ..., None]
     states = [m.state_dict() for m in modules]
     params = {name: torch.stack([s[name] for s in states]).clone()
               for name, _ in modules[0].named_parameters()}
     buffers = {name: torch.stack([s[name] for s in states]).clone()
                for name in ('norm.running_mean', 'norm.running_var')}
+    before = {name: value.clone() for name, value in buffers.items()}
     with torch.no_grad():
         by_hand = stacked_cnn_gradient(torch, params, buffers, x, mask, targets, weights)
     for i, module in enumerate(modules):
         n = real[i]
+        if n == 0:
+            for name in by_hand:
+                assert not by_hand[name][i].any(), name
+            for name in buffers:
+                assert torch.equal(buffers[name][i], before[name][i]), name
+            continue
         prediction = module(x[i, :n].permute(0, 3, 1, 2))
         torch.nn.functional.mse_loss(prediction, targets[i, :n]).backward()
         for name, parameter in module.named_parameters():
@@ -223,3 +232,24 @@ def test_the_dense_form_of_a_valid_convolution_is_the_convolution():
             patch = image[i:i + k, j:j + k].transpose(2, 0, 1)        # (C, k, k)
             expected[i, j] = (weight * patch).sum(axis=(1, 2, 3))
     np.testing.assert_allclose(image.reshape(-1) @ matrix, expected.reshape(-1), rtol=1e-12)
+
+
+@pytest.mark.parametrize('device, reason', [('cuda:banana', 'unknown torch device'),
+                                            ('meta', 'training runs on cpu or cuda')])
+def test_a_device_training_cannot_run_on_is_refused_with_the_reason(device, reason):
+    with pytest.raises(ValueError, match=reason):
+        fit_both(MLPModel, [TIP], datasets(TIP, (20,)), epochs=1, device=device)
+
+
+@pytest.mark.parametrize('cls', [MLPModel, CNNModel])
+def test_the_training_device_is_not_a_hyperparameter_of_the_model(cls):
+    """Where a model trained is not what it is: its file does not keep the device, and the
+    explicit CPU trains as the default does, one at a time and stacked."""
+    data = datasets(TIP, (40, 30))
+    default = fit_both(cls, [TIP, TIP], data, epochs=1, batch_size=16)
+    explicit = fit_both(cls, [TIP, TIP], data, epochs=1, batch_size=16, device='cpu')
+    for a, b in zip(default[0] + default[1], explicit[0] + explicit[1]):
+        for name, value in a.state_arrays().items():
+            np.testing.assert_array_equal(b.state_arrays()[name], value)
+        assert 'device' not in b.hyperparameters()
+        assert b.hyperparameters() == a.hyperparameters()

@@ -89,3 +89,29 @@ def test_an_unwritable_output_folder_is_refused_before_any_work(tool, good_bag,
     assert time.monotonic() - started < 10.0, 'refused only after work began'   # work: minutes
     err = capsys.readouterr().err
     assert f'argument --out: {out}: cannot write there' in err, err
+
+
+@pytest.fixture
+def missing_gpu():
+    import torch
+
+    if torch.cuda.is_available():
+        pytest.skip('this machine has a CUDA GPU')
+    return 'cuda'
+
+
+def test_train_refuses_a_device_it_cannot_train_on_before_reading_the_inputs(
+        good_bag, tmp_path, capsys, missing_gpu):
+    with pytest.raises(SystemExit) as exit_info:
+        train.main([str(good_bag), '--out', str(tmp_path / 'out'), '--kinds', 'M4',
+                    '--device', missing_gpu])
+    assert exit_info.value.code == 2
+    err = capsys.readouterr().err
+    assert "torch device 'cuda': torch" in err and 'sees no CUDA GPU here' in err, err
+
+
+def test_bench_train_refuses_a_device_it_cannot_train_on(tmp_path, capsys, missing_gpu):
+    from tacforce_ros.tools import bench_train
+
+    assert bench_train.main(['--out', str(tmp_path / 'out'), '--device', missing_gpu]) == 2
+    assert "torch device 'cuda'" in capsys.readouterr().err

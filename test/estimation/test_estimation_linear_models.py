@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 from conftest import linear_problem
-from hypothesis import given
+from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from tacforce_ros.estimation.base import ModelNotFittedError
@@ -63,18 +63,27 @@ def test_damping_shrinks_weights_monotonically_but_not_the_bias(tip):
     np.testing.assert_allclose(heavy.predict(X).mean(axis=0), F.mean(axis=0), rtol=1e-6)
 
 
-def test_lambda_path_from_one_svd_equals_direct_solves():
-    rng = np.random.default_rng(4)
-    phi, F = rng.standard_normal((80, 12)), rng.standard_normal((80, 3))
+@settings(max_examples=40, deadline=None)
+@given(samples=st.integers(2, 60), features=st.integers(1, 12), rank=st.integers(1, 12),
+       seed=st.integers(0, 2 ** 16))
+def test_lambda_path_from_one_svd_equals_direct_solves(samples, features, rank, seed):
+    """Tall and wide designs, full rank and rank-deficient (columns repeated)."""
+    rng = np.random.default_rng(seed)
+    basis = rng.standard_normal((samples, min(rank, features)))
+    phi = basis @ rng.standard_normal((basis.shape[1], features))
+    F = rng.standard_normal((samples, 3))
     svd = CentredSVD.of(phi, F)
     for lam in (0.0, 0.5, 33.0):
         coef, intercept = svd.solve(lam)
-        # reference: augmented least squares [Phi_c; sqrt(lam) I] w = [F_c; 0] (no inverse)
+        # reference: augmented least squares [Phi_c; sqrt(lam) I] w = [F_c; 0] (no inverse);
+        # undamped, the minimum-norm solution
         pc, fc = phi - phi.mean(0), F - F.mean(0)
-        aug = np.vstack([pc, np.sqrt(lam) * np.eye(12)])
-        ref = np.linalg.lstsq(aug, np.vstack([fc, np.zeros((12, 3))]), rcond=None)[0].T
-        np.testing.assert_allclose(coef, ref, atol=1e-10)
-        np.testing.assert_allclose(intercept, F.mean(0) - ref @ phi.mean(0), atol=1e-10)
+        aug = np.vstack([pc, np.sqrt(lam) * np.eye(features)])
+        ref = np.linalg.lstsq(aug, np.vstack([fc, np.zeros((features, 3))]), rcond=None)[0].T
+        scale = 1.0 + np.abs(ref).max()
+        np.testing.assert_allclose(coef, ref, atol=1e-8 * scale)
+        np.testing.assert_allclose(intercept, F.mean(0) - ref @ phi.mean(0),
+                                   atol=1e-8 * scale * (1.0 + np.abs(phi).max()))
 
 
 @pytest.mark.parametrize('cls', LINEAR_KINDS)

@@ -205,12 +205,14 @@ def test_bench_train_times_both_ways_and_their_results_agree(tmp_path):
     assert code == 0
     result = json.loads((out / 'bench_train.json').read_text())
     assert result['samples'] == 2000 and result['folds'] == 5
+    assert result['device'] == 'cpu' and result['gpu'] is None
     for label in ('M3', 'M4'):
         row = result['models'][label]
         assert row['one_at_a_time']['seconds'] > 0 and row['together']['seconds'] > 0
         assert len(row['together']['e_hat_per_fold']) == 5
         assert row['e_hat_max_difference'] < 1e-4
     assert '| M4 |' in (out / 'bench_train.md').read_text()
+    assert '(M4, M5, on cpu)' in (out / 'bench_train.md').read_text()
 
 
 def test_bench_train_refuses_an_unwritable_output_before_training(tmp_path, capsys):

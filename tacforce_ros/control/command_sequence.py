@@ -44,7 +44,7 @@ class ForceSequence:
         """Force at time t (s) from the start; before 0 the first value, after the end the last."""
         if t >= self.duration:
             return self.end[-1].copy()
-        k = max(int(np.searchsorted(self.starts, t, side='right')) - 1, 0)
+        k = max(int(self.starts.searchsorted(t, side='right')) - 1, 0)
         alpha = min(max((t - self.starts[k]) / self.durations[k], 0.0), 1.0)
         return self.begin[k] + alpha * (self.end[k] - self.begin[k])
 

@@ -229,7 +229,8 @@ def ramp(value: float, target: float, step: float) -> float:
 def saturation_scale(tau: np.ndarray, limits: np.ndarray) -> float:
     """Largest common factor in (0, 1] that brings every |tau_j| within limits_j."""
     over = np.abs(tau) / limits
-    worst = float(np.max(over)) if over.size else 0.0
+    # np.maximum.reduce: np.max without its Python wrapper (up to three calls every tick)
+    worst = float(np.maximum.reduce(over)) if over.size else 0.0
     return 1.0 if worst <= 1.0 else 1.0 / worst
 
 
@@ -335,21 +336,24 @@ class ForceController:
         gravity_damping = (np.asarray(self.kinematics.gravity_torques(q), np.float64)[self.joints]
                            - self._k_d * qdf)
 
+        spring = self._k_p * (qf - self._q_d)   # the same in every torque() of this tick
+
         def torque(f_cmd: np.ndarray) -> np.ndarray:
-            return (jacobian.T @ (rotation @ f_cmd) + gravity_damping
-                    - self._k_p * (qf - self._q_d))
+            return jacobian.T @ (rotation @ f_cmd) + gravity_damping - spring
 
         tau_raw = torque(f_d + self._k_i * mem.integral)
         error = f_d - f_hat if estimate_fresh else np.zeros(3)
         # A long gap between ticks must not integrate as one big step.
         dt = min(elapsed, cfg.estimate_timeout)
         if force_target == 1.0 and dt > 0.0 and not self.open_loop and (f_d != 0.0).any():
-            rate = np.clip(error, -cfg.integral_rate_limit, cfg.integral_rate_limit)
-            candidate = np.clip(mem.integral + dt * rate, -cfg.integral_limit, cfg.integral_limit)
+            # np.clip's arithmetic (the limits are > 0) without its Python wrapper
+            rate = np.minimum(np.maximum(error, -cfg.integral_rate_limit), cfg.integral_rate_limit)
+            candidate = np.minimum(np.maximum(mem.integral + dt * rate, -cfg.integral_limit),
+                                   cfg.integral_limit)
             tau_candidate = torque(f_d + self._k_i * candidate)
             ratio_before = np.abs(tau_raw) / self._limits
             ratio_after = np.abs(tau_candidate) / self._limits
-            binding = int(np.argmax(ratio_before))
+            binding = int(ratio_before.argmax())
             deepens = (ratio_before[binding] > 1.0
                        and ratio_after[binding] > ratio_before[binding])
             if not deepens:

@@ -67,7 +67,6 @@ class ClosedLoopSimulator:
         others = np.ones(16, bool)
         others[self.joints] = False
         self.held = np.flatnonzero(others)
-        self._driven = ~others        # (16,) the pressing finger's joints
         self.held_pose = np.asarray(finger['others'], np.float64)
         self.held_kp, self.held_kd = float(finger['others_kp']), float(finger['others_kd'])
         self.tip_radius = float(finger['tip_radius'])
@@ -149,10 +148,11 @@ class ClosedLoopSimulator:
         self._tip_position, self._tip_com = data.xpos[self.tip], data.xipos[self.tip]
         self._tip_force, self._tip_torque = (data.xfrc_applied[self.tip, :3],
                                              data.xfrc_applied[self.tip, 3:])
-        self._s0_rotation, self._s0_position = data.xmat[self.s0].reshape(3, 3), data.xpos[self.s0]
-        self._qvel = data.qvel
+        self._s0_from_base = data.xmat[self.s0].reshape(3, 3).T   # rotates base -> {S0}
+        self._s0_position = data.xpos[self.s0]
+        self._qpos, self._qvel, self._qfrc_applied = data.qpos, data.qvel, data.qfrc_applied
+        self._f_from_base = self.r_base_f.T                           # base -> {F}
         self._last_frame: tuple | None = None
-        self._contact = (np.zeros(3), surface, self.up, False)
 
     # ------------------------------------------------------------------ contact
 
@@ -203,25 +203,25 @@ class ClosedLoopSimulator:
         if command.shape != (16,) or not np.isfinite(command).all():
             raise ValueError('joint_torques must be 16 finite values (N m), Allegro order')
         t = self.step_index * self.dt
-        torque = np.where(self._driven, command, 0.0)   # the others: their joint springs
+        torque = np.zeros(16)   # the others: their joint springs
+        torque[self.joints] = command[self.joints]
         state = StepState(t=t, contact=None, torque=torque)
         self.pipeline.run('torque', state)
         force, point, normal, active = self._contact_force()
         on_sensor = self._advance_object(force, normal)
-        data.qfrc_applied[:] = state.torque
+        self._qfrc_applied[:] = state.torque
         self._tip_force[:] = force
         mujoco.mju_cross(self._tip_torque, point - self._tip_com, force)
         mujoco.mj_step(self.model, data)
         # Ground truth and tactile frame in {S0}: the force the array applies (= -force on it).
-        rot_s0 = self._s0_rotation
-        true_force = rot_s0.T @ -force
-        state.q, state.qdot = data.qpos.copy(), data.qvel.copy()
+        true_force = self._s0_from_base @ -force
+        state.q, state.qdot = self._qpos.copy(), self._qvel.copy()
         fresh = self.step_index % self.frame_every == 0
         if fresh:
             # The dynamics' tip sphere only approximates the skin: the sensor sees the contact
             # where the skin is, with the skin's own normal; the force's tilt from it is shear.
             point_s0, skin_normal = skin_surface(self._taxel_positions, self._taxel_normals,
-                                                 rot_s0.T @ (point - self._s0_position))
+                                                 self._s0_from_base @ (point - self._s0_position))
             state.contact = Contact(true_force, point_s0, skin_normal,
                                     self.sensor.array.rotations[0][:, 0], active)
             self.sensor.measure(state)
@@ -230,8 +230,9 @@ class ClosedLoopSimulator:
             state.counts_out, state.temperatures, point_s0 = self._last_frame
         torque_at_sensor = np.empty(3)
         mujoco.mju_cross(torque_at_sensor, point - self.sensor_origin, on_sensor)
-        state.wrench = np.concatenate([self.r_base_f.T @ on_sensor,
-                                       self.r_base_f.T @ torque_at_sensor])
+        wrench = state.wrench = np.empty(6)
+        np.matmul(self._f_from_base, on_sensor, out=wrench[:3])
+        np.matmul(self._f_from_base, torque_at_sensor, out=wrench[3:])
         self.pipeline.run('wrench', state)
         self.pipeline.run('delivery', state)
         self.step_index += 1
@@ -253,7 +254,7 @@ class ClosedLoopSimulator:
         self.obj_x = max(self.obj_x + dt * self.obj_v, 0.0)
         if self.obj_x == 0.0:
             self.obj_v = max(self.obj_v, 0.0)
-        shear = -(force_on_finger - push * self.up)
+        shear = push * self.up - force_on_finger   # -(f - push up), exactly
         return -spring * self.up + shear
 
     # ------------------------------------------------------------------ exact model access

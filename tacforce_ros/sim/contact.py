@@ -35,13 +35,17 @@ def skin_surface(positions: np.ndarray, normals: np.ndarray, point: np.ndarray
     blended centre with their blended normal, so a contact placed by the operator or by the
     fingertip dynamics sits on the same surface, with the normal the sensor chain assumes.
     """
-    weight = np.exp(-0.5 * np.sum((positions - point) ** 2, axis=1) / SURFACE_BLEND ** 2)
-    if weight.sum() < 1e-12:   # far from every taxel: the nearest one decides
+    # np.add.reduce: np.sum without its Python wrapper (this runs on every closed-loop frame)
+    dist2 = np.add.reduce((positions - point) ** 2, axis=1)
+    weight = np.exp(-0.5 * dist2 / SURFACE_BLEND ** 2)
+    total = np.add.reduce(weight)
+    if total < 1e-12:   # far from every taxel: the nearest one decides
         weight = np.zeros(len(positions))
-        weight[np.argmin(np.sum((positions - point) ** 2, axis=1))] = 1.0
+        weight[np.argmin(dist2)] = 1.0
+        total = 1.0
     normal = weight @ normals
     normal /= np.sqrt(normal @ normal)
-    anchor = weight @ positions / weight.sum()
+    anchor = weight @ positions / total
     return point - ((point - anchor) @ normal) * normal, normal
 
 
@@ -66,6 +70,7 @@ class PressureModel:
         dist2 = np.sum((self.positions[:, None] - self.positions[None]) ** 2, axis=-1)
         kernel = np.exp(-0.5 * dist2 / spread ** 2)
         self.kernel = kernel / kernel.sum(axis=0, keepdims=True)   # columns conserve load
+        self._active_counts = np.arange(1, len(self.positions) + 1)   # m = 1 .. n
         self.depth = 0.0
 
     def gaps(self, contact: Contact) -> np.ndarray:
@@ -74,7 +79,7 @@ class PressureModel:
         height = d @ contact.normal                 # <= 0 where the array curves away
         tangent = d - height[:, None] * contact.normal
         if self.plate.shape == 'sphere':
-            surface = np.sum(tangent ** 2, axis=1) / (2.0 * self.plate.radius)
+            surface = np.add.reduce(tangent ** 2, axis=1) / (2.0 * self.plate.radius)
         elif self.plate.shape == 'cylinder':
             across = tangent @ cross(contact.normal, contact.axis)
             surface = across ** 2 / (2.0 * self.plate.radius)
@@ -89,13 +94,13 @@ class PressureModel:
             self.depth = 0.0
             return np.zeros(len(self.positions))
         gap = self.gaps(contact)
-        gap = gap - gap.min()
+        gap = gap - np.minimum.reduce(gap)
         order = np.sort(gap)
         # With the m smallest gaps active: depth_m = (F/k + sum of those gaps) / m; the right m
-        # is the largest whose m-th gap lies below its depth.
-        m = np.arange(1, len(order) + 1)
-        depth = (normal_force / self.stiffness + np.cumsum(order)) / m
+        # is the largest whose m-th gap lies below its depth. (add.accumulate is np.cumsum, and
+        # add.reduce np.sum, without their Python wrappers: this runs on every tactile frame.)
+        depth = (normal_force / self.stiffness + np.add.accumulate(order)) / self._active_counts
         count = int(np.count_nonzero(order < depth))
         self.depth = float(depth[max(count, 1) - 1])
         load = self.kernel @ np.maximum(self.depth - gap, 0.0)
-        return load / load.sum()
+        return load / np.add.reduce(load)

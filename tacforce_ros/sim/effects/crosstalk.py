@@ -24,9 +24,15 @@ class Crosstalk(Effect):
         # random weight per taxel (a property of the hand) stands in for that distance.
         self._weights = self.coupling * rng.uniform(0.2, 1.0, (len(self._targets), 1))
         self._ctx = ctx   # rest counts are final only after the response stage
+        self._source_idle = None   # the source's rest counts, taken at the first frame
 
     def on_counts(self, state) -> None:
-        change = (state.counts[self._source] - self._ctx.idle_counts[self._source]).mean(axis=0)
+        if self._source_idle is None:
+            self._source_idle = self._ctx.idle_counts[self._source]
+        # the mean over the source taxels as np.mean computes it (sum, then / count), without
+        # its Python wrapper: this runs on every tactile frame
+        change = np.add.reduce(state.counts[self._source] - self._source_idle, axis=0)
+        change /= len(self._source)
         state.counts[self._targets] += self._weights * change
 
 

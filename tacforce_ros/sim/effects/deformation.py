@@ -30,28 +30,29 @@ class Deformation(Effect):
         self._key = b''
 
     def _geometry(self, point: np.ndarray, normal: np.ndarray) -> None:
-        """Turn axes, full angles and distance fall-off for one contact location (cached: the
-        operator holds a location through a press)."""
+        """Turn axes and full angles times the distance fall-off for one contact location
+        (cached: the operator holds a location through a press)."""
         key = point.tobytes() + normal.tobytes()
         if key == self._key:
             return
         self._key = key
-        dist2 = np.sum((self._positions - point) ** 2, axis=1)
-        self._falloff = self.max_fraction * np.exp(-0.5 * dist2 / self.reach ** 2)
+        # np.add.reduce is np.sum without its Python wrapper: the contact moves every frame of
+        # a closed loop, so this runs once per frame there.
+        dist2 = np.add.reduce((self._positions - point) ** 2, axis=1)
+        falloff = self.max_fraction * np.exp(-0.5 * dist2 / self.reach ** 2)
         axis = cross(self._normals, normal)
-        sin_angle = np.sqrt(np.sum(axis * axis, axis=1))
-        self._angle = np.arctan2(sin_angle, self._normals @ normal)
+        sin_angle = np.sqrt(np.add.reduce(axis * axis, axis=1))
+        self._turn = falloff * np.arctan2(sin_angle, self._normals @ normal)
         self._unit = axis / np.maximum(sin_angle, 1e-12)[:, None]
 
     def on_taxel_force(self, state) -> None:
         if state.depth <= 0.0:
             return
         self._geometry(state.contact.point, state.contact.normal)
-        theta = (self._falloff * self._angle
-                 * (1.0 - np.exp(-state.depth / self.depth_scale)))[:, None]
+        theta = (self._turn * (1.0 - np.exp(-state.depth / self.depth_scale)))[:, None]
         force, unit = state.taxel_force, self._unit
         # Q^T f = f cos(t) - (k x f) sin(t) + k (k . f)(1 - cos(t))
-        along = np.sum(unit * force, axis=1, keepdims=True)
+        along = np.add.reduce(unit * force, axis=1, keepdims=True)
         cos = np.cos(theta)
         state.taxel_force = (force * cos - cross(unit, force) * np.sin(theta)
                              + unit * along * (1.0 - cos))

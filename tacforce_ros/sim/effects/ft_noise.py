@@ -31,14 +31,19 @@ class FTNoise(Effect):
 
     def on_wrench(self, state) -> None:
         if self._next == BLOCK:
-            # A block of steps' draws at once: the same numbers, in the same order, as three
-            # and six per step, at a fraction of the calls.
-            self._block = self._rng.standard_normal((BLOCK, 9))
+            # A block of steps' draws at once, scaled at once: the same numbers, in the same
+            # order, as three and six per step, at a fraction of the calls. The force bias's
+            # walk over the block is summed in step order (add.accumulate adds row after row).
+            draws = self._rng.standard_normal((BLOCK, 9))
+            walk = np.vstack([self._bias[:3], self._step * draws[:, :3]])
+            self._biases = np.empty((BLOCK, 6))
+            self._biases[:, :3] = np.add.accumulate(walk)[1:]
+            self._biases[:, 3:] = self._bias[3:]
+            self._bias = self._biases[-1].copy()
+            self._noise = self._sigma * draws[:, 3:]
             self._next = 0
-        draws = self._block[self._next]
+        state.wrench = state.wrench + self._biases[self._next] + self._noise[self._next]
         self._next += 1
-        self._bias[:3] += self._step * draws[:3]
-        state.wrench = state.wrench + self._bias + self._sigma * draws[3:]
 
 
 EFFECT = FTNoise

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 from collections import deque
 from dataclasses import dataclass, field
+from operator import attrgetter
 
 import numpy as np
 
@@ -30,12 +31,18 @@ class Transport(Effect):
         self._rng = rng
         self._dt = ctx.physics_dt
         self._streams = tuple(STREAM_FIELDS)
-        self._fields = tuple(STREAM_FIELDS[s] for s in self._streams)
         self._latency = np.array([self.latency[s] for s in self._streams])
         self._jitter = np.array([self.jitter[s] for s in self._streams])
         self._drop = np.array([self.drop[s] for s in self._streams])
         depth = np.ceil((self._latency + 4.0 * self._jitter) / self._dt).astype(int) + 1
-        self._history = [deque(maxlen=int(d)) for d in depth]
+        # One history of every carried field per step (one C call to take), each stream
+        # reaching back at most its own depth - 1 steps.
+        carried = [name for s in self._streams for name in STREAM_FIELDS[s]]
+        self._snapshot = attrgetter(*carried)
+        self._fields = tuple(tuple((name, carried.index(name)) for name in STREAM_FIELDS[s])
+                             for s in self._streams)
+        self._reach = tuple(int(d) - 1 for d in depth)
+        self._history = deque(maxlen=int(depth.max()))
         self._next = BLOCK
 
     def _draw(self) -> None:
@@ -53,13 +60,15 @@ class Transport(Effect):
             self._draw()
         delays, dropped = self._delay[self._next], self._dropped[self._next]
         self._next += 1
-        for stream, history, fields, delay, lost in zip(self._streams, self._history,
-                                                         self._fields, delays, dropped):
-            history.append(tuple([getattr(state, f) for f in fields]))
+        history = self._history
+        history.append(self._snapshot(state))
+        newest = len(history) - 1
+        for stream, fields, reach, delay, lost in zip(self._streams, self._fields, self._reach,
+                                                      delays, dropped):
             if delay:   # (no delay: the step's own values go out as they are)
-                past = history[max(len(history) - 1 - delay, 0)]
-                for name, value in zip(fields, past):
-                    setattr(state, name, value)
+                past = history[newest - min(delay, reach, newest)]
+                for name, index in fields:
+                    setattr(state, name, past[index])
             if lost:
                 state.delivered[stream] = False
 

@@ -102,7 +102,10 @@ class HandKinematics:
         q = self._pin_q(q16)
         jac = pin.computeFrameJacobian(self.model, self.data, q, frame_id,
                                        pin.ReferenceFrame.LOCAL_WORLD_ALIGNED)
-        self._q_last = None   # computeFrameJacobian refreshes only what it needs
+        # It ran the joints' forward kinematics at q: the frames follow from those, so the
+        # frame poses read next at this q (the controller's R^0_F) need no pass of their own.
+        pin.updateFramePlacements(self.model, self.data)
+        self._q_last = q
         linear, angular = jac[:3, cols], jac[3:, cols]
         if point is None:
             return linear.copy()

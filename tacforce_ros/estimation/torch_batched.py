@@ -136,25 +136,28 @@ def fit_stacked(builds: Sequence[Callable[[Any], torch.nn.Module]],
                 :, None, None].to(device)
 
         full_weights = sample_weights(np.full(k, batch_size))
-        for _ in range(epochs):
-            order = torch.zeros((k, steps * batch_size), dtype=torch.long)
-            for i, (size, shuffle) in enumerate(zip(sizes, shuffles)):
-                order[i, :size] = torch.randperm(int(size), generator=shuffle)
-            order = (order + first_rows).to(device)
-            for start in range(0, steps * batch_size, batch_size):
-                counts = np.clip(sizes - start, 0, batch_size)
-                mask = real[:, start:start + batch_size]
-                batch = samples.index_select(0, order[:, start:start + batch_size].reshape(-1))
-                batch = batch.view(k, batch_size, width + outputs)
-                x = batch[..., :width].view(k, batch_size, *feature_shape)
-                step_weights = full_weights
-                if counts.min() < batch_size:
-                    step_weights = sample_weights(counts) * mask[..., None]
-                grads = gradient(torch, params, weights.buffers, x, mask, batch[..., width:],
-                                 step_weights)
-                weights.flat.grad = torch.cat([grads[name].reshape(k, -1)
-                                               for name in weights.shapes], dim=1)
-                adam.step(counts > 0)
+        # The gradients are by hand, so autograd has nothing to track: inference mode drops its
+        # per-operation bookkeeping (an M5 gradient 2070 -> 1872 us against no mode, best of 6,
+        # 2026-11-26).
+        with torch.inference_mode():
+            for _ in range(epochs):
+                order = torch.zeros((k, steps * batch_size), dtype=torch.long)
+                for i, (size, shuffle) in enumerate(zip(sizes, shuffles)):
+                    order[i, :size] = torch.randperm(int(size), generator=shuffle)
+                order = (order + first_rows).to(device)
+                for start in range(0, steps * batch_size, batch_size):
+                    counts = np.clip(sizes - start, 0, batch_size)
+                    mask = real[:, start:start + batch_size]
+                    batch = samples.index_select(0, order[:, start:start + batch_size].reshape(-1))
+                    batch = batch.view(k, batch_size, width + outputs)
+                    x = batch[..., :width].view(k, batch_size, *feature_shape)
+                    step_weights = full_weights
+                    if counts.min() < batch_size:
+                        step_weights = sample_weights(counts) * mask[..., None]
+                    grads = gradient(torch, params, weights.buffers, x, mask, batch[..., width:],
+                                     step_weights)
+                    adam.step(torch.cat([grads[name].reshape(k, -1) for name in weights.shapes],
+                                        dim=1), counts > 0)
         return weights.states()
 
 
@@ -200,20 +203,20 @@ class _MaskedAdam:
         self.second = torch.zeros_like(flat, requires_grad=False)
         self.steps = np.zeros(flat.shape[0], dtype=np.int64)
 
-    def step(self, active: np.ndarray) -> None:
-        """One update of the rows where `active` (k,) is True, from flat.grad."""
+    def step(self, gradient: torch.Tensor, active: np.ndarray) -> None:
+        """One update of the rows where `active` (k,) is True, from their (k, P) gradient."""
         torch = self.torch
         beta1, beta2 = ADAM_BETAS
         self.steps += active
         with torch.no_grad():
             if active.all():
                 rows, steps = None, self.steps
-                param, first, second, grad = self.flat, self.first, self.second, self.flat.grad
+                param, first, second, grad = self.flat, self.first, self.second, gradient
             else:
                 rows = torch.from_numpy(np.flatnonzero(active)).to(self.flat.device)
                 steps = self.steps[active]
                 param, first, second = self.flat[rows], self.first[rows], self.second[rows]
-                grad = self.flat.grad[rows]
+                grad = gradient[rows]
             first.lerp_(grad, 1 - beta1)
             second.mul_(beta2).addcmul_(grad, grad, value=1 - beta2)
             # Bias corrections in float64, then float32, as Adam's python-float scalars are.

@@ -7,25 +7,17 @@ decomposition: W^T = V diag(s / (s^2 + lam)) U^T F_c. No normal equations, no in
 The design is tall (10^5 samples, <= 10^2 features), so the SVD is taken of the triangular
 factor of a QR of [Phi_c | F_c] instead: Phi_c = Q1 R11 and F_c = Q1 R12 + (orthogonal rest),
 so Phi_c has R11's singular values and right vectors and U^T F_c = U11^T R12, with Q and the
-tall U never formed. The R is taken block by block (TSQR: the R of the blocks' Rs stacked is
-the whole matrix's), each block's QR staying in cache. Same solution to rounding; on 160 000 x
-93, one thread (2026-11-26, load ~1.8, best of 3): numpy's SVD of the tall matrix 1.69 s, one
-QR 0.76 s, QR by blocks of 2048 rows 0.32 s (1024: 0.32, 4096: 0.36, 20 000: 0.58 s).
+tall U never formed. Same solution to rounding. On 160 000 x 90, each of two processes running
+at once as the main job's workers do (2026-11-26): numpy's SVD of the tall matrix 3.0 s, one QR
+1.5 s. A QR by blocks of 2048 rows (TSQR) was faster alone (0.32 against 0.76 s, one thread)
+but 9.2 s there: each small LAPACK call makes OpenBLAS's threads meet, and two processes' threads
+on two cores wait on each other.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
 
 import numpy as np
-
-QR_BLOCK_ROWS = 2048
-
-
-def triangular_factor(a: np.ndarray) -> np.ndarray:
-    """R of a QR of a (min(rows, columns) x columns), Q never formed, block by block."""
-    blocks = [np.linalg.qr(a[i:i + QR_BLOCK_ROWS], mode='r')
-              for i in range(0, len(a), QR_BLOCK_ROWS)]
-    return blocks[0] if len(blocks) == 1 else np.linalg.qr(np.vstack(blocks), mode='r')
 
 
 @dataclass(frozen=True)
@@ -49,7 +41,7 @@ class CentredSVD:
         phi_mean = phi.mean(axis=0)
         f_mean = F.mean(axis=0)
         p = phi.shape[1]
-        r = triangular_factor(np.hstack([phi - phi_mean, F - f_mean]))[:p]
+        r = np.linalg.qr(np.hstack([phi - phi_mean, F - f_mean]), mode='r')[:p]
         u, s, vt = np.linalg.svd(r[:, :p], full_matrices=False)
         return cls(phi_mean=phi_mean, f_mean=f_mean, s=s, vt=vt, utf=u.T @ r[:, p:])
 

@@ -6,7 +6,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from tacforce_ros.estimation.base import ModelNotFittedError
-from tacforce_ros.estimation.least_squares import QR_BLOCK_ROWS, CentredSVD, fit_affine
+from tacforce_ros.estimation.least_squares import CentredSVD, fit_affine
 from tacforce_ros.estimation.m1_rotation_linear import M1Linear, rotated_sum
 from tacforce_ros.estimation.m2_rotation_quadratic import M2Quadratic, quadratic_features
 from tacforce_ros.estimation.m3_lambda import M3Lambda
@@ -64,10 +64,10 @@ def test_damping_shrinks_weights_monotonically_but_not_the_bias(tip):
 
 
 @settings(max_examples=40, deadline=None)
-@given(samples=st.sampled_from([2, 5, 13, 60, QR_BLOCK_ROWS + 7, 2 * QR_BLOCK_ROWS]),
-       features=st.integers(1, 12), rank=st.integers(1, 12), seed=st.integers(0, 2 ** 16))
+@given(samples=st.integers(2, 300), features=st.integers(1, 12), rank=st.integers(1, 12),
+       seed=st.integers(0, 2 ** 16))
 def test_lambda_path_from_one_svd_equals_direct_solves(samples, features, rank, seed):
-    """Tall and wide designs, full rank and rank-deficient, in one QR block or several."""
+    """Tall and wide designs, full rank and rank-deficient."""
     rng = np.random.default_rng(seed)
     basis = rng.standard_normal((samples, min(rank, features)))
     phi = basis @ rng.standard_normal((basis.shape[1], features))

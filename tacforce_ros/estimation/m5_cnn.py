@@ -367,7 +367,7 @@ class BatchNormFold:
     def __init__(self, torch: Any, y: torch.Tensor, mask: torch.Tensor, channels: int,
                  params: dict, buffers: dict) -> None:
         k, batch = mask.shape
-        self.torch, self.y, self.params = torch, y, params
+        self.torch, self.y = torch, y
         self.cells = y.shape[2] // channels
         values = y.view(k, batch * self.cells, channels)
         real = mask.sum(dim=1)
@@ -389,7 +389,9 @@ class BatchNormFold:
         self.mean, self.count = mean, count.clamp(min=1)
         self.inverse_std = torch.rsqrt(variance + BN_EPS)
         self.scale = params['norm.weight'] * self.inverse_std
-        self.shift = params['norm.bias'] - mean * self.scale
+        shift = params['norm.bias'] - mean * self.scale
+        # s and t per activation (the fold and the backward both read them)
+        self.cell_scale, self.cell_shift = self.per_cell(self.scale), self.per_cell(shift)
 
     def per_cell(self, value: torch.Tensor) -> torch.Tensor:
         """(k, C) per channel -> (k, cells * C) in the activations' channels-last order."""
@@ -397,8 +399,8 @@ class BatchNormFold:
 
     def fold(self, matrix: torch.Tensor, bias: torch.Tensor) -> tuple:
         """The matmul's matrix and bias with the normalisation folded in."""
-        self.applied = matrix * self.per_cell(self.scale)[:, :, None]
-        return self.applied, self.torch.baddbmm(bias, self.per_cell(self.shift)[:, None], matrix)
+        self.applied = matrix * self.cell_scale[:, :, None]
+        return self.applied, self.torch.baddbmm(bias, self.cell_shift[:, None], matrix)
 
     def backward(self, d_z: torch.Tensor, matrix: torch.Tensor, grads: dict) -> tuple:
         """From the folded matmul's output gradient d_z: the gradient of the unfolded matrix and
@@ -411,8 +413,8 @@ class BatchNormFold:
         torch, k, channels = self.torch, d_z.shape[0], self.mean.shape[1]
         y_d_z = torch.bmm(self.y.transpose(1, 2), d_z)               # (k, cells * C, outputs)
         column_sums = d_z.sum(dim=1)
-        d_matrix = (y_d_z * self.per_cell(self.scale)[:, :, None]
-                    + self.per_cell(self.shift)[:, :, None] * column_sums[:, None])
+        d_matrix = (y_d_z * self.cell_scale[:, :, None]
+                    + self.cell_shift[:, :, None] * column_sums[:, None])
         per_channel = (lambda v: v.view(k, self.cells, channels).sum(dim=1))
         g_sum = per_channel(torch.bmm(column_sums[:, None], matrix.transpose(1, 2))[:, 0])
         g_y = per_channel((matrix * y_d_z).sum(dim=2))

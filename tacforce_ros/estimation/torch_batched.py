@@ -208,25 +208,24 @@ class _MaskedAdam:
         torch = self.torch
         beta1, beta2 = ADAM_BETAS
         self.steps += active
-        with torch.no_grad():
-            if active.all():
-                rows, steps = None, self.steps
-                param, first, second, grad = self.flat, self.first, self.second, gradient
-            else:
-                rows = torch.from_numpy(np.flatnonzero(active)).to(self.flat.device)
-                steps = self.steps[active]
-                param, first, second = self.flat[rows], self.first[rows], self.second[rows]
-                grad = gradient[rows]
-            first.lerp_(grad, 1 - beta1)
-            second.mul_(beta2).addcmul_(grad, grad, value=1 - beta2)
-            # Bias corrections in float64, then float32, as Adam's python-float scalars are.
-            step_size = torch.from_numpy(self.learning_rate / (1 - beta1 ** steps)).float().to(
-                self.flat.device)
-            correction2 = torch.from_numpy(np.sqrt(1 - beta2 ** steps)).float().to(
-                self.flat.device)
-            denominator = second.sqrt().div_(correction2[:, None]).add_(ADAM_EPS)
-            param.sub_(first.div(denominator).mul_(step_size[:, None]))
-            if rows is not None:
-                self.flat.index_copy_(0, rows, param)
-                self.first.index_copy_(0, rows, first)
-                self.second.index_copy_(0, rows, second)
+        if active.all():
+            rows, steps = None, self.steps
+            param, first, second, grad = self.flat, self.first, self.second, gradient
+        else:
+            rows = torch.from_numpy(np.flatnonzero(active)).to(self.flat.device)
+            steps = self.steps[active]
+            param, first, second = self.flat[rows], self.first[rows], self.second[rows]
+            grad = gradient[rows]
+        first.lerp_(grad, 1 - beta1)
+        second.mul_(beta2).addcmul_(grad, grad, value=1 - beta2)
+        # Bias corrections in float64, then float32, as Adam's python-float scalars are.
+        step_size = torch.from_numpy(self.learning_rate / (1 - beta1 ** steps)).float().to(
+            self.flat.device)
+        correction2 = torch.from_numpy(np.sqrt(1 - beta2 ** steps)).float().to(
+            self.flat.device)
+        denominator = second.sqrt().div_(correction2[:, None]).add_(ADAM_EPS)
+        param.sub_(first.div(denominator).mul_(step_size[:, None]))
+        if rows is not None:
+            self.flat.index_copy_(0, rows, param)
+            self.first.index_copy_(0, rows, first)
+            self.second.index_copy_(0, rows, second)

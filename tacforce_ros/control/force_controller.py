@@ -345,7 +345,7 @@ class ForceController:
         error = f_d - f_hat if estimate_fresh else np.zeros(3)
         # A long gap between ticks must not integrate as one big step.
         dt = min(elapsed, cfg.estimate_timeout)
-        if force_target == 1.0 and dt > 0.0 and not self.open_loop and (f_d != 0.0).any():
+        if force_target == 1.0 and dt > 0.0 and not self.open_loop and f_d.any():
             # np.clip's arithmetic (the limits are > 0) without its Python wrapper
             rate = np.minimum(np.maximum(error, -cfg.integral_rate_limit), cfg.integral_rate_limit)
             candidate = np.minimum(np.maximum(mem.integral + dt * rate, -cfg.integral_limit),

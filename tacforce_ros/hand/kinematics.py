@@ -37,7 +37,9 @@ class HandKinematics:
                                  for n in self.joint_names], dtype=np.int64)
         self._frame_ids: dict[str, int] = {}
         self._tip_frames = {f: self._frame_id(link) for f, link in TIP_LINKS.items()}
-        self._q_last: np.ndarray | None = None
+        self._q_last: np.ndarray | None = None   # the q of data's frame placements
+        self._q16_bytes = b''                       # the last q16 asked about, and its q
+        self._q_pin = np.zeros(N_JOINTS)
 
     @classmethod
     def for_hand(cls, hand: HandDescription, **kwargs) -> 'HandKinematics':
@@ -106,9 +108,9 @@ class HandKinematics:
         # frame poses read next at this q (the controller's R^0_F) need no pass of their own.
         pin.updateFramePlacements(self.model, self.data)
         self._q_last = q
-        linear, angular = jac[:3, cols], jac[3:, cols]
+        linear, angular = jac[:3, cols], jac[3:, cols]   # copies (cols is an index array)
         if point is None:
-            return linear.copy()
+            return linear
         # Velocity of a point offset by r (base axes) from the frame origin: v + w x r.
         r = self.data.oMf[frame_id].rotation @ np.asarray(point, dtype=np.float64).reshape(3)
         return linear - _skew(r) @ angular
@@ -129,19 +131,25 @@ class HandKinematics:
         return frame_id
 
     def _pin_q(self, q16: np.ndarray) -> np.ndarray:
+        """q16 checked and in Pinocchio's joint order. A controller tick asks several
+        questions at one q: the same q16 returns the same array, checked once."""
         q16 = np.asarray(q16, dtype=np.float64)
         if q16.shape != (N_JOINTS,):
             raise ValueError(f'q16 must have shape ({N_JOINTS},), got {q16.shape}')
+        key = q16.tobytes()
+        if key == self._q16_bytes:
+            return self._q_pin
         if not np.isfinite(q16).all():
             raise ValueError('q16 contains non-finite values')
         q = np.empty(N_JOINTS)
         q[self._to_pin] = q16
+        self._q16_bytes, self._q_pin = key, q
         return q
 
     def _placement(self, q16: np.ndarray, frame_id: int) -> pin.SE3:
         q = self._pin_q(q16)
         # Several frames are usually read at one q (R^0_F needs two): run kinematics once per q.
-        if self._q_last is None or not np.array_equal(q, self._q_last):
+        if q is not self._q_last:
             pin.framesForwardKinematics(self.model, self.data, q)
             self._q_last = q
         return self.data.oMf[frame_id]

@@ -23,6 +23,7 @@ from tacforce_ros.sim.operator import FINGER_JOINTS
 from tacforce_ros.sim.sample import SimSample, StepState
 from tacforce_ros.sim.scene import CLOSED_LOOP_FINGER, Scene, SceneError
 from tacforce_ros.sim.sensors import TactileSensor
+from tacforce_ros.sim.vector import Vec3, add3, cross3, dot3, matTvec3, matvec3, scale3, sub3
 
 FRICTION = 1.0   # silicone skin on PLA / YCB surfaces: grippy; our estimate
 # Rotor inertia reflected through the Allegro gearbox, per joint (our estimate); it also keeps
@@ -67,6 +68,7 @@ class ClosedLoopSimulator:
         others = np.ones(16, bool)
         others[self.joints] = False
         self.held = np.flatnonzero(others)
+        self._driven = (~others).astype(np.float64)   # 1 on the pressing finger's joints
         self.held_pose = np.asarray(finger['others'], np.float64)
         self.held_kp, self.held_kd = float(finger['others_kp']), float(finger['others_kd'])
         self.tip_radius = float(finger['tip_radius'])
@@ -116,7 +118,8 @@ class ClosedLoopSimulator:
         self.data = mujoco.MjData(self.model)
         self.tip = self.model.body(build.tip_body).id
         self.radius = self.tip_radius + build.tip_radius_extra
-        self.offset = build.contact_offset
+        # Single 3-vectors of the step path are tuples of floats (sim/vector.py says why).
+        self.offset: Vec3 = tuple(build.contact_offset.tolist())
         self.s0 = self.model.body(self.sensor.array.frame_id).id
         ft = self.model.body(self.hand.rig_frame(self.finger)).id
         # The lab places the rig so the plate just touches the (real) fingertip at the contact
@@ -124,20 +127,20 @@ class ClosedLoopSimulator:
         self.data.qpos[:] = self._q(self.contact_pose)
         mujoco.mj_kinematics(self.model, self.data)
         rot = self.data.xmat[self.tip].reshape(3, 3)
-        tip_centre = self.data.xpos[self.tip] + rot @ self.offset
+        tip_centre = add3(self.data.xpos[self.tip].tolist(), matvec3(rot.tolist(), self.offset))
         self.r_base_f = self.data.xmat[ft].reshape(3, 3).copy()
-        self.up = self.r_base_f[:, 2]          # plate/object surface normal, towards the finger
-        surface = tip_centre - self.radius * self.up   # where the tip touches at contact pose
+        self.up: Vec3 = tuple(self.r_base_f[:, 2].tolist())   # plate/object normal, to the finger
+        surface = add3(tip_centre, self.up, -self.radius)   # where the tip touches at contact
         obj = self.scene.soft_object
         if obj is None:
-            self.plate_centre = surface - self.scene.plate.radius * self.up
+            self.plate_centre = add3(surface, self.up, -self.scene.plate.radius)
             self.sensor_origin = surface
         else:
-            self.sensor_origin = surface - obj.thickness * self.up
+            self.sensor_origin = add3(surface, self.up, -obj.thickness)
         self.surface = surface
         self.obj = obj
         self.obj_x = self.obj_v = 0.0              # object compression and its rate
-        self.anchor: np.ndarray | None = None      # stick point of the tangential spring
+        self.anchor: Vec3 | None = None            # stick point of the tangential spring
         self.data.qpos[:] = self._q(self.pose)
         mujoco.mj_forward(self.model, self.data)
         self.step_index = 0
@@ -148,52 +151,58 @@ class ClosedLoopSimulator:
         self._tip_position, self._tip_com = data.xpos[self.tip], data.xipos[self.tip]
         self._tip_force, self._tip_torque = (data.xfrc_applied[self.tip, :3],
                                              data.xfrc_applied[self.tip, 3:])
-        self._s0_from_base = data.xmat[self.s0].reshape(3, 3).T   # rotates base -> {S0}
+        self._s0_rotation = data.xmat[self.s0].reshape(3, 3)   # {S0} -> base; its T: base -> {S0}
         self._s0_position = data.xpos[self.s0]
         self._qpos, self._qvel, self._qfrc_applied = data.qpos, data.qvel, data.qfrc_applied
-        self._f_from_base = self.r_base_f.T                           # base -> {F}
+        self._f_from_base = self.r_base_f.T.tolist()                      # base -> {F}
+        self._array_axis = self.sensor.array.rotations[0][:, 0]
         self._last_frame: tuple | None = None
 
     # ------------------------------------------------------------------ contact
 
     def contact_point(self) -> np.ndarray:
         """Current contact point on the fingertip sphere, base frame."""
-        centre = self._tip_position + self._tip_rotation @ self.offset
-        return centre - self.radius * self._surface(centre)[0]
+        centre = self._centre()
+        return np.array(add3(centre, self._surface(centre)[0], -self.radius))
 
-    def _surface(self, centre: np.ndarray) -> tuple[np.ndarray, float]:
+    def _centre(self) -> Vec3:
+        """Centre of the tip sphere, base frame."""
+        return add3(self._tip_position.tolist(),
+                    matvec3(self._tip_rotation.tolist(), self.offset))
+
+    def _surface(self, centre: Vec3) -> tuple[Vec3, float]:
         """(contact normal, penetration depth) of the tip sphere centred at `centre`."""
         if self.obj is None:
-            d = centre - self.plate_centre
-            distance = math.sqrt(d @ d)
-            return d / distance, self.radius - (distance - self.scene.plate.radius)
-        return self.up, self.radius - ((centre - self.surface) @ self.up + self.obj_x)
+            d = sub3(centre, self.plate_centre)
+            distance = math.sqrt(dot3(d, d))
+            return scale3(1.0 / distance, d), self.radius - (distance - self.scene.plate.radius)
+        return self.up, self.radius - (dot3(sub3(centre, self.surface), self.up) + self.obj_x)
 
-    def _contact_force(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
+    def _contact_force(self) -> tuple[Vec3, Vec3, Vec3, bool]:
         """(force on the finger, contact point, normal, active), base frame."""
-        centre = self._tip_position + self._tip_rotation @ self.offset
+        centre = self._centre()
         normal, depth = self._surface(centre)
-        point = centre - self.radius * normal
+        point = add3(centre, normal, -self.radius)
         if depth <= 0.0:
             self.anchor = None
-            return np.zeros(3), point, normal, False
-        mujoco.mj_jac(self.model, self.data, self._jac, None, point, self.tip)
-        velocity = self._jac @ self._qvel
-        relative = velocity + self.obj_v * self.up if self.obj is not None else velocity
-        approach = relative @ normal
+            return (0.0, 0.0, 0.0), point, normal, False
+        mujoco.mj_jac(self.model, self.data, self._jac, None, np.array(point), self.tip)
+        velocity = (self._jac @ self._qvel).tolist()
+        relative = add3(velocity, self.up, self.obj_v) if self.obj is not None else velocity
+        approach = dot3(relative, normal)
         normal_force = max(self.skin_k * depth - self.skin_c * approach, 0.0)
         if self.anchor is None:
-            self.anchor = point.copy()
-        slip = point - self.anchor
-        slip -= (slip @ normal) * normal
-        tangential_velocity = relative - approach * normal
-        tangential = -self.skin_k * slip - self.skin_c * tangential_velocity
+            self.anchor = point
+        slip = sub3(point, self.anchor)
+        slip = add3(slip, normal, -dot3(slip, normal))
+        tangential_velocity = add3(relative, normal, -approach)
+        tangential = add3(scale3(-self.skin_k, slip), tangential_velocity, -self.skin_c)
         limit = FRICTION * normal_force
-        size = math.sqrt(tangential @ tangential)
+        size = math.sqrt(dot3(tangential, tangential))
         if size > limit:   # sliding: the stick point follows so the spring sits on the cone
-            tangential *= limit / size
-            self.anchor = point + tangential / self.skin_k
-        return normal_force * normal + tangential, point, normal, True
+            tangential = scale3(limit / size, tangential)
+            self.anchor = add3(point, tangential, 1.0 / self.skin_k)
+        return add3(tangential, normal, normal_force), point, normal, True
 
     # ------------------------------------------------------------------ step
 
@@ -203,36 +212,34 @@ class ClosedLoopSimulator:
         if command.shape != (16,) or not np.isfinite(command).all():
             raise ValueError('joint_torques must be 16 finite values (N m), Allegro order')
         t = self.step_index * self.dt
-        torque = np.zeros(16)   # the others: their joint springs
-        torque[self.joints] = command[self.joints]
+        torque = command * self._driven   # the others: their joint springs
         state = StepState(t=t, contact=None, torque=torque)
         self.pipeline.run('torque', state)
         force, point, normal, active = self._contact_force()
-        on_sensor = self._advance_object(force, normal)
+        on_sensor = self._advance_object(force)
         self._qfrc_applied[:] = state.torque
         self._tip_force[:] = force
-        mujoco.mju_cross(self._tip_torque, point - self._tip_com, force)
+        self._tip_torque[:] = cross3(sub3(point, self._tip_com.tolist()), force)
         mujoco.mj_step(self.model, data)
         # Ground truth and tactile frame in {S0}: the force the array applies (= -force on it).
-        true_force = self._s0_from_base @ -force
+        s0_rotation = self._s0_rotation.tolist()
+        true_force = np.array(matTvec3(s0_rotation, scale3(-1.0, force)))
         state.q, state.qdot = self._qpos.copy(), self._qvel.copy()
         fresh = self.step_index % self.frame_every == 0
         if fresh:
             # The dynamics' tip sphere only approximates the skin: the sensor sees the contact
             # where the skin is, with the skin's own normal; the force's tilt from it is shear.
+            near = matTvec3(s0_rotation, sub3(point, self._s0_position.tolist()))
             point_s0, skin_normal = skin_surface(self._taxel_positions, self._taxel_normals,
-                                                 self._s0_from_base @ (point - self._s0_position))
-            state.contact = Contact(true_force, point_s0, skin_normal,
-                                    self.sensor.array.rotations[0][:, 0], active)
+                                                 np.array(near))
+            state.contact = Contact(true_force, point_s0, skin_normal, self._array_axis, active)
             self.sensor.measure(state)
             self._last_frame = (state.counts_out, state.temperatures, point_s0)
         else:
             state.counts_out, state.temperatures, point_s0 = self._last_frame
-        torque_at_sensor = np.empty(3)
-        mujoco.mju_cross(torque_at_sensor, point - self.sensor_origin, on_sensor)
-        wrench = state.wrench = np.empty(6)
-        np.matmul(self._f_from_base, on_sensor, out=wrench[:3])
-        np.matmul(self._f_from_base, torque_at_sensor, out=wrench[3:])
+        torque_at_sensor = cross3(sub3(point, self.sensor_origin), on_sensor)
+        state.wrench = np.array(matvec3(self._f_from_base, on_sensor)
+                                + matvec3(self._f_from_base, torque_at_sensor))
         self.pipeline.run('wrench', state)
         self.pipeline.run('delivery', state)
         self.step_index += 1
@@ -242,20 +249,20 @@ class ClosedLoopSimulator:
                          true_force=true_force, contact_point=point_s0, in_contact=active,
                          delivered=state.delivered, tactile_fresh=fresh)
 
-    def _advance_object(self, force_on_finger: np.ndarray, normal: np.ndarray) -> np.ndarray:
+    def _advance_object(self, force_on_finger: Vec3) -> Vec3:
         """Advance the soft object one step; return the force on the F/T sensor (base frame)."""
-        if self.obj is None:
-            return -force_on_finger          # rigid plate: the sensor carries the contact force
+        if self.obj is None:   # rigid plate: the sensor carries the contact force
+            return scale3(-1.0, force_on_finger)
         obj, dt = self.obj, self.dt
-        push = float(force_on_finger @ self.up)   # the object's push on the finger: its load
+        push = dot3(force_on_finger, self.up)   # the object's push on the finger: its load
         spring = obj.stiffness * self.obj_x + obj.damping * self.obj_v
         # Semi-implicit Euler; the object cannot lift off the sensor (it is taped on).
         self.obj_v += dt * (push - spring) / obj.mass
         self.obj_x = max(self.obj_x + dt * self.obj_v, 0.0)
         if self.obj_x == 0.0:
             self.obj_v = max(self.obj_v, 0.0)
-        shear = push * self.up - force_on_finger   # -(f - push up), exactly
-        return -spring * self.up + shear
+        shear = sub3(scale3(push, self.up), force_on_finger)   # -(f - push up), exactly
+        return add3(shear, self.up, -spring)
 
     # ------------------------------------------------------------------ exact model access
 

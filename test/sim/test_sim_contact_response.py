@@ -7,6 +7,7 @@ from tacforce_ros.sim.contact import Contact, PressureModel, skin_surface
 from tacforce_ros.sim.scene import Plate
 from tacforce_ros.sim.taxel_response import (ResponseParams, counts_from_loads, taxel_loads,
                                              to_uint16)
+from tacforce_ros.sim.vector import add3, cross, cross3, dot3, matTvec3, matvec3, scale3, sub3
 
 PLATES = [Plate('button', 'sphere', 0.002), Plate('flat', 'plane', 0.0),
           Plate('edge', 'cylinder', 0.0008), Plate('convex', 'sphere', 0.025)]
@@ -97,3 +98,22 @@ def test_response_is_bounded_monotone_and_ignores_tension(loads):
     tension[:, 2] = -np.abs(tension[:, 2])
     assert np.allclose(counts_from_loads(taxel_loads(tension), params, rows)[:, 2],
                        params.baseline[:, 2])
+
+
+finite = st.floats(-1e3, 1e3, allow_nan=False)
+vec3 = st.tuples(finite, finite, finite)
+
+
+@settings(max_examples=200, deadline=None)
+@given(a=vec3, b=vec3, rows=st.tuples(vec3, vec3, vec3), scale=finite)
+def test_float_vector_helpers_agree_with_numpy(a, b, rows, scale):
+    va, vb, m = np.array(a), np.array(b), np.array(rows)
+    tol = dict(rtol=1e-12, atol=1e-9)
+    assert np.allclose(dot3(a, b), va @ vb, **tol)
+    assert np.allclose(add3(a, b, scale), va + scale * vb, **tol)
+    assert np.allclose(sub3(a, b), va - vb, **tol)
+    assert np.allclose(scale3(scale, a), scale * va, **tol)
+    assert np.allclose(cross3(a, b), np.cross(va, vb), **tol)
+    assert np.allclose(cross(va, vb), np.cross(va, vb), **tol)
+    assert np.allclose(matvec3(rows, b), m @ vb, **tol)
+    assert np.allclose(matTvec3(rows, b), m.T @ vb, **tol)

@@ -26,15 +26,19 @@ class ActuatorLimits(Effect):
     def reset(self, rng: np.random.Generator, ctx) -> None:
         self._clamp = np.array(FINGER_CLAMP * 3 + THUMB_CLAMP)
         self._negative_clamp = -self._clamp
-        self._alpha = ctx.physics_dt / self.time_constant
+        # heat' = (1 - a) heat + a (tau / threshold)^2 each step, a = dt / time_constant
+        alpha = ctx.physics_dt / self.time_constant
+        self._keep, self._gain = 1.0 - alpha, alpha / self.threshold ** 2
         self.heat = np.zeros(16)
         self.throttled = np.zeros(16, bool)
         self.throttling = False     # any joint throttled
 
     def on_torque(self, state) -> None:
         tau = np.minimum(np.maximum(state.torque, self._negative_clamp), self._clamp)  # np.clip
-        self.heat += self._alpha * ((tau / self.threshold) ** 2 - self.heat)
-        if not self.throttling and self.heat.max() <= 1.0:    # the usual step: nothing to do
+        self.heat *= self._keep
+        self.heat += self._gain * (tau * tau)
+        # np.maximum.reduce: ndarray.max without its Python wrapper (this runs every step)
+        if not self.throttling and np.maximum.reduce(self.heat) <= 1.0:   # the usual step
             state.torque = tau
             return
         self.throttled = (self.heat > 1.0) | (self.throttled & (self.heat > self.recover))

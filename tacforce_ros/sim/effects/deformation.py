@@ -40,7 +40,9 @@ class Deformation(Effect):
         # a closed loop, so this runs once per frame there.
         dist2 = np.add.reduce((self._positions - point) ** 2, axis=1)
         falloff = self.max_fraction * np.exp(-0.5 * dist2 / self.reach ** 2)
-        axis = cross(self._normals, normal)
+        # n_i x c for every taxel normal n_i: one product with the cross-product matrix of c
+        nx, ny, nz = normal.tolist()
+        axis = self._normals @ np.array([[0.0, -nz, ny], [nz, 0.0, -nx], [-ny, nx, 0.0]])
         sin_angle = np.sqrt(np.add.reduce(axis * axis, axis=1))
         self._turn = falloff * np.arctan2(sin_angle, self._normals @ normal)
         self._unit = axis / np.maximum(sin_angle, 1e-12)[:, None]

@@ -40,9 +40,9 @@ class FTNoise(Effect):
             self._biases[:, :3] = np.add.accumulate(walk)[1:]
             self._biases[:, 3:] = self._bias[3:]
             self._bias = self._biases[-1].copy()
-            self._noise = self._sigma * draws[:, 3:]
+            self._offsets = self._biases + self._sigma * draws[:, 3:]   # bias and noise
             self._next = 0
-        state.wrench = state.wrench + self._biases[self._next] + self._noise[self._next]
+        state.wrench = state.wrench + self._offsets[self._next]
         self._next += 1
 
 

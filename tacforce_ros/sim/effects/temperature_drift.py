@@ -46,8 +46,11 @@ class TemperatureDrift(Effect):
         self._next += 1
         delta = self._wander[self._array_of] + self._offset
         state.temperatures = state.temperatures + delta
-        field = state.counts - CHIP_ZERO
-        state.counts += (self.remanence_coefficient * field + self._drift) * delta[:, None]
+        change = state.counts - CHIP_ZERO      # the field, scaled in place into the change
+        change *= self.remanence_coefficient
+        change += self._drift
+        change *= delta[:, None]
+        state.counts += change
 
 
 EFFECT = TemperatureDrift

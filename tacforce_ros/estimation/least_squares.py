@@ -4,20 +4,36 @@ min_W,b ||Phi W^T + b - F||^2 + lam ||W||^2. Centring the design and the targets
 exact and unpenalised; the SVD Phi_c = U S V^T gives every damping at the cost of one
 decomposition: W^T = V diag(s / (s^2 + lam)) U^T F_c. No normal equations, no inverse.
 
-The design is tall (10^5 samples, <= 10^2 features), so the SVD is taken of the triangular
-factor of a QR of [Phi_c | F_c] instead: Phi_c = Q1 R11 and F_c = Q1 R12 + (orthogonal rest),
-so Phi_c has R11's singular values and right vectors and U^T F_c = U11^T R12, with Q and the
-tall U never formed. Same solution to rounding. On 160 000 x 90, each of two processes running
-at once as the main job's workers do (2026-11-26): numpy's SVD of the tall matrix 3.0 s, one QR
-1.5 s. A QR by blocks of 2048 rows (TSQR) was faster alone (0.32 against 0.76 s, one thread)
-but 9.2 s there: each small LAPACK call makes OpenBLAS's threads meet, and two processes' threads
-on two cores wait on each other.
+The design is tall (10^5 samples, <= 10^2 features), so the SVD is taken of a triangular factor
+instead: R of a QR of [1 | Phi | F]. Its first row holds sqrt(N) times the means (the ones
+column's), and below it sits the factor of the centred [Phi_c | F_c]: Phi_c = Q1 R11 and
+F_c = Q1 R12 + (orthogonal rest), so Phi_c has R11's singular values and right vectors and
+U^T F_c = U11^T R12, with Q and the tall U never formed. Same solution to rounding. On
+160 000 x 90, each of two processes running at once as the main job's workers do (2026-11-26):
+numpy's SVD of the tall matrix 3.0 s, one QR 1.5 s. A QR by blocks of 2048 rows (TSQR) was
+faster alone (0.32 against 0.76 s, one thread) but 9.2 s there: each small LAPACK call makes
+OpenBLAS's threads meet, and two processes' threads on two cores wait on each other.
+
+The factors of disjoint sets of rows, stacked and factorised again, give the factor of their
+union. So leave-one-group-out folds over the same design (M3-lambda's damping selection) take one
+QR per group, a few large calls, and each fold's factor from its groups' (`GroupFactors`).
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
 
 import numpy as np
+
+
+def augmented_factor(phi: np.ndarray, F: np.ndarray) -> np.ndarray:
+    """Upper-triangular R of a QR of [1 | phi | F], (min(N, p + 4), p + 4)."""
+    phi = np.asarray(phi, dtype=np.float64)
+    F = np.asarray(F, dtype=np.float64)
+    if phi.shape[0] == 0:
+        raise ValueError('cannot fit on zero samples')
+    if not (np.all(np.isfinite(phi)) and np.all(np.isfinite(F))):
+        raise ValueError('design or targets contain NaN or Inf')
+    return np.linalg.qr(np.hstack([np.ones((len(phi), 1)), phi, F]), mode='r')
 
 
 @dataclass(frozen=True)
@@ -32,18 +48,17 @@ class CentredSVD:
 
     @classmethod
     def of(cls, phi: np.ndarray, F: np.ndarray) -> CentredSVD:
-        phi = np.asarray(phi, dtype=np.float64)
-        F = np.asarray(F, dtype=np.float64)
-        if phi.shape[0] == 0:
-            raise ValueError('cannot fit on zero samples')
-        if not (np.all(np.isfinite(phi)) and np.all(np.isfinite(F))):
-            raise ValueError('design or targets contain NaN or Inf')
-        phi_mean = phi.mean(axis=0)
-        f_mean = F.mean(axis=0)
-        p = phi.shape[1]
-        r = np.linalg.qr(np.hstack([phi - phi_mean, F - f_mean]), mode='r')[:p]
-        u, s, vt = np.linalg.svd(r[:, :p], full_matrices=False)
-        return cls(phi_mean=phi_mean, f_mean=f_mean, s=s, vt=vt, utf=u.T @ r[:, p:])
+        return cls.of_factor(augmented_factor(phi, F))
+
+    @classmethod
+    def of_factor(cls, r: np.ndarray) -> CentredSVD:
+        """From augmented_factor's triangular R of [1 | phi | F]."""
+        p = r.shape[1] - 4
+        means = r[0, 1:] / r[0, 0]       # the ones column's row: sqrt(N) times the means
+        centred = r[1:, 1:]              # the factor of [phi_c | F_c]
+        u, s, vt = np.linalg.svd(centred[:p, :p], full_matrices=False)
+        return cls(phi_mean=means[:p], f_mean=means[p:], s=s, vt=vt,
+                   utf=u.T @ centred[:p, p:])
 
     def solve(self, lam: float) -> tuple[np.ndarray, np.ndarray]:
         """(coef (3, p), intercept (3,)) for damping lam >= 0 (0: minimum-norm least squares)."""
@@ -64,3 +79,18 @@ def fit_affine(phi: np.ndarray, F: np.ndarray, lam: float = 0.0
                ) -> tuple[np.ndarray, np.ndarray]:
     """Affine least squares F ~ phi @ coef.T + intercept, damping lam on coef only."""
     return CentredSVD.of(phi, F).solve(lam)
+
+
+class GroupFactors:
+    """One augmented factor per group of rows (e.g. per plate): the SVD of any union of
+    groups from their factors, without another pass over the rows."""
+
+    def __init__(self, phi: np.ndarray, F: np.ndarray, groups: np.ndarray) -> None:
+        groups = np.asarray(groups)
+        self.labels = list(dict.fromkeys(groups.tolist()))
+        self._factors = {label: augmented_factor(phi[groups == label], F[groups == label])
+                         for label in self.labels}
+
+    def svd(self, labels) -> CentredSVD:
+        stacked = np.vstack([self._factors[label] for label in labels])
+        return CentredSVD.of_factor(np.linalg.qr(stacked, mode='r'))

@@ -80,6 +80,17 @@ def test_lambda_selection_prefers_damping_on_noisy_underdetermined_data(tip):
     assert lam_clean < lam
 
 
+def test_nested_selection_fits_at_the_damping_it_chose_as_a_direct_fit_would(tip, tip_data):
+    """The final fit from the plates' factors equals M3-lambda fitted on the rows at that
+    damping."""
+    data, X, F, _ = tip_data
+    nested = M3Lambda(tip, lambda_grid=DEFAULT_GRID[::4]).fit(X, F, groups=data.plates)
+    direct = M3Lambda(tip, lam=nested.damping).fit(X, F)
+    np.testing.assert_allclose(nested.coef_, direct.coef_,
+                               atol=1e-9 * (1.0 + np.abs(direct.coef_).max()))
+    np.testing.assert_allclose(nested.predict(X), direct.predict(X), atol=1e-9)
+
+
 def test_nested_selection_never_sees_the_held_out_plate(tip, tip_data):
     """Corrupting the held-out plate changes neither the damping chosen for that fold nor the
     fitted weights; it only changes that fold's test error."""

@@ -6,7 +6,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from tacforce_ros.estimation.base import ModelNotFittedError
-from tacforce_ros.estimation.least_squares import CentredSVD, fit_affine
+from tacforce_ros.estimation.least_squares import CentredSVD, GroupFactors, fit_affine
 from tacforce_ros.estimation.m1_rotation_linear import M1Linear, rotated_sum
 from tacforce_ros.estimation.m2_rotation_quadratic import M2Quadratic, quadratic_features
 from tacforce_ros.estimation.m3_lambda import M3Lambda
@@ -84,6 +84,32 @@ def test_lambda_path_from_one_svd_equals_direct_solves(samples, features, rank, 
         np.testing.assert_allclose(coef, ref, atol=1e-8 * scale)
         np.testing.assert_allclose(intercept, F.mean(0) - ref @ phi.mean(0),
                                    atol=1e-8 * scale * (1.0 + np.abs(phi).max()))
+
+
+@settings(max_examples=40, deadline=None)
+@given(sizes=st.lists(st.integers(1, 60), min_size=2, max_size=5),
+       features=st.integers(1, 12), seed=st.integers(0, 2 ** 16))
+def test_a_union_of_groups_from_their_factors_equals_the_direct_fit(sizes, features, seed):
+    """Groups of one row, of fewer rows than features, and tall ones: the fold that leaves out
+    each group, solved from the others' factors, equals the fit on its rows."""
+    rng = np.random.default_rng(seed)
+    groups = np.repeat(np.arange(len(sizes)), sizes)
+    phi = rng.standard_normal((len(groups), features)) * rng.uniform(0.1, 10.0, features) + 3.0
+    F = rng.standard_normal((len(groups), 3))
+    factors = GroupFactors(phi, F, groups)
+    for held in factors.labels:
+        keep = groups != held
+        together = factors.svd([g for g in factors.labels if g != held])
+        direct = CentredSVD.of(phi[keep], F[keep])
+        np.testing.assert_allclose(together.phi_mean, phi[keep].mean(0), rtol=1e-10)
+        np.testing.assert_allclose(together.f_mean, F[keep].mean(0), atol=1e-12)
+        for lam in (0.5, 33.0):
+            (c1, b1), (c2, b2) = together.solve(lam), direct.solve(lam)
+            scale = 1.0 + np.abs(c2).max()
+            np.testing.assert_allclose(c1, c2, atol=1e-9 * scale)
+            np.testing.assert_allclose(b1, b2, atol=1e-9 * scale * (1.0 + np.abs(phi).max()))
+    (c1, b1), (c2, b2) = factors.svd(factors.labels).solve(1.0), CentredSVD.of(phi, F).solve(1.0)
+    np.testing.assert_allclose(c1, c2, atol=1e-9 * (1.0 + np.abs(c2).max()))
 
 
 @pytest.mark.parametrize('cls', LINEAR_KINDS)

@@ -178,14 +178,14 @@ class ClosedLoopSimulator:
             return scale3(1.0 / distance, d), self.radius - (distance - self.scene.plate.radius)
         return self.up, self.radius - (dot3(sub3(centre, self.surface), self.up) + self.obj_x)
 
-    def _contact_force(self) -> tuple[Vec3, Vec3, Vec3, bool]:
-        """(force on the finger, contact point, normal, active), base frame."""
+    def _contact_force(self) -> tuple[Vec3, Vec3, bool]:
+        """(force on the finger, contact point, active), base frame."""
         centre = self._centre()
         normal, depth = self._surface(centre)
         point = add3(centre, normal, -self.radius)
         if depth <= 0.0:
             self.anchor = None
-            return (0.0, 0.0, 0.0), point, normal, False
+            return (0.0, 0.0, 0.0), point, False
         mujoco.mj_jac(self.model, self.data, self._jac, None, np.array(point), self.tip)
         velocity = (self._jac @ self._qvel).tolist()
         relative = add3(velocity, self.up, self.obj_v) if self.obj is not None else velocity
@@ -202,7 +202,7 @@ class ClosedLoopSimulator:
         if size > limit:   # sliding: the stick point follows so the spring sits on the cone
             tangential = scale3(limit / size, tangential)
             self.anchor = add3(point, tangential, 1.0 / self.skin_k)
-        return add3(tangential, normal, normal_force), point, normal, True
+        return add3(tangential, normal, normal_force), point, True
 
     # ------------------------------------------------------------------ step
 
@@ -215,7 +215,7 @@ class ClosedLoopSimulator:
         torque = command * self._driven   # the others: their joint springs
         state = StepState(t=t, contact=None, torque=torque)
         self.pipeline.run('torque', state)
-        force, point, normal, active = self._contact_force()
+        force, point, active = self._contact_force()
         on_sensor = self._advance_object(force)
         self._qfrc_applied[:] = state.torque
         self._tip_force[:] = force

@@ -75,6 +75,26 @@ def layer_displacement(lateral: np.ndarray, depth: float | np.ndarray, base_dept
             - half_space_displacement(base, force, shear_modulus, poisson))
 
 
+def neo_hookean_stretch(linear_strain: np.ndarray, max_iterations: int = 100) -> np.ndarray:
+    """Stretch (current over rest length) of an incompressible neo-Hookean column under the
+    uniaxial nominal stress that would strain it by `linear_strain` (negative: compressed) in
+    linear elasticity of the same Young's modulus E: mu (lam - lam^-2) = E e with mu = E / 3
+    (Ogden, Non-Linear Elastic Deformations, 1984, the uniaxial load of an incompressible
+    neo-Hookean solid), i.e. lam^3 - 3 e lam^2 - 1 = 0. It equals 1 + e to first order, stiffens
+    in compression (lam > 0 under any load; at half its length it carries 7/3 of the linear
+    stress) and softens in tension. Newton from lam = 1 + 3 max(e, 0), above the root where the cubic
+    is increasing and convex, so every step lands closer and still above it."""
+    strain = np.asarray(linear_strain, np.float64)
+    stretch = 1.0 + 3.0 * np.maximum(strain, 0.0)
+    for _ in range(max_iterations):
+        step = ((stretch - 3.0 * strain) * stretch * stretch - 1.0) / (
+            stretch * (3.0 * stretch - 6.0 * strain))
+        stretch = stretch - step
+        if np.all(np.abs(step) <= 1e-14 * stretch):
+            return stretch
+    raise ArithmeticError('neo_hookean_stretch did not converge')
+
+
 def hertz_semi_axes(normal_force: float, curvatures: tuple[float, float],
                     contact_modulus: float) -> tuple[float, float]:
     """(a, b) m: semi-axes of the Hertz contact ellipse along the two principal directions of

@@ -75,6 +75,27 @@ def test_a_layer_holds_at_its_board_and_moves_less_than_a_half_space():
     assert 0.0 < layer[2] < half[2]
 
 
+def test_a_neo_hookean_column_at_half_and_twice_its_length():
+    """mu (lam - lam^-2) with mu = E / 3: at lam = 1/2 the nominal stress is -7/6 E, at lam = 2
+    it is 7/12 E; a linear solid would be strained by those stresses over E."""
+    np.testing.assert_allclose(phys.neo_hookean_stretch(np.array([-7 / 6, 7 / 12, 0.0])),
+                               [0.5, 2.0, 1.0], rtol=1e-13)
+    small = np.array([-1e-5, 1e-5])
+    np.testing.assert_allclose(phys.neo_hookean_stretch(small), 1.0 + small, rtol=1e-9)
+
+
+@settings(max_examples=300)
+@given(strains=st.lists(st.floats(-1e3, 1e3), min_size=2, max_size=2))
+def test_a_neo_hookean_column_solves_its_law_and_never_collapses(strains):
+    strain = np.sort(np.asarray(strains))
+    stretch = phys.neo_hookean_stretch(strain)
+    assert np.all(stretch > 0.0) and stretch[0] <= stretch[1]
+    np.testing.assert_allclose((stretch - stretch ** -2.0) / 3.0, strain,
+                               rtol=1e-10, atol=1e-12)
+    # Squeezed, it shortens less than the linear solid would (where that one keeps a length).
+    assert np.all(stretch[strain < 0.0] >= 1.0 + strain[strain < 0.0])
+
+
 def test_hertz_contact_radius_of_a_worked_example():
     """R 8 mm on a rigid plane, F = 60 pi N, E = 1000 MPa, nu = 0.3: a = 1.010 mm (the worked
     example beside the formula list of S. J. Bull, Newcastle University)."""
@@ -186,6 +207,28 @@ def test_a_press_raises_z_most_under_it_and_a_sharp_plate_concentrates(skin):
     assert spread['button'] > 3 * spread['flat']
     released = Contact(np.zeros(3), arr.positions[c], normal, arr.rotations[c, :, 0], False)
     np.testing.assert_array_equal(effect.displacement(released, plate), 0.0)
+
+
+def test_a_magnet_pressed_past_its_chip_stays_above_it(skin):
+    """A displacement the linear solution would take beyond the chip leaves the magnet at the
+    neo-Hookean column's length; a small one reads as the linear solution does."""
+    effect, arr, _ = skin()
+    rows = arr.flat_indices
+    height = effect.height[rows]
+    ratios = np.array([-1e-6, -1.5])
+    for ratio in ratios:
+        displacement = np.zeros((len(rows), 3))
+        displacement[:, 2] = ratio * height
+        stretch = float(phys.neo_hookean_stretch(np.array(ratio)))
+        position = np.column_stack([effect.lateral[rows], stretch * height])
+        moment = np.zeros_like(position)
+        moment[:, 2] = effect.moment
+        expected = phys.dipole_field(moment, -position) / np.array(
+            [effect.sensitivity_xy, effect.sensitivity_xy, effect.sensitivity_z])
+        unclipped = np.abs(expected).max(axis=1) < 22000
+        assert unclipped.sum() > len(rows) // 4
+        np.testing.assert_allclose(effect.counts_at(displacement, rows)[unclipped],
+                                   CHIP_ZERO + expected[unclipped], rtol=1e-12)
 
 
 def test_the_magnetic_skin_refuses_what_it_supersedes():

@@ -41,7 +41,7 @@ LINE_PROFILE = (np.arange(8) + 0.5) / 4.0 - 1.0   # across-line sample points, i
 # The magnet acts only through its moment (diameter^2 x thickness x remanence): its thickness
 # stands for all three (the moment scales with it).
 ESTIMATES = ('magnet_thickness', 'layer_thickness', 'youngs_modulus', 'poisson',
-             'sensitivity_xy', 'sensitivity_z', 'closest', 'play_relative', 'play_width',
+             'sensitivity_xy', 'sensitivity_z', 'play_relative', 'play_width',
              'creep_share', 'creep_time_constant')
 
 
@@ -64,7 +64,6 @@ class MagneticSkin(Effect):
     sensitivity_z: float = 4.840e-6         # T per count, same setting
     rest_z_range: tuple[float, float] = (33600.0, 37600.0)   # counts at rest (PROTOCOLS.md)
     rest_xy_spread: float = 1350.0          # counts, +/- about mid-scale at rest (PROTOCOLS.md)
-    closest: float = 0.0005                 # m, magnet centre over the chip fully pressed, estimate
     # Play on the displacement: uSkin's loop is 10 % of its normal force range (Tomo 2018); a
     # half-width of 5 % of the displacement is our estimate of what gives it, beside creep.
     play_relative: float = 0.05
@@ -120,10 +119,13 @@ class MagneticSkin(Effect):
 
     def counts_at(self, displacement: np.ndarray, rows) -> np.ndarray:
         """(n, 3) float counts of the taxels `rows` with their magnets displaced by
-        `displacement` (n, 3) m in the taxel frames (z out of the skin)."""
-        position = np.column_stack([self.lateral[rows], self.height[rows]]) + displacement
-        # The elastomer under the magnet cannot be squeezed to nothing.
-        np.maximum(position[:, 2], self.closest, out=position[:, 2])
+        `displacement` (n, 3) m in the taxel frames (z out of the skin) as linear elasticity
+        gives it. The elastomer between magnet and chip, a column of the magnet's height,
+        stiffens as it is squeezed (neo-Hookean; the linear solution is its small-strain limit),
+        so a magnet never reaches its chip."""
+        height = self.height[rows]
+        squeezed = height * phys.neo_hookean_stretch(displacement[:, 2] / height)
+        position = np.column_stack([self.lateral[rows] + displacement[:, :2], squeezed])
         moment = np.zeros_like(position)
         moment[:, 2] = self.moment
         counts = phys.dipole_field(moment, -position) / self._sensitivity

@@ -82,8 +82,8 @@ def neo_hookean_stretch(linear_strain: np.ndarray, max_iterations: int = 100) ->
     (Ogden, Non-Linear Elastic Deformations, 1984, the uniaxial load of an incompressible
     neo-Hookean solid), i.e. lam^3 - 3 e lam^2 - 1 = 0. It equals 1 + e to first order, stiffens
     in compression (lam > 0 under any load; at half its length it carries 7/3 of the linear
-    stress) and softens in tension. Newton from lam = 1 + 3 max(e, 0), above the root where the cubic
-    is increasing and convex, so every step lands closer and still above it."""
+    stress) and softens in tension. Newton from lam = 1 + 3 max(e, 0), above the root where the
+    cubic is increasing and convex, so every step lands closer and still above it."""
     strain = np.asarray(linear_strain, np.float64)
     stretch = 1.0 + 3.0 * np.maximum(strain, 0.0)
     for _ in range(max_iterations):

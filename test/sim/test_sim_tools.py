@@ -89,15 +89,54 @@ def test_skin_sensitivity_varies_each_estimate_and_writes_its_table(tmp_path):
     assert skin_sensitivity.main(['--out', str(out), '--arrays', 'index_middle', '--seconds',
                                   '15', '--models', 'M3', 'M3-lambda', '--params', 'poisson',
                                   'taxel_noise.sigma', '--factors', '0.5', '1.5',
-                                  '--closed-loop', '--jobs', '1']) == 0
+                                  '--closed-loop', '--seeds', '3', '4', '--jobs', '1']) == 0
     result = json.loads((out / 'skin_sensitivity.json').read_text())
-    names = [v['name'] for v in result['variants']]
-    assert names == ['values', 'poisson x0.5', 'poisson x1.5', 'taxel_noise.sigma x0.5',
-                     'taxel_noise.sigma x1.5']
-    assert result['variants'][2]['skin'] == {'poisson': skin_sensitivity.POISSON_LIMIT}
+    names = [(v['name'], v['seed']) for v in result['variants']]
+    assert names == [('values', 3), ('values', 4), ('poisson x0.5', 3), ('poisson x1.5', 3),
+                     ('taxel_noise.sigma x0.5', 3), ('taxel_noise.sigma x1.5', 3)]
+    assert result['variants'][3]['skin'] == {'poisson': skin_sensitivity.POISSON_LIMIT}
     errors = [v['e_hat']['index_middle']['M3'] for v in result['variants']]
     assert all(np.isfinite(errors)) and len(set(errors)) == len(errors)   # each one changed it
-    assert '| paper |' in (out / 'skin_sensitivity.md').read_text()
+    band = 'index_middle M3-lambda e_hat over the paper in [0.6, 1.5]'
+    assert [t['target'] for t in result['targets']] == [band]
+    assert len(result['targets'][0]['values']) == 2
+    text = (out / 'skin_sensitivity.md').read_text()
+    assert '| paper |' in text and f'| {band} |' in text and 'seed 4' in text
+
+
+def test_skin_sensitivity_counts_the_seeds_that_meet_each_target():
+    from tacforce_ros.tools import skin_sensitivity as tool
+
+    def values(seed, tip, middle, reduction):
+        return {'name': 'values', 'seed': seed, 'e_hat': {'index_tip': tip,
+                                                          'index_middle': middle},
+                'closed_loop': {'open_loop': 0.4,
+                                'M3-lambda': {'reduction': reduction, 'e_track': 0.05}}}
+    # Seed 0 meets every target; seed 1 misses the curved M1 ratio (1.4), the flat M4 ratio
+    # (0.9), the flat spread (0.30 / 0.20 = 1.5) and the loop's reduction.
+    result = {'arrays': ['index_tip', 'index_middle'],
+              'models': ['M1', 'M2', 'M3', 'M3-lambda', 'M4'],
+              'variants': [
+                  values(0, {'M1': 0.60, 'M2': 0.50, 'M3': 0.30, 'M3-lambda': 0.30, 'M4': 0.24},
+                         {'M1': 0.30, 'M2': 0.28, 'M3': 0.26, 'M3-lambda': 0.26, 'M4': 0.20},
+                         0.75),
+                  values(1, {'M1': 0.42, 'M2': 0.50, 'M3': 0.30, 'M3-lambda': 0.30, 'M4': 0.24},
+                         {'M1': 0.30, 'M2': 0.25, 'M3': 0.20, 'M3-lambda': 0.20, 'M4': 0.18},
+                         0.60),
+                  {'name': 'poisson x0.5', 'seed': 0, 'e_hat': None}]}
+    met = {c['target']: (c['met'], c['values']) for c in tool.targets(result)}
+    assert met['index_tip M1 over M3-lambda >= 1.5'] == (1, pytest.approx([2.0, 1.4]))
+    assert met['index_tip M2 over M3-lambda >= 1.5'][0] == 2
+    assert met['index_tip M4 over M3-lambda <= 0.85'] == (2, pytest.approx([0.8, 0.8]))
+    assert met['index_middle M4 over M3-lambda <= 0.85'][0] == 1
+    assert met['index_middle M1, M2, M3 largest over smallest <= 1.25'] == (
+        1, pytest.approx([0.30 / 0.26, 1.5]))
+    assert met['index_tip M3-lambda e_hat over the paper in [0.6, 1.5]'][0] == 2
+    assert met['closed loop M3-lambda: e~ reduction >= 70%'] == (1, [0.75, 0.60])
+    assert met['closed loop M3-lambda: e_track < 0.1 N'][0] == 2
+    # Only the targets the run's models allow; the curved array has no spread target.
+    assert not any('M5' in target for target in met)
+    assert not any('index_tip M1, M2, M3' in target for target in met)
 
 
 def test_skin_sensitivity_refuses_an_array_without_a_table_i_row(tmp_path, capsys):

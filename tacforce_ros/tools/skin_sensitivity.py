@@ -249,7 +249,7 @@ def table(result: dict) -> str:
         lines += [f"| {label} | {m['e_tilde']:.3f} | {100 * m['reduction']:.1f} % | "
                   f"{m['e_track']:.3f} | {m['e_hat']:.3f} |"
                   for label, m in loop.items() if label != 'open_loop']
-    checks = targets(result)
+    checks = result['targets']
     if checks:
         seeds = [row['seed'] for row in result['variants'] if row['name'] == 'values'
                  and row['e_hat']]

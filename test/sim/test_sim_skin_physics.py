@@ -13,7 +13,7 @@ from tacforce_ros.sim import skin_physics as phys
 from tacforce_ros.sim.contact import Contact
 from tacforce_ros.sim.elastomer_memory import Creep, Play
 from tacforce_ros.sim.effects import Pipeline
-from tacforce_ros.sim.effects.magnetic_skin import MagneticSkin
+from tacforce_ros.sim.effects.magnetic_skin import CHIP_RANGE, MagneticSkin
 from tacforce_ros.sim.scene import Plate
 from tacforce_ros.sim.taxel_response import CHIP_ZERO
 
@@ -225,7 +225,7 @@ def test_a_magnet_pressed_past_its_chip_stays_above_it(skin):
         moment[:, 2] = effect.moment
         expected = phys.dipole_field(moment, -position) / np.array(
             [effect.sensitivity_xy, effect.sensitivity_xy, effect.sensitivity_z])
-        unclipped = np.abs(expected).max(axis=1) < 22000
+        unclipped = np.abs(expected).max(axis=1) < CHIP_RANGE
         assert unclipped.sum() > len(rows) // 4
         np.testing.assert_allclose(effect.counts_at(displacement, rows)[unclipped],
                                    CHIP_ZERO + expected[unclipped], rtol=1e-12)

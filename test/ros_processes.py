@@ -94,6 +94,36 @@ def call_service(node, srv_type, name: str, request, timeout: float = 60.0,
     return answered[0].result()
 
 
+def call_service_once(node, srv_type, name: str, request, timeout: float = 60.0):
+    """Call a service whose request must not be sent twice (it starts or restarts something).
+
+    A new client's first response can be dropped (see call_service), and resending is no cure
+    here. So this client is created first, then one for the server node's get_parameters,
+    which is called (idempotent: resent until answered). The test node announced the two
+    clients' response readers in that order on one reliable discovery writer, which delivers
+    in order: a server that answered get_parameters has matched this client's reader too."""
+    from rcl_interfaces.srv import GetParameters
+    server_node = name.rsplit('/', 1)[0]
+    client = node.create_client(srv_type, name)
+    proof = node.create_client(GetParameters, f'{server_node}/get_parameters')
+    try:
+        deadline = time.monotonic() + timeout
+        assert spin_until(node, lambda: client.service_is_ready() and proof.service_is_ready(),
+                          timeout), f'{name} never appeared'
+        proofs = []
+        while time.monotonic() < deadline and not any(f.done() for f in proofs):
+            proofs.append(proof.call_async(GetParameters.Request()))
+            spin_until(node, lambda: any(f.done() for f in proofs), 2.0)
+        assert any(f.done() for f in proofs), f'{server_node} never answered get_parameters'
+        future = client.call_async(request)
+        assert spin_until(node, future.done, max(0.0, deadline - time.monotonic())), \
+            f'{name} did not answer'
+        return future.result()
+    finally:
+        node.destroy_client(proof)
+        node.destroy_client(client)
+
+
 @contextlib.contextmanager
 def rclpy_node(name: str, domain_id: int):
     """An rclpy context on `domain_id` with one node, shut down on exit."""

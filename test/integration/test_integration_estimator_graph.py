@@ -27,7 +27,8 @@ from tacforce_ros.nodes.messages import stamp_ns
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from graph_support import (Graph, graph_nodes, session_args, unique_domain_id,  # noqa: E402
-                           wait_until, wait_while_progressing)
+                           wait_while_progressing)
+from ros_processes import call_service  # noqa: E402
 
 pytestmark = pytest.mark.ros
 DOMAIN = unique_domain_id(offset=83)
@@ -113,7 +114,6 @@ def test_stale_tactile_stream_makes_the_controller_safe_within_100_ms(graph):
                                      subscriber_qos('/tactile/estimates')),
             node.create_subscription(ControllerState, '/force_controller/state', states.append,
                                      subscriber_qos('/force_controller/state'))]
-    pause = node.create_client(SetBool, '/sim_world/pause_tactile')
     # The controller engages on the first command: f_d = 0 (published until it is heard).
     command = node.create_publisher(Vector3Stamped, '/force_controller/desired',
                                     publisher_qos('/force_controller/desired'))
@@ -127,9 +127,9 @@ def test_stale_tactile_stream_makes_the_controller_safe_within_100_ms(graph):
             lambda: len(states), STALLED_AFTER_S, TIMEOUT_S, commanding), \
             ([s.mode for s in states[-5:]], running.logs())
         assert {s.finger for s in states} == {'ring'}
-        assert pause.wait_for_service(timeout_sec=30.0)
-        future = pause.call_async(SetBool.Request(data=True))
-        assert wait_until(future.done, 30.0, lambda: spin(node)) and future.result().success
+        # Pausing and resuming are idempotent: a request whose answer is lost is sent again.
+        assert call_service(node, SetBool, '/sim_world/pause_tactile', SetBool.Request(data=True),
+                            resend_after=5.0).success
         paused_from = len(states)
         assert wait_while_progressing(
             lambda: any(s.mode == 'hold' for s in states[paused_from:]),
@@ -159,8 +159,8 @@ def test_stale_tactile_stream_makes_the_controller_safe_within_100_ms(graph):
         stale = [e for e in estimates if e.estimates and e.estimates[0].status == 'stale']
         assert stale and all(not x.valid for e in stale for x in e.estimates)
         # The stream returns: the controller ramps back into closed loop.
-        future = pause.call_async(SetBool.Request(data=False))
-        assert wait_until(future.done, 30.0, lambda: spin(node)) and future.result().success
+        assert call_service(node, SetBool, '/sim_world/pause_tactile',
+                            SetBool.Request(data=False), resend_after=5.0).success
         resumed_from = len(states)
         assert wait_while_progressing(
             lambda: any(s.mode == 'closed_loop' and s.estimate_fresh
@@ -169,5 +169,4 @@ def test_stale_tactile_stream_makes_the_controller_safe_within_100_ms(graph):
     finally:
         for sub in subs:
             node.destroy_subscription(sub)
-        node.destroy_client(pause)
         node.destroy_publisher(command)

@@ -16,8 +16,8 @@ from tacforce_ros.nodes.common import EXIT_BAD_PARAMETERS, EXIT_OK, subscriber_q
 from tacforce_ros.paths import config_dir
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from ros_processes import (executable, rclpy_node, spin_until, start, stop,  # noqa: E402
-                           unique_domain_id)
+from ros_processes import (call_service_once, executable, rclpy_node, spin_until,  # noqa: E402
+                           start, stop, unique_domain_id)
 
 pytestmark = pytest.mark.ros
 DOMAIN = unique_domain_id(offset=37)
@@ -57,15 +57,9 @@ def play(ros_node, sequence_file, *extra):
 
 def start_when_matched(ros_node, sub):
     """Call ~/start once the player's publisher is matched, so DDS discovery costs no values."""
-    client = ros_node.create_client(Trigger, '/command_player/start')
-    try:
-        assert spin_until(ros_node, lambda: client.service_is_ready()
-                          and sub.get_publisher_count() > 0, 20.0), 'player never appeared'
-        future = client.call_async(Trigger.Request())
-        assert spin_until(ros_node, future.done, 30.0), '~/start did not answer'
-        return future.result()
-    finally:
-        ros_node.destroy_client(client)
+    assert spin_until(ros_node, lambda: sub.get_publisher_count() > 0, 20.0), \
+        'player never appeared'
+    return call_service_once(ros_node, Trigger, '/command_player/start', Trigger.Request())
 
 
 def test_publishes_the_sequence_values_at_their_times(ros_node, sequence_file):

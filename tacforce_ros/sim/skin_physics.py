@@ -2,18 +2,13 @@
 
 A uSkin taxel is a small magnet in a silicone layer over a 3-axis Hall chip (Tomo et al. 2018).
 An indenter presses the layer; the pressure under it (Hertz) displaces the elastomer around the
-magnet (Boussinesq and Cerruti point-load solutions, summed over the contact patch); the layer
-is bonded to the chip's board, so what moves the magnet relative to the chip is the half-space
-displacement at the magnet's depth less the one at the board (Steinbrenner's approximation for a
-layer on a rigid base); the chip reads the displaced magnet's dipole field (the elastomer's
-creep and hysteresis: sim/elastomer_memory.py). Formulas: K. L. Johnson, Contact Mechanics
-(1985), chapters 2-4 (Boussinesq, Cerruti, Hertz, the approximate ellipse ratio); J. D. Jackson,
-Classical Electrodynamics (1999), eq. 5.56 (dipole field). Parameter values live with their
-sources in docs/SKIN_PHYSICS.md and in sim/effects/magnetic_skin.py; this module holds no
-numbers of the hardware.
-
-Frames: `half_space_displacement` works in a frame with z pointing INTO the material (Johnson's
-convention); everything else takes vectors in the caller's frame.
+magnet (point loads summed over the contact patch, each displacing a layer bonded to the chip's
+board: sim/elastic_layer.py); the column under the magnet stiffens as it is squeezed; the chip
+reads the displaced magnet's dipole field (the elastomer's creep and hysteresis:
+sim/elastomer_memory.py). Formulas: K. L. Johnson, Contact Mechanics (1985), chapter 4 (Hertz,
+the approximate ellipse ratio); J. D. Jackson, Classical Electrodynamics (1999), eq. 5.56
+(dipole field). Parameter values live with their sources in docs/SKIN_PHYSICS.md and in
+sim/effects/magnetic_skin.py; this module holds no numbers of the hardware.
 """
 from __future__ import annotations
 
@@ -31,48 +26,6 @@ def dipole_field(moment: np.ndarray, offset: np.ndarray) -> np.ndarray:
     r = np.sqrt(r2)
     along = np.sum(moment * offset, axis=-1, keepdims=True)
     return MU0 / (4.0 * np.pi) * (3.0 * offset * along / (r2 * r2 * r) - moment / (r2 * r))
-
-
-def half_space_displacement(offset: np.ndarray, force: np.ndarray, shear_modulus: float,
-                            poisson: float) -> np.ndarray:
-    """(..., 3) m: displacement at `offset` (m, z > 0 into the material) from a point load
-    `force` (N) on the surface of an elastic half-space, both in a frame with z into the
-    material: Boussinesq for the normal part, Cerruti for the two tangential parts (Johnson
-    1985, eqs. 3.19 and 3.86-3.88 in his notation). The field point must lie off the load."""
-    x, y, z = (np.asarray(offset, np.float64)[..., k] for k in range(3))
-    fx, fy, fz = (np.asarray(force, np.float64)[..., k] for k in range(3))
-    rho = np.sqrt(x * x + y * y + z * z)
-    rho3 = rho ** 3
-    rz = rho + z
-    c = 1.0 - 2.0 * poisson
-    scale = 1.0 / (4.0 * np.pi * shear_modulus)
-    # Normal load fz (Boussinesq).
-    radial = fz * (z / rho3 - c / (rho * rz))
-    ux, uy = radial * x, radial * y
-    uz = fz * (z * z / rho3 + 2.0 * (1.0 - poisson) / rho)
-    # Tangential loads (Cerruti): the in-line term for fx along x and fy along y, the cross
-    # term between them, and the vertical term.
-    tangential = 1.0 / rho + c / rz
-    cross_term = 1.0 / rho3 - c / (rho * rz * rz)
-    ux = ux + fx * (tangential + x * x * cross_term) + fy * x * y * cross_term
-    uy = uy + fy * (tangential + y * y * cross_term) + fx * x * y * cross_term
-    uz = uz + (fx * x + fy * y) * (z / rho3 + c / (rho * rz))
-    return scale * np.stack([ux, uy, uz], axis=-1)
-
-
-def layer_displacement(lateral: np.ndarray, depth: float | np.ndarray, base_depth: float,
-                       force: np.ndarray, shear_modulus: float, poisson: float) -> np.ndarray:
-    """(..., 3) m: displacement of a point at `depth` (broadcast over lateral's leading axes)
-    in a layer bonded at `base_depth` to a rigid board, relative to the board below it, from
-    surface point loads `force` at `lateral` (..., 2) m from the point (frame z into the
-    material). Steinbrenner's approximation: the half-space displacement at the point less the
-    one at the base."""
-    lateral = np.asarray(lateral, np.float64)
-    shape = lateral.shape[:-1]
-    at = np.concatenate([lateral, np.broadcast_to(depth, shape)[..., None]], axis=-1)
-    base = np.concatenate([lateral, np.full(shape + (1,), base_depth)], axis=-1)
-    return (half_space_displacement(at, force, shear_modulus, poisson)
-            - half_space_displacement(base, force, shear_modulus, poisson))
 
 
 def neo_hookean_stretch(linear_strain: np.ndarray, max_iterations: int = 100) -> np.ndarray:

@@ -3,9 +3,10 @@
 Per frame: the Hertz pressure of the plate on the skin (relative curvature of plate and skin at
 the contact, the skin's from the hand description's taxels), sampled as point loads carrying the
 contact force (shear in proportion to pressure); the displacement of each magnet relative to
-its chip from those loads (Boussinesq and Cerruti in a layer on a rigid board); the elastomer's
-creep and hysteresis; the displaced magnet's dipole field at the chip, converted to counts by
-the chip's sensitivity. Pieces: sim/skin_physics.py. Parameter sources: docs/SKIN_PHYSICS.md.
+its chip from those loads (the exact solution for a layer bonded to the chip's board); the
+elastomer's creep and hysteresis; the displaced magnet's dipole field at the chip, converted to
+counts by the chip's sensitivity. Pieces: sim/skin_physics.py, sim/elastic_layer.py. Parameter
+sources: docs/SKIN_PHYSICS.md.
 
 It supersedes what the empirical chain stood in for: the foundation-spring pressure weights
 and the tanh response (sim/contact.py, sim/taxel_response.py), `taxel_variation` (here the
@@ -24,6 +25,7 @@ import numpy as np
 
 from tacforce_ros.sim import skin_physics as phys
 from tacforce_ros.sim.effects import Effect
+from tacforce_ros.sim.elastic_layer import BondedLayer
 from tacforce_ros.sim.elastomer_memory import Creep, Play
 from tacforce_ros.sim.taxel_response import CHIP_ZERO
 
@@ -81,6 +83,7 @@ class MagneticSkin(Effect):
         self.creep = Creep(self.creep_share, self.creep_time_constant)
         self.play = Play(self.play_relative, self.play_width)
         self._patch = phys.elliptic_patch()
+        self._layers: dict[bytes, BondedLayer] = {}     # per array, by its magnets' depths
 
     # -- the hand: where each magnet sits ------------------------------------------------------
 
@@ -142,7 +145,12 @@ class MagneticSkin(Effect):
         self._pitch = float(np.min(np.sqrt(np.sum(
             (self._positions[:, None] - self._positions[None]) ** 2, axis=-1))
             + np.eye(array.n_taxels)))
-        self._magnet_depth = self.layer_thickness - self.height[self._rows]   # (n,) > 0
+        depth = self.layer_thickness - self.height[self._rows]
+        key = depth.tobytes()
+        if key not in self._layers:
+            self._layers[key] = BondedLayer(self.layer_thickness, self.shear_modulus,
+                                            self.poisson, depth)
+        self._layer = self._layers[key]
         self.creep.reset((array.n_taxels, 3), ctx.dt)
         self.play.reset((array.n_taxels, 3))
         self._location_key = b''
@@ -202,9 +210,7 @@ class MagneticSkin(Effect):
         lateral = offset[..., :2] * (distance / np.maximum(planar, 1e-12))
         extra = forces.ndim - 3       # axes of `forces` beyond (n, k, 3)
         lateral = lateral.reshape(lateral.shape[:2] + (1,) * extra + (2,))
-        depth = self._magnet_depth.reshape((-1,) + (1,) * (1 + extra))
-        return phys.layer_displacement(lateral, depth, self.layer_thickness, forces,
-                                       self.shear_modulus, self.poisson)
+        return self._layer.displacement(lateral, forces)
 
     def _unit_influence(self, points: np.ndarray, shares: np.ndarray) -> np.ndarray:
         """(n, 3, 3): displacement per unit load (force axis, then displacement axis) of loads
@@ -218,7 +224,7 @@ class MagneticSkin(Effect):
         offset across it). Points lie at most half the shallowest magnet's depth apart, so the
         sum over them stands for the integral."""
         low, high = self._footprint
-        step = 0.5 * float(self._magnet_depth.min())
+        step = 0.5 * float(self._layer.depths.min())
         curved = self._curvatures > FLAT_CURVATURE
         self._flat_influence = self._line_table = None
         if curved.all():

@@ -88,7 +88,7 @@ class BondedLayer:
     """Displacements in a layer of `thickness` (m) bonded to a rigid base, at the depths
     `depths` (m, one per field point: a magnet under the surface), per surface point load.
 
-    Tabulated over the distance from the load at construction (about a second for a few dozen
+    Tabulated over the distance from the load at construction (one to two seconds for a few dozen
     depths); `displacement` interpolates linearly."""
 
     def __init__(self, thickness: float, shear_modulus: float, poisson: float,

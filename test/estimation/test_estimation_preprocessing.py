@@ -201,7 +201,7 @@ def test_standardiser_dead_channel_is_flagged_not_inf():
 
 
 def test_static_segments_on_the_magnetic_skin_with_a_large_bias_turning_with_the_hand():
-    """Named case: the magnetic skin, whose presses lower the summed Z as often as not on the
+    """Named case: the magnetic skin, whose presses with the edge plate lower the summed Z on the
     fingertip (magnets pushed sideways read less), with an F/T bias beyond the 0.3 N threshold,
     the force expressed in the array frame as the dataset does (the bias turns as the hand moves
     between presses)."""
@@ -212,12 +212,12 @@ def test_static_segments_on_the_magnetic_skin_with_a_large_bias_turning_with_the
     from tacforce_ros.sim import load_scene, make_simulator
     from tacforce_ros.sim.effects.magnetic_skin import with_magnetic_skin
     hand = load_hand()
-    scene = load_scene('calibration_index_tip_convex')
+    scene = load_scene('calibration_index_tip_edge')
     effects = with_magnetic_skin({**scene.effects, 'ft_noise': {
         'force_bias_sigma': 0.5, 'drift_per_sqrt_s': 0.0}})
     with warnings.catch_warnings():
         warnings.simplefilter('ignore')
-        sim = make_simulator(dataclasses.replace(scene, effects=effects), hand, seed=5)
+        sim = make_simulator(dataclasses.replace(scene, effects=effects), hand, seed=1)
     rows = hand.array('index_tip').flat_indices
     samples = [sim.step() for _ in range(4000)]
     force = np.array([sim.rotation(s.q) @ s.ft_wrench[:3] for s in samples])

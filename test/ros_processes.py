@@ -84,6 +84,12 @@ def call_service(node, srv_type, name: str, request, timeout: float = 60.0,
         client = clients[name] = node.create_client(srv_type, name)
     deadline = time.monotonic() + timeout
     assert spin_until(node, client.service_is_ready, timeout), f'{name} never appeared'
+    return _answer(node, client, name, request, deadline, resend_after)
+
+
+def _answer(node, client, name: str, request, deadline: float, resend_after: float | None):
+    """Send `request` on a ready client until answered or `deadline` (monotonic) passes,
+    again every `resend_after` seconds when given; the first answer."""
     futures = []
     while time.monotonic() < deadline and not any(f.done() for f in futures):
         futures.append(client.call_async(request))
@@ -110,15 +116,9 @@ def call_service_once(node, srv_type, name: str, request, timeout: float = 60.0)
         deadline = time.monotonic() + timeout
         assert spin_until(node, lambda: client.service_is_ready() and proof.service_is_ready(),
                           timeout), f'{name} never appeared'
-        proofs = []
-        while time.monotonic() < deadline and not any(f.done() for f in proofs):
-            proofs.append(proof.call_async(GetParameters.Request()))
-            spin_until(node, lambda: any(f.done() for f in proofs), 2.0)
-        assert any(f.done() for f in proofs), f'{server_node} never answered get_parameters'
-        future = client.call_async(request)
-        assert spin_until(node, future.done, max(0.0, deadline - time.monotonic())), \
-            f'{name} did not answer'
-        return future.result()
+        _answer(node, proof, f'{server_node}/get_parameters', GetParameters.Request(),
+                deadline, resend_after=2.0)
+        return _answer(node, client, name, request, deadline, resend_after=None)
     finally:
         node.destroy_client(proof)
         node.destroy_client(client)

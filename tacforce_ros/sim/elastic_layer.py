@@ -101,7 +101,7 @@ class BondedLayer:
             raise ValueError(f'BondedLayer: Poisson ratio {poisson} outside [0, 0.5) or shear '
                              f'modulus {shear_modulus} Pa not positive')
         h = float(thickness)
-        self.thickness, self.depths = h, depths
+        self.depths = depths
         self.r_step = float(depths.min()) / R_STEPS_PER_DEPTH
         self.radii = np.arange(0.0, R_MAX * h + self.r_step, self.r_step)
         dk = 2 * np.pi / self.radii[-1] / K_PER_PERIOD
@@ -132,6 +132,9 @@ class BondedLayer:
         table's reach."""
         lateral = np.asarray(lateral, np.float64)
         force = np.asarray(force, np.float64)
+        if lateral.shape[0] != self.depths.size:
+            raise ValueError(f'BondedLayer: {lateral.shape[0]} field points given, '
+                             f'{self.depths.size} tabulated')
         # From the load to the field point.
         dx, dy = -lateral[..., 0], -lateral[..., 1]
         r = np.sqrt(dx * dx + dy * dy)
@@ -139,9 +142,6 @@ class BondedLayer:
         index = np.minimum(position.astype(np.intp), self.radii.size - 2)
         frac = np.clip(position - index, 0.0, 1.0)
         inside = r <= self.radii[-1]
-        if r.shape[0] != self.depths.size:
-            raise ValueError(f'BondedLayer: {r.shape[0]} field points given, '
-                             f'{self.depths.size} tabulated')
         rows = np.arange(self.depths.size).reshape((-1,) + (1,) * (r.ndim - 1))
 
         def at(name: str) -> np.ndarray:

@@ -98,18 +98,18 @@ def static_mask(force: np.ndarray, taxels: np.ndarray, fs: float = SAMPLE_RATE_H
 
     The no-contact reference comes from the recording itself, so an un-zeroed F/T bias of any
     size does not hide the rests. Released, the F/T sensor reads its bias, of one magnitude
-    through every rest, while presses sweep through forces: the `rest_share` of samples nearest
-    the densest force magnitude are released ones (the operator rests between presses; the paper's
-    sessions rest about a quarter of the time). Their median is the rest reading of the taxels
-    and of the F/T sensor. Static = force within `force_threshold` [N] of the F/T's rest reading
-    AND tactile activity below `activity_threshold` [counts, rms over channels of the deviation
-    from the taxels' rest], held for at least `min_duration` [s] after dropping `margin` [s] at
-    both ends of each run (the onset and release of a press are below the thresholds but not at
-    rest).
+    through every rest, and the taxels read their rest counts, while presses sweep through both:
+    the `rest_share` of samples nearest the reading that recurs most are released ones (the
+    operator rests between presses; the paper's sessions rest about a quarter of the time).
+    Their median is the rest reading of the taxels and of the F/T sensor. Static = force within
+    `force_threshold` [N] of the F/T's rest reading AND tactile activity below
+    `activity_threshold` [counts, rms over channels of the deviation from the taxels' rest],
+    held for at least `min_duration` [s] after dropping `margin` [s] at both ends of each run
+    (the onset and release of a press are below the thresholds but not at rest).
     """
     force = np.asarray(force, dtype=np.float64)
     taxels = np.asarray(taxels, dtype=np.float64)
-    rest, force_rest = rest_reading(force, taxels, rest_share)
+    rest, force_rest = rest_reading(force, taxels, rest_share, activity_threshold)
     flat = taxels.reshape(force.shape[0], -1)
     activity = np.sqrt(np.mean((flat - rest) ** 2, axis=1))
     candidate = ((np.linalg.norm(force - force_rest, axis=1) < force_threshold)
@@ -123,10 +123,11 @@ def static_mask(force: np.ndarray, taxels: np.ndarray, fs: float = SAMPLE_RATE_H
     return mask
 
 
-def rest_reading(force: np.ndarray, taxels: np.ndarray, rest_share: float = 0.1
-                 ) -> tuple[np.ndarray, np.ndarray]:
+def rest_reading(force: np.ndarray, taxels: np.ndarray, rest_share: float = 0.1,
+                 activity_threshold: float = 15.0) -> tuple[np.ndarray, np.ndarray]:
     """(flat taxel counts, force) of a recording at rest: the medians over its released samples
-    (static_mask says how they are found)."""
+    (static_mask says how they are found; `activity_threshold` [counts rms] is how far apart two
+    readings of the taxels at rest may lie)."""
     force = np.asarray(force, dtype=np.float64)
     taxels = np.asarray(taxels, dtype=np.float64)
     if taxels.ndim != 3 or taxels.shape[2] != 3 or taxels.shape[0] != force.shape[0]:
@@ -134,8 +135,10 @@ def rest_reading(force: np.ndarray, taxels: np.ndarray, rest_share: float = 0.1
                          f'{force.shape}')
     if not 0.0 < rest_share < 0.5:
         raise ValueError(f'rest_share {rest_share} must lie in (0, 0.5)')
+    if not activity_threshold > 0.0:
+        raise ValueError(f'activity_threshold {activity_threshold} must be positive')
     flat = taxels.reshape(force.shape[0], -1)
-    released = _released(force, rest_share)
+    released = _released(force, flat, rest_share, activity_threshold)
     return np.median(flat[released], axis=0), np.median(force[released], axis=0)
 
 
@@ -143,20 +146,38 @@ REST_RADIUS = 0.03       # N: about the F/T sensor's noise, well below a press
 DENSITY_PROBES = 256     # candidate samples, spread over the recording
 
 
-def _released(force: np.ndarray, share: float) -> np.ndarray:
-    """(N,) bool: the `share` of samples whose force magnitude lies nearest the densest one.
-    Released, the F/T sensor reads its bias, the same magnitude through every rest whatever
-    frame the force is expressed in as the hand moves between presses, while presses sweep
-    through magnitudes and hold each at a different one. The taxels are no guide: a press moves
-    their counts either way (a magnet pushed sideways reads less Z)."""
+def _released(force: np.ndarray, flat: np.ndarray, share: float,
+              taxel_radius: float) -> np.ndarray:
+    """(N,) bool: the `share` of samples nearest the reading that recurs most, a force
+    magnitude within REST_RADIUS [N] together with taxel counts within `taxel_radius` [counts
+    rms] of it. Released, the F/T sensor reads its bias, the same magnitude through every rest
+    whatever frame the force is expressed in as the hand moves between presses, and the taxels
+    their rest counts; presses sweep through both. Either alone can mislead: a press can keep
+    the force's magnitude at the bias's (a press against a bias of the same size), and the
+    taxels' rest counts recur in any span where the F/T sensor reads a load the skin does not
+    feel (a press on another array, an F/T lag)."""
     magnitude = np.sqrt(np.sum(force * force, axis=1))
-    ordered = np.sort(magnitude)
-    probes = ordered[np.linspace(0, len(ordered) - 1,
-                                 min(len(ordered), DENSITY_PROBES)).astype(np.int64)]
-    density = (np.searchsorted(ordered, probes + REST_RADIUS, side='right')
-               - np.searchsorted(ordered, probes - REST_RADIUS, side='left'))
-    distance = np.abs(magnitude - probes[int(np.argmax(density))])
-    return distance <= np.quantile(distance, share)
+
+    def distance(magnitude_0: float, flat_0: np.ndarray,
+                 rows: np.ndarray | slice = slice(None)) -> np.ndarray:
+        """Per sample, the larger of its force and taxel distances to a reading, each over its
+        radius (so <= 1 is near in both)."""
+        taxel_rms = np.sqrt(np.mean((flat[rows] - flat_0) ** 2, axis=1))
+        return np.maximum(np.abs(magnitude[rows] - magnitude_0) / REST_RADIUS,
+                          taxel_rms / taxel_radius)
+
+    probes = np.linspace(0, len(magnitude) - 1,
+                         min(len(magnitude), DENSITY_PROBES)).astype(np.int64)
+    density = np.zeros(len(probes), np.int64)
+    for k, probe in enumerate(probes):
+        near_force = np.flatnonzero(np.abs(magnitude - magnitude[probe]) <= REST_RADIUS)
+        density[k] = np.count_nonzero(
+            distance(magnitude[probe], flat[probe], near_force) <= 1.0)
+    # The densest probe's neighbours, measured from their median: a probe is one noisy sample.
+    densest = probes[int(np.argmax(density))]
+    cluster = distance(magnitude[densest], flat[densest]) <= 1.0
+    nearest = distance(float(np.median(magnitude[cluster])), np.median(flat[cluster], axis=0))
+    return nearest <= np.quantile(nearest, share)
 
 
 def true_runs(flags: np.ndarray) -> list[tuple[int, int]]:

@@ -1,7 +1,7 @@
 """Pipeline steps 1-5: low-pass, resampling, projection, static offsets, standardisation."""
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
@@ -128,6 +128,12 @@ def test_no_static_segment_is_refused_clearly():
        presses=st.lists(st.tuples(st.integers(150, 500), st.integers(70, 200),
                                   st.floats(0.3, 3.5)), min_size=2, max_size=6),
        seed=st.integers(0, 2 ** 16))
+# A press whose force keeps the bias's magnitude (|(-1.25, 0, 0) + L (0.2, -0.1, 1)| stays
+# within 0.025 N of 1.25 N up to L = 0.5 N): the magnitude alone cannot tell it from a rest.
+@example(bias=[-1.25, 0.0, 0.0], presses=[(150, 70, 0.5)] * 2, seed=0)
+# Presses that ramp slowly through the rest's force and counts, which a rest measured from one
+# noisy sample took for rests.
+@example(bias=[0.0, 1.0, 0.0], presses=[(178, 77, 0.375), (181, 70, 0.3125)], seed=196)
 def test_static_segments_found_whatever_the_ft_bias(bias, presses, seed):
     """Operator-like sessions (presses of 1.5-5 s, releases of 0.7-2 s) read through an F/T
     with an un-zeroed bias up to 1.5 N per axis: every static sample is a released one, and

@@ -154,7 +154,7 @@ def trace_metrics(traces: list[ClosedLoopTrace],
               'e_tilde_mean': true_tracking.e_hat_mean, 'e_tilde_std': true_tracking.e_hat_std,
               'e_tilde_per_run': per_run, 'estimate_coverage': 0.0,
               'e_r_mean': None, 'e_r_std': None, 'e_hat_mean': None, 'e_hat_std': None,
-              'e_track_mean': None, 'e_track_std': None}
+              'e_track_mean': None, 'e_track_std': None, 'estimate_gain': None}
     have = np.all(np.isfinite(f_hat), axis=1)
     if have.any():
         estimate = error_stats(f_tilde[have], f_hat[have])
@@ -162,5 +162,16 @@ def trace_metrics(traces: list[ClosedLoopTrace],
         result.update(estimate_coverage=float(have.mean()),
                       e_r_mean=estimate.e_r_mean, e_r_std=estimate.e_r_std,
                       e_hat_mean=estimate.e_hat_mean, e_hat_std=estimate.e_hat_std,
-                      e_track_mean=tracking.e_hat_mean, e_track_std=tracking.e_hat_std)
+                      e_track_mean=tracking.e_hat_mean, e_track_std=tracking.e_hat_std,
+                      estimate_gain=estimate_gain(f_tilde[have], f_hat[have]))
     return result
+
+
+def estimate_gain(f_tilde: np.ndarray, f_hat: np.ndarray, least: float = 0.1
+                  ) -> list[float | None]:
+    """Per axis, the least-squares slope of the estimate over the measured force (through 0):
+    1 where the estimate scales as the force does; None on an axis whose rms force is below
+    `least` [N] (no slope to speak of)."""
+    power = np.mean(f_tilde * f_tilde, axis=0)
+    slope = np.mean(f_hat * f_tilde, axis=0) / np.maximum(power, least ** 2)
+    return [float(g) if p >= least ** 2 else None for g, p in zip(slope, power)]

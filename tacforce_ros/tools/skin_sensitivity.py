@@ -136,7 +136,7 @@ def evaluate(variant: dict, arrays: list[str], sessions: int, seconds: float,
     hand = load_hand()
     kinematics = HandKinematics.for_hand(hand)
     configs = paper_configurations(seed, epochs)
-    rows, loop = {}, None
+    rows, per_plate, loop = {}, {}, None
     for array in arrays:
         parts = []
         for plate in paper.TRAINING_PLATES:
@@ -150,16 +150,18 @@ def evaluate(variant: dict, arrays: list[str], sessions: int, seconds: float,
                             'seconds': time.perf_counter() - started}
         dataset = concatenate(parts)
         X, F, offset = dataset.without_offsets(force_threshold=0.3)
-        rows[array] = {}
+        rows[array], per_plate[array] = {}, {}
         for label in models:
             kind, hyper = configs[label]
             summary = cross_validate(hand.array(array), kind, hyper, X, F,
                                      dataset.plates).summary()
             rows[array][label] = summary['e_hat_mean']
+            per_plate[array][label] = {fold['test_plate']: fold['e_hat_mean']
+                                       for fold in summary['per_fold']}
         if array == LOOP_ARRAY and loop_models:
             loop = closed_loop(hand, kinematics, magnetic(LOOP_SCENE), loop_models, configs,
                                X, F, dataset.plates, offset, seed)
-    return {**variant, 'infeasible': None, 'e_hat': rows,
+    return {**variant, 'infeasible': None, 'e_hat': rows, 'e_hat_per_plate': per_plate,
             'closed_loop': loop,
             'seconds': time.perf_counter() - started}
 
@@ -200,6 +202,7 @@ def closed_loop(hand, kinematics, scene, labels: list[str], configs: dict, X, F,
                                                     models)])
             result[label] = {'e_tilde': closed['e_tilde_mean'],
                              'e_track': closed['e_track_mean'], 'e_hat': closed['e_hat_mean'],
+                             'estimate_gain': closed['estimate_gain'],
                              'reduction': 1.0 - closed['e_tilde_mean'] / result['open_loop']}
     return result
 
@@ -244,11 +247,13 @@ def table(result: dict) -> str:
             continue
         lines += ['', f"Closed loop at the {row['name']}, seed {row['seed']} ({LOOP_ARRAY}, "
                   f"paper sequence, {LOOP_SCENE}): open loop e~ {loop['open_loop']:.3f} N", '',
-                  '| model | e~ [N] | reduction | e_track [N] | e_hat [N] |',
-                  '|---|---|---|---|---|']
+                  '| model | e~ [N] | reduction | e_track [N] | e_hat [N] | '
+                  'estimate over force x / y / z |', '|---|---|---|---|---|---|']
         lines += [f"| {label} | {m['e_tilde']:.3f} | {100 * m['reduction']:.1f} % | "
-                  f"{m['e_track']:.3f} | {m['e_hat']:.3f} |"
-                  for label, m in loop.items() if label != 'open_loop']
+                  f"{m['e_track']:.3f} | {m['e_hat']:.3f} | "
+                  + ' / '.join('-' if g is None else f'{g:.2f}' for g in m['estimate_gain'])
+                  + ' |' for label, m in loop.items() if label != 'open_loop']
+    lines += per_plate_table(result)
     checks = result['targets']
     if checks:
         seeds = [row['seed'] for row in result['variants'] if row['name'] == 'values'
@@ -261,6 +266,24 @@ def table(result: dict) -> str:
                                     + [f"{c['met']} of {len(seeds)}"]) + ' |'
                   for c in checks]
     return '\n'.join(lines) + '\n'
+
+
+def per_plate_table(result: dict) -> list[str]:
+    """Lines: each model's held-out e_hat per test plate at the values, per seed."""
+    rows = [row for row in result['variants'] if row['name'] == 'values' and row['e_hat']]
+    if not rows:
+        return []
+    plates = list(paper.TRAINING_PLATES)
+    lines = ['', '## Held-out e_hat [N] per test plate at the values', '',
+             '| array | model | seed | ' + ' | '.join(plates) + ' |',
+             '|' + '---|' * (len(plates) + 3)]
+    for array in result['arrays']:
+        for model in result['models']:
+            for row in rows:
+                fold = row['e_hat_per_plate'][array][model]
+                lines.append(f"| {array} | {model} | {row['seed']} | "
+                             + ' | '.join(f'{fold[p]:.3f}' for p in plates) + ' |')
+    return lines
 
 
 def main(argv: list[str] | None = None) -> int:

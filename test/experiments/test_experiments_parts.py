@@ -55,10 +55,21 @@ def test_metrics_use_only_the_window_and_pool_the_repeats():
     assert m['e_r_mean'] == pytest.approx(0.15)
 
 
+def test_estimate_gain_is_the_estimate_over_the_force_per_axis():
+    t = np.arange(16.0, 70.0, 0.01)
+    f_tilde = np.column_stack([np.zeros_like(t), 0.3 * np.sin(t), -1.0 - 0.5 * np.sin(0.3 * t)])
+    f_hat = f_tilde * [1.0, 0.8, 1.7]
+    runs = [ClosedLoopTrace(t=t, f_d=np.zeros_like(f_tilde), f_tilde=f_tilde, f_hat=f_hat)]
+    gain = trace_metrics(runs)['estimate_gain']
+    assert gain[0] is None                   # no force along x: no slope to speak of
+    assert gain[1:] == pytest.approx([0.8, 1.7])
+
+
 def test_open_loop_traces_report_no_estimate_metrics():
     t = np.arange(16.0, 70.0, 0.01)
     m = trace_metrics([trace(t, [0.0, 0.0, -1.0], [0.0, 0.0, -1.3])])
     assert m['e_hat_mean'] is None and m['e_track_mean'] is None and m['e_r_mean'] is None
+    assert m['estimate_gain'] is None
     assert m['estimate_coverage'] == 0.0 and m['e_tilde_mean'] == pytest.approx(0.1)
 
 

@@ -100,8 +100,14 @@ def test_skin_sensitivity_varies_each_estimate_and_writes_its_table(tmp_path):
     band = 'index_middle M3-lambda e_hat over the paper in [0.6, 1.5]'
     assert [t['target'] for t in result['targets']] == [band]
     assert len(result['targets'][0]['values']) == 2
+    folds = result['variants'][0]['e_hat_per_plate']['index_middle']['M3-lambda']
+    assert sorted(folds) == sorted(['button', 'flat', 'fillet', 'convex', 'edge'])
+    # Table I's entry is the mean of the five held-out plates'.
+    assert np.mean(list(folds.values())) == pytest.approx(
+        result['variants'][0]['e_hat']['index_middle']['M3-lambda'])
     text = (out / 'skin_sensitivity.md').read_text()
     assert '| paper |' in text and f'| {band} |' in text and 'seed 4' in text
+    assert '| index_middle | M3-lambda | 4 |' in text     # the per-plate table, each seed
 
 
 def test_skin_sensitivity_counts_the_seeds_that_meet_each_target():

@@ -126,8 +126,7 @@ def static_mask(force: np.ndarray, taxels: np.ndarray, fs: float = SAMPLE_RATE_H
 def rest_reading(force: np.ndarray, taxels: np.ndarray, rest_share: float = 0.1,
                  activity_threshold: float = 15.0) -> tuple[np.ndarray, np.ndarray]:
     """(flat taxel counts, force) of a recording at rest: the medians over its released samples
-    (static_mask says how they are found; `activity_threshold` [counts rms] is how far apart two
-    readings of the taxels at rest may lie)."""
+    (static_mask says how they are found; `activity_threshold` [counts rms] as there)."""
     force = np.asarray(force, dtype=np.float64)
     taxels = np.asarray(taxels, dtype=np.float64)
     if taxels.ndim != 3 or taxels.shape[2] != 3 or taxels.shape[0] != force.shape[0]:
@@ -138,12 +137,17 @@ def rest_reading(force: np.ndarray, taxels: np.ndarray, rest_share: float = 0.1,
     if not activity_threshold > 0.0:
         raise ValueError(f'activity_threshold {activity_threshold} must be positive')
     flat = taxels.reshape(force.shape[0], -1)
-    released = _released(force, flat, rest_share, activity_threshold)
+    released = _released(force, flat, rest_share, REST_SPREAD * activity_threshold)
     return np.median(flat[released], axis=0), np.median(force[released], axis=0)
 
 
 REST_RADIUS = 0.03       # N: about the F/T sensor's noise, well below a press
 DENSITY_PROBES = 256     # candidate samples, spread over the recording
+# Rests of one session read their taxels a little apart (the skin's creep and hysteresis: on
+# the magnetic skin 20-30 counts rms between the first rest and one after presses of 1.5-3.5 N,
+# index_proximal on the button plate), presses hundreds of counts from them: the rests are one
+# cluster within this many activity thresholds.
+REST_SPREAD = 3.0
 
 
 def _released(force: np.ndarray, flat: np.ndarray, share: float,

@@ -45,6 +45,7 @@ from tacforce_ros.hand.kinematics import HandKinematics
 from tacforce_ros.nodes.session_plan import shipped_parameters
 from tacforce_ros.paths import config_dir
 from tacforce_ros.sim import load_scene
+from tacforce_ros.sim.effects.magnetic_skin import magnetic_skin_overlay
 from tacforce_ros.sim.scene import calibration_scene_name, session_seed
 from tacforce_ros.timing import time_interleaved
 
@@ -89,6 +90,7 @@ class Settings:
     # the paper's session length, a quarter of its data, for the budget (the Table I arrays
     # have the paper's sizes).
     whole_hand_seconds: float = 100.0
+    skin: str = 'empirical'              # SKINS: every scene of the run on this skin
 
     @classmethod
     def quick(cls) -> Settings:
@@ -96,6 +98,11 @@ class Settings:
         return cls(sessions_per_plate=1, session_seconds=20.0, online_seconds=20.0, epochs=1,
                    timing_repeats=100, objects=('spherical',), repeats=1, node_path=False,
                    whole_hand_seconds=20.0)
+
+
+# The simulated skin: the empirical response (sim/taxel_response.py) or the one computed from
+# the taxel's physics (sim/effects/magnetic_skin.py, docs/SKIN_PHYSICS.md).
+SKINS = ('empirical', 'magnetic')
 
 
 @dataclass
@@ -108,6 +115,20 @@ class Context:
     pool: ProcessPoolExecutor
     log: Callable[[str], None] = print
     timings: dict[str, float] = field(default_factory=dict)
+
+
+def scene_for(ctx: Context, name: str) -> str:
+    """The scene `name` on the run's skin: `name` itself on the empirical skin; on the magnetic
+    skin, a scene file in <out>/scenes that extends it, which the node graph's `session --scene`
+    loads as the direct path does (and a user can launch)."""
+    skin = ctx.settings.skin
+    if skin == 'empirical':
+        return name
+    if skin != 'magnetic':
+        raise ValueError(f'skin {skin!r}: one of {SKINS}')
+    text = yaml.safe_dump({'extends': name, 'effects': magnetic_skin_overlay()}, sort_keys=False)
+    return str(atomic_write(ctx.out / 'scenes' / f'{name}_{skin}.yaml',
+                            lambda tmp: tmp.write_text(text)))
 
 
 # ---------------------------------------------------------------------------------- workers
@@ -244,7 +265,7 @@ def run_units(ctx: Context, title: str, units: list[tuple[str, Callable, tuple]]
 def calibration_unit(ctx: Context, array: str, plate: str, session: int, seconds: float,
                      zero_phase_tactile: bool = True) -> tuple[str, tuple | None]:
     """(dataset path, job unit to run, or None when the cache has it) of one session."""
-    scene = calibration_scene_name(array, plate)
+    scene = scene_for(ctx, calibration_scene_name(array, plate))
     seed = session_seed(ctx.settings.seed, array, plate, session)
     key = digest({'scene': scene_digest(scene), 'seed': seed, 'seconds': seconds,
                   'code': source_digest(simulate_calibration, load_hand, HandKinematics),
@@ -558,7 +579,7 @@ def closed_loop_unit(ctx: Context, obj: str, controller: str, repeat: int, model
                      lowpass: tuple[float, int] | None = None) -> tuple[str, tuple | None]:
     """(trace path, job unit to run, or None when the cache has it) of one closed-loop run."""
     s = ctx.settings
-    scene = f'closed_loop_{obj}'
+    scene = scene_for(ctx, f'closed_loop_{obj}')
     code = source_digest(run_closed_loop, load_model_set, ForceSequence, load_hand, HandKinematics)
     inputs = file_digest(controller_params_file(), config_dir() / 'commands' / f'{s.sequence}.yaml',
                          config_dir() / 'params' / 'estimator.yaml')
@@ -635,8 +656,8 @@ def node_path_stage(ctx: Context, models: dict) -> dict:
     if not s.node_path:
         return {'ran': False, 'reason': 'switched off for this run (--quick or --no-node-path)'}
     hand, kinematics = _hand()
-    calibration_scene = calibration_scene_name('index_tip', HELD_OUT_PLATE)
-    loop_scene = 'closed_loop_spherical'
+    calibration_scene = scene_for(ctx, calibration_scene_name('index_tip', HELD_OUT_PLATE))
+    loop_scene = scene_for(ctx, 'closed_loop_spherical')
     model = models['index_tip']['M3-lambda']
     key = digest({'scenes': [scene_digest(calibration_scene), scene_digest(loop_scene)],
                   'model': Path(model).stem,

@@ -11,6 +11,7 @@ import statistics
 from typing import Any
 
 from tacforce_ros.experiments import paper_reference as paper
+from tacforce_ros.experiments.skin_targets import targets
 from tacforce_ros.hand.description import ARRAY_KIND_TITLES
 
 MODEL_NAMES = {'M3-lambda': 'M3λ', 'M3-lambda-cv': 'M3λ (nested-CV λ)', 'open_loop': 'O.L.'}
@@ -18,6 +19,10 @@ ARRAY_TITLES = {'index_tip': 'Curved array (index_tip)',
                 'index_middle': 'Flat array (index_middle)'}
 OBJECT_NUMBERS = {'spherical': 1, 'foam_brick': 2, 'softball': 3, 'abrasive_sponge': 4,
                   'bleach_cleanser': 5}
+SKIN_TITLES = {'empirical': 'empirical (sim/taxel_response.py: foundation-spring pressure '
+                            'weights, tanh response)',
+               'magnetic': 'magnetic, computed from the taxel\'s physics (docs/SKIN_PHYSICS.md; '
+                           'the scene files in scenes/)'}
 REDUCTION_TARGET_PERCENT = 70.0     # must-show: e~ with M3-lambda >= 70 % below open loop
 E_TRACK_TARGET_N = 0.1              # must-show: e_track with M3-lambda below 0.1 N
 
@@ -100,6 +105,34 @@ def must_show(rows: list[dict]) -> dict:
             'reduction_met': reduction >= REDUCTION_TARGET_PERCENT,
             'e_track_m3_lambda': closed['e_track'], 'e_track_target_n': E_TRACK_TARGET_N,
             'e_track_met': closed['e_track'] is not None and closed['e_track'] < E_TRACK_TARGET_N}
+
+
+def skin_targets(table_i: dict, rows: list[dict], seed: int) -> list[dict]:
+    """Issue 15's targets (experiments/skin_targets.py) on this run's Table I and spherical-plate
+    closed loop: [{'target', 'values': [value], 'met': 0 or 1}]."""
+    by = {(r['object'], r['controller']): r['sim'] for r in rows}
+    open_loop = by.get(('spherical', 'open_loop'))
+    loop = {} if open_loop is None else {'open_loop': open_loop['e_tilde']}
+    for (obj, controller), sim in by.items():
+        if obj == 'spherical' and controller != 'open_loop' and open_loop is not None:
+            loop[controller] = {'reduction': 1.0 - sim['e_tilde'] / open_loop['e_tilde'],
+                                'e_track': sim['e_track']}
+    models = sorted({label for by_model in table_i.values() for label in by_model})
+    return targets({'arrays': list(table_i), 'models': models, 'variants': [{
+        'name': 'values', 'seed': seed, 'closed_loop': loop,
+        'e_hat': {array: {label: row['sim']['e_hat'] for label, row in by_model.items()}
+                  for array, by_model in table_i.items()}}]})
+
+
+def skin_targets_section(checks: list[dict] | None) -> list[str]:
+    if checks is None:
+        return []
+    return (["## Issue 15's targets on this run's magnetic skin", '',
+             'The paper\'s findings as a skin computed from the taxel\'s physics must show them '
+             '(docs/SKIN_PHYSICS.md; `skin_sensitivity` judges them over several seeds).', '',
+             '| target | sim | met |', '|---|---|---|']
+            + [f"| {c['target']} | {cell(c['values'][0], digits=2)} | "
+               f"**{'met' if c['met'] else 'NOT met'}** |" for c in checks] + [''])
 
 
 def best_cutoffs(end_to_end: dict) -> dict[str, float | None]:
@@ -246,6 +279,7 @@ def markdown(doc: dict) -> str:
              f"{s['repeats']} run(s) x the {s['sequence']} sequence "
              f"(paper: 5 objects, 5 runs); metrics over t = 16..70 s; control and estimation "
              f"at {s['control_rate']:g} Hz",
+             f"* skin: {SKIN_TITLES[s['skin']]}",
              f"* cache: {run['cache']['hits']} hits, {run['cache']['misses']} misses", '']
     lines += ['## Which path produced which result', '']
     lines += [f'* {item}' for item in doc['paths']] + ['']
@@ -326,6 +360,7 @@ def markdown(doc: dict) -> str:
         lines += ['* not evaluated: this run has no open-loop and M3λ runs on the spherical '
                   'plate', '']
 
+    lines += skin_targets_section(doc['skin_targets'])
     lines += ['## Node graph against direct path', '']
     node = doc['node_path']
     if not node.get('ran'):

@@ -109,6 +109,8 @@ def run(settings: pipeline.Settings, out: Path, jobs: int) -> dict:
         'table_II': report.table_ii(online), 'end_to_end': end_to_end, 'table_III': rows,
         'filter_closed_loop': filter_effect,
         'must_show': report.must_show(rows), 'node_path': node, 'whole_hand': whole_hand,
+        'skin_targets': (report.skin_targets(table_i, rows, settings.seed)
+                         if settings.skin == 'magnetic' else None),
         'node_tolerance_reason': NODE_TOLERANCE_REASON,
         'figures': figures(out, cv, table_i, end_to_end, traces, whole_hand),
     }
@@ -136,11 +138,15 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--jobs', type=int, default=min(2, os.cpu_count() or 1),
                         help='worker processes (default: 2)')
     parser.add_argument('--seed', type=int, default=0, help='base seed of sessions and runs')
+    parser.add_argument('--skin', choices=pipeline.SKINS, default='empirical',
+                        help='the simulated skin of every scene: empirical (default), or '
+                             'magnetic, computed from the taxel\'s physics (docs/SKIN_PHYSICS.md; '
+                             'the report then judges issue 15\'s targets)')
     args = parser.parse_args(argv)
     if args.jobs < 1:
         parser.error('--jobs must be >= 1')
     settings = pipeline.Settings.quick() if args.quick else pipeline.Settings()
-    settings = dataclasses.replace(settings, seed=args.seed,
+    settings = dataclasses.replace(settings, seed=args.seed, skin=args.skin,
                                    node_path=(settings.node_path or args.node_path)
                                    and not args.no_node_path)
     doc = run(settings, args.out, args.jobs)

@@ -25,19 +25,13 @@ import time
 from concurrent.futures import ProcessPoolExecutor
 
 from tacforce_ros.experiments import paper_reference as paper
+from tacforce_ros.experiments.skin_targets import targets
 from tacforce_ros.paths import output_folder, write_results
 
 ARRAYS = ('index_tip', 'index_middle')
 LOOP_ARRAY, LOOP_SCENE = 'index_tip', 'closed_loop_spherical'   # the paper's Table III
 NOISE = ('taxel_noise', 'sigma')           # counts: an estimate too (sim/effects/taxel_noise.py)
 POISSON_LIMIT = 0.499
-# Issue 15's targets: the paper's findings as the simulated skin must show them.
-CURVED, FLAT = ARRAYS
-PAPER_BAND = (0.6, 1.5)         # M3-lambda, M4, M5 e_hat over the paper's
-NONLINEAR_BELOW = 0.85          # M4, M5 over M3-lambda: at least 15 % below it
-ORIENTATION_ABOVE = 1.5         # curved M1, M2 over M3-lambda: at least 50 % above it
-FLAT_SPREAD = 1.25              # flat M1, M2, M3: within 25 % of each other
-LOOP_REDUCTION, LOOP_TRACK = 0.70, 0.1   # closed loop: e~ cut by 70 %, e_track below 0.1 N
 
 
 def variants(factors: list[float], params: list[str], seeds: list[int]) -> list[dict]:
@@ -56,53 +50,6 @@ def variants(factors: list[float], params: list[str], seeds: list[int]) -> list[
                 row['skin'] = {param: min(value, POISSON_LIMIT) if param == 'poisson' else value}
             rows.append(row)
     return rows
-
-
-def targets(result: dict) -> list[dict]:
-    """Issue 15's targets on the values rows: [{'target', 'values' (one per seed, None where the
-    row lacks what it needs), 'met'}], for the targets the run's arrays and models allow."""
-    rows = [row for row in result['variants'] if row['name'] == 'values' and row['e_hat']]
-    models = set(result['models'])
-    checks = []
-
-    def check(label, measure, passes):
-        values = [measure(row) for row in rows]
-        checks.append({'target': label, 'values': values,
-                       'met': sum(v is not None and passes(v) for v in values)})
-
-    def ratio(array, model, over):
-        return lambda row: row['e_hat'][array][model] / row['e_hat'][array][over]
-
-    for array in result['arrays']:
-        for model in sorted(models & {'M3-lambda', 'M4', 'M5'}):
-            paper_value = paper.TABLE_I[array][model]['e_hat'][0]
-            check(f'{array} {model} e_hat over the paper in [{PAPER_BAND[0]}, {PAPER_BAND[1]}]',
-                  lambda row, a=array, m=model, v=paper_value: row['e_hat'][a][m] / v,
-                  lambda v: PAPER_BAND[0] <= v <= PAPER_BAND[1])
-        if 'M3-lambda' not in models:
-            continue
-        for model in sorted(models & {'M4', 'M5'}):
-            check(f'{array} {model} over M3-lambda <= {NONLINEAR_BELOW}',
-                  ratio(array, model, 'M3-lambda'), lambda v: v <= NONLINEAR_BELOW)
-        if array == CURVED:
-            for model in sorted(models & {'M1', 'M2'}):
-                check(f'{array} {model} over M3-lambda >= {ORIENTATION_ABOVE}',
-                      ratio(array, model, 'M3-lambda'), lambda v: v >= ORIENTATION_ABOVE)
-    if FLAT in result['arrays'] and {'M1', 'M2', 'M3'} <= models:
-        check(f'{FLAT} M1, M2, M3 largest over smallest <= {FLAT_SPREAD}',
-              lambda row: (max(row['e_hat'][FLAT][m] for m in ('M1', 'M2', 'M3'))
-                           / min(row['e_hat'][FLAT][m] for m in ('M1', 'M2', 'M3'))),
-              lambda v: v <= FLAT_SPREAD)
-    loops = [label for row in rows for label in (row.get('closed_loop') or {})
-             if label != 'open_loop']
-    for label in dict.fromkeys(loops):
-        check(f'closed loop {label}: e~ reduction >= {LOOP_REDUCTION:.0%}',
-              lambda row, m=label: (row.get('closed_loop') or {}).get(m, {}).get('reduction'),
-              lambda v: v >= LOOP_REDUCTION)
-        check(f'closed loop {label}: e_track < {LOOP_TRACK} N',
-              lambda row, m=label: (row.get('closed_loop') or {}).get(m, {}).get('e_track'),
-              lambda v: v < LOOP_TRACK)
-    return checks
 
 
 def evaluate(variant: dict, arrays: list[str], sessions: int, seconds: float,

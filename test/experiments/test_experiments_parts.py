@@ -15,11 +15,14 @@ from tacforce_ros.experiments.cache import (PACKAGE_ROOT, StageCache, atomic_wri
 from tacforce_ros.experiments.calibration_data import simulate_calibration
 from tacforce_ros.experiments.closed_loop import ClosedLoopTrace, run_closed_loop, trace_metrics
 from tacforce_ros.experiments.node_path import _free_ports, compare_closed_loop
+from tacforce_ros.experiments import pipeline, report
 from tacforce_ros.experiments.pipeline import controller_config
 from tacforce_ros.experiments.plots import pareto_front
 from tacforce_ros.experiments.report import filter_closed_loop
 from tacforce_ros.hand.description import load_hand
 from tacforce_ros.hand.kinematics import HandKinematics
+from tacforce_ros.sim import load_scene
+from tacforce_ros.sim.effects.magnetic_skin import with_magnetic_skin
 
 
 @pytest.fixture(scope='module')
@@ -134,6 +137,63 @@ def test_direct_calibration_session_is_seeded_and_windowed(hand, kinematics):
     assert a.array == 'index_tip' and a.X.shape[1:] == (30, 3) and set(a.plates) == {'flat'}
     # 4 s of 100 Hz frames, fewer only by the frames the transport effect dropped.
     assert 380 <= len(a.X) <= 401 and a.time[-1] <= 4.0 + 1e-9
+
+
+def test_a_magnetic_skin_run_simulates_each_scene_on_the_magnetic_skin(tmp_path, hand,
+                                                                       kinematics):
+    """The main job's --skin magnetic scene files give the sessions the scene with
+    with_magnetic_skin gives (what skin_sensitivity runs), sample for sample."""
+    def context(skin):
+        return pipeline.Context(settings=pipeline.Settings(skin=skin), out=tmp_path,
+                                cache=StageCache(tmp_path / 'cache'), pool=None)
+    name = 'calibration_index_middle_edge'
+    assert pipeline.scene_for(context('empirical'), name) == name
+    path = pipeline.scene_for(context('magnetic'), name)
+    assert path == str(tmp_path / 'scenes' / f'{name}_magnetic.yaml')
+    scene, plain = load_scene(path), load_scene(name)
+    assert scene.effects == with_magnetic_skin(plain.effects)
+    assert 'magnetic_skin' in scene.effects and 'taxel_variation' not in scene.effects
+    with warnings.catch_warnings():
+        warnings.simplefilter('ignore')
+        a = simulate_calibration(hand, kinematics, path, 3, 4.0)
+        b = simulate_calibration(hand, kinematics, dataclasses.replace(
+            plain, effects=with_magnetic_skin(plain.effects)), 3, 4.0)
+    assert np.array_equal(a.X, b.X) and np.array_equal(a.F, b.F)
+    assert scene_digest(path) != scene_digest(name)      # so the stages' cache keys differ
+    for closed in ('closed_loop_spherical', 'closed_loop_softball'):
+        assert load_scene(pipeline.scene_for(context('magnetic'), closed)).effects == \
+            with_magnetic_skin(load_scene(closed).effects)
+    with pytest.raises(ValueError, match='skin'):
+        pipeline.scene_for(context('velvet'), name)
+
+
+def test_a_magnetic_skin_report_judges_issue_15_s_targets_on_its_own_tables():
+    def table_i(errors):
+        return {array: {label: {'sim': {'e_hat': e}} for label, e in zip(
+            ('M1', 'M2', 'M3', 'M3-lambda', 'M3-lambda-cv', 'M4', 'M5'), row)}
+            for array, row in errors.items()}
+    errors = {'index_tip': (0.60, 0.50, 0.30, 0.30, 0.29, 0.24, 0.27),
+              'index_middle': (0.45, 0.30, 0.28, 0.28, 0.28, 0.20, 0.21)}
+    rows = [{'object': 'spherical', 'controller': 'open_loop',
+             'sim': {'e_tilde': 0.40, 'e_track': None}},
+            {'object': 'spherical', 'controller': 'M3-lambda',
+             'sim': {'e_tilde': 0.10, 'e_track': 0.05}},
+            {'object': 'softball', 'controller': 'M3-lambda',
+             'sim': {'e_tilde': 0.30, 'e_track': 0.05}}]
+    checks = {c['target']: c for c in report.skin_targets(table_i(errors), rows, seed=0)}
+    assert checks['index_tip M4 over M3-lambda <= 0.85']['values'] == [pytest.approx(0.8)]
+    assert checks['index_tip M4 over M3-lambda <= 0.85']['met'] == 1
+    assert checks['index_tip M5 over M3-lambda <= 0.85']['met'] == 0            # 0.9
+    assert checks['index_middle M1, M2, M3 largest over smallest <= 1.25']['values'] == [
+        pytest.approx(0.45 / 0.28)]
+    # The loop on the spherical plate only, against its open loop.
+    loop = checks['closed loop M3-lambda: e~ reduction >= 70%']
+    assert loop['values'] == [pytest.approx(0.75)] and loop['met'] == 1
+    assert not any('M3-lambda-cv' in target for target in checks)
+    lines = report.skin_targets_section(list(checks.values()))
+    assert "| index_tip M5 over M3-lambda <= 0.85 | 0.90 | **NOT met** |" in lines
+    assert "| closed loop M3-lambda: e~ reduction >= 70% | 0.75 | **met** |" in lines
+    assert report.skin_targets_section(None) == []       # the empirical skin: no section
 
 
 def test_closed_loop_runner_refuses_what_it_cannot_run(hand, kinematics):

@@ -145,6 +145,9 @@ def test_the_closed_loop_filter_comparison_is_reported(runs):
 def test_report_holds_every_stage_and_labels_it_simulation(runs):
     _, doc, md, _ = runs
     assert 'SIMULATION' in md.splitlines()[0]
+    # The default skin is the empirical one, whose run judges no issue-15 targets.
+    assert doc['settings']['skin'] == 'empirical' and doc['skin_targets'] is None
+    assert '* skin: empirical' in md and "Issue 15's targets" not in md
     assert set(doc['table_I']) == {'index_tip', 'index_middle'}
     assert all(len(rows) == len(doc['settings']['models']) for rows in doc['table_I'].values())
     objects, controllers = doc['settings']['objects'], doc['controllers']
@@ -207,3 +210,4 @@ def test_the_whole_hand_section_shows_every_array_s_held_out_error(runs):
         assert_shows(shown[name][3], row['cv']['e_hat_mean'], row['cv']['e_hat_std'], 3)
     assert (out / 'whole_hand.png').read_bytes()[:8] == b'\x89PNG\r\n\x1a\n'
     assert second['whole_hand'] == rows               # from the cache, the same
+

@@ -111,7 +111,7 @@ def test_skin_sensitivity_varies_each_estimate_and_writes_its_table(tmp_path):
 
 
 def test_skin_sensitivity_counts_the_seeds_that_meet_each_target():
-    from tacforce_ros.tools import skin_sensitivity as tool
+    from tacforce_ros.experiments import skin_targets
 
     def values(seed, tip, middle, reduction):
         return {'name': 'values', 'seed': seed, 'e_hat': {'index_tip': tip,
@@ -130,7 +130,7 @@ def test_skin_sensitivity_counts_the_seeds_that_meet_each_target():
                          {'M1': 0.30, 'M2': 0.25, 'M3': 0.20, 'M3-lambda': 0.20, 'M4': 0.18},
                          0.60),
                   {'name': 'poisson x0.5', 'seed': 0, 'e_hat': None}]}
-    met = {c['target']: (c['met'], c['values']) for c in tool.targets(result)}
+    met = {c['target']: (c['met'], c['values']) for c in skin_targets.targets(result)}
     assert met['index_tip M1 over M3-lambda >= 1.5'] == (1, pytest.approx([2.0, 1.4]))
     assert met['index_tip M2 over M3-lambda >= 1.5'][0] == 2
     assert met['index_tip M4 over M3-lambda <= 0.85'] == (2, pytest.approx([0.8, 0.8]))

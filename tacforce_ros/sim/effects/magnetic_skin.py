@@ -295,8 +295,13 @@ EFFECT = MagneticSkin
 
 
 def with_magnetic_skin(effects: dict[str, dict], **params) -> dict[str, dict]:
-    """A scene's effects with the magnetic skin (first: the chip effects act on its counts) in
-    place of the effects it supersedes."""
+    """A scene's effects with the magnetic skin in place of the effects it supersedes."""
     return {MagneticSkin.name: dict(params),
             **{name: value for name, value in effects.items()
                if name not in MagneticSkin.supersedes and name != MagneticSkin.name}}
+
+
+def magnetic_skin_overlay(**params) -> dict[str, dict | None]:
+    """The `effects` of a scene file that extends another to put it on the magnetic skin: the
+    skin, and null for each effect it supersedes (null removes an inherited entry)."""
+    return {MagneticSkin.name: dict(params), **dict.fromkeys(MagneticSkin.supersedes)}

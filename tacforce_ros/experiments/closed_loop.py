@@ -6,9 +6,17 @@ arrays, tared on the first frames as the estimator node tares), the FingerSessio
 hold, engagement, force law and watchdog: the object the controller node runs), and the force
 command sequence. Control and estimation tick at `control_rate` (paper: 100 Hz); the torque
 is held over the physics steps in between, as the Allegro firmware holds the last command.
+
+The torque of a tick reaches the hand `actuation_delay` after the state it was computed from
+(default one control period, as in the node graph: in lockstep, simulated time may run one
+controller period ahead of the controller's newest tick, so its command lands up to a period
+late; a lab's ROS controller adds its compute and CAN transport, a few ms, an estimate). On the
+empirical skin the loop hardly feels it; on the magnetic skin, whose gain changes within
+millimetres, it sets where the tip comes to rest on the plate (docs/SKIN_PHYSICS.md).
 """
 from __future__ import annotations
 
+from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -46,15 +54,33 @@ class ClosedLoopTrace:
                 'transitions': np.asarray(self.transitions, dtype=str)}
 
 
+class CommandLink:
+    """Joint torques reaching the hand `delay_steps` physics steps after they were sent; zero
+    torque before the first arrives (the Allegro's state before any command)."""
+
+    def __init__(self, delay_steps: int, n_joints: int = 16) -> None:
+        if delay_steps < 0:
+            raise ValueError(f'a command cannot arrive before it is sent ({delay_steps} steps)')
+        self._in_flight = deque([np.zeros(n_joints)] * delay_steps)
+
+    def step(self, sent: np.ndarray) -> np.ndarray:
+        """The torque the hand applies in this physics step, while `sent` goes on its way."""
+        self._in_flight.append(sent)
+        return self._in_flight.popleft()
+
+
 def run_closed_loop(hand: HandDescription, kinematics: HandKinematics,
                     scene: str | Path | Scene,
                     seed: int, config: ForceControllerConfig, sequence: ForceSequence,
                     models: ModelSet | None, control_rate: float = 100.0,
                     tare_frames: int = 50, settle_seconds: float = SETTLE_SECONDS,
-                    estimator_outage: tuple[float, float] | None = None) -> ClosedLoopTrace:
+                    estimator_outage: tuple[float, float] | None = None,
+                    actuation_delay: float | None = None) -> ClosedLoopTrace:
     """Play `sequence` once. `models` None runs without an estimator (open loop only).
     `estimator_outage` (start, end), seconds of the sequence: no estimate in between, as when
     the estimator process is down (the in-process counterpart of `session --crash`).
+    `actuation_delay` s (a whole number of physics steps; None: one control period): from a
+    tick's state to its torque at the hand.
 
     As a lab run: the finger first holds its start pose clear of the plate for
     `settle_seconds` (gravity compensation and the PD of the law, no force terms); over the last
@@ -75,6 +101,12 @@ def run_closed_loop(hand: HandDescription, kinematics: HandKinematics,
     if every < 1 or abs(every * sim.dt * control_rate - 1.0) > 1e-9:
         raise ValueError(f'control rate {control_rate} Hz must divide the physics rate '
                          f'{1.0 / sim.dt:g} Hz')
+    delay = 1.0 / control_rate if actuation_delay is None else actuation_delay
+    delay_steps = int(round(delay / sim.dt))
+    if abs(delay_steps * sim.dt - delay) > 1e-9:
+        raise ValueError(f'actuation delay {delay} s must be a whole number of physics steps '
+                         f'({sim.dt:g} s)')
+    link = CommandLink(delay_steps)
     row = None if models is None else [a.name for a in models.arrays].index(scene.array)
     settle_ticks = int(round(settle_seconds * control_rate))
     if settle_ticks < tare_frames:
@@ -95,7 +127,7 @@ def run_closed_loop(hand: HandDescription, kinematics: HandKinematics,
     for tick in range(-settle_ticks, ticks):
         frame = None
         for _ in range(every):
-            sample = sim.step(torque)
+            sample = sim.step(link.step(torque))
             if sample.tactile_fresh and sample.delivered['tactile']:
                 frame = sample.taxel_counts
         t = sample.t - start    # closed-loop samples are stamped at the end of their step

@@ -13,7 +13,8 @@ from tacforce_ros.control.command_sequence import ForceSequence
 from tacforce_ros.experiments.cache import (PACKAGE_ROOT, StageCache, atomic_write, digest,
                                             scene_digest, source_digest, source_files)
 from tacforce_ros.experiments.calibration_data import simulate_calibration
-from tacforce_ros.experiments.closed_loop import ClosedLoopTrace, run_closed_loop, trace_metrics
+from tacforce_ros.experiments.closed_loop import (ClosedLoopTrace, CommandLink, run_closed_loop,
+                                                  trace_metrics)
 from tacforce_ros.experiments.node_path import _free_ports, compare_closed_loop
 from tacforce_ros.experiments import pipeline, report
 from tacforce_ros.experiments.pipeline import controller_config
@@ -204,9 +205,23 @@ def test_closed_loop_runner_refuses_what_it_cannot_run(hand, kinematics):
     with pytest.raises(ValueError, match='must divide'):
         run_closed_loop(hand, kinematics, 'closed_loop_spherical', 0,
                         controller_config('open_loop'), sequence, None, control_rate=300.0)
+    with pytest.raises(ValueError, match='whole number of physics steps'):
+        run_closed_loop(hand, kinematics, 'closed_loop_spherical', 0,
+                        controller_config('open_loop'), sequence, None, actuation_delay=0.003)
     assert controller_config('open_loop').k_i == (0.0, 0.0, 0.0)
     assert dataclasses.replace(controller_config('open_loop'), k_i=controller_config(
         'M3-lambda').k_i) == controller_config('M3-lambda')
+
+
+def test_command_link_delivers_each_torque_whole_steps_later():
+    link = CommandLink(3, n_joints=2)
+    sent = [np.array([k, -k], np.float64) for k in range(1, 7)]
+    arrived = [link.step(torque) for torque in sent]
+    assert [a.tolist() for a in arrived] == [[0.0, 0.0]] * 3 + [[1.0, -1.0], [2.0, -2.0],
+                                                                  [3.0, -3.0]]
+    assert CommandLink(0, n_joints=2).step(sent[4]).tolist() == [5.0, -5.0]
+    with pytest.raises(ValueError, match='before it is sent'):
+        CommandLink(-1)
 
 
 def test_short_open_loop_run_presses_the_plate(hand, kinematics):

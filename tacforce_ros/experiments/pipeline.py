@@ -118,17 +118,20 @@ class Context:
 
 
 def scene_for(ctx: Context, name: str) -> str:
-    """The scene `name` on the run's skin: `name` itself on the empirical skin; on the magnetic
-    skin, a scene file in <out>/scenes that extends it, which the node graph's `session --scene`
-    loads as the direct path does (and a user can launch)."""
-    skin = ctx.settings.skin
+    """The scene `name` on the run's skin (skin_scene, files in <out>/scenes)."""
+    return skin_scene(ctx.out / 'scenes', name, ctx.settings.skin)
+
+
+def skin_scene(folder: Path, name: str, skin: str) -> str:
+    """The scene `name` on `skin`: `name` itself on the empirical skin; on the magnetic skin, a
+    scene file in `folder` that extends it, which the node graph's `session --scene` loads as
+    the direct path does (and a user can launch)."""
     if skin == 'empirical':
         return name
     if skin != 'magnetic':
         raise ValueError(f'skin {skin!r}: one of {SKINS}')
     text = yaml.safe_dump({'extends': name, 'effects': magnetic_skin_overlay()}, sort_keys=False)
-    return str(atomic_write(ctx.out / 'scenes' / f'{name}_{skin}.yaml',
-                            lambda tmp: tmp.write_text(text)))
+    return str(atomic_write(folder / f'{name}_{skin}.yaml', lambda tmp: tmp.write_text(text)))
 
 
 # ---------------------------------------------------------------------------------- workers

@@ -16,6 +16,7 @@ into /calibration/sample. Writes JSON and a readable table to --out.
 
     bench_graph --runs 10 --out out/bench_graph
     bench_graph --runs 3 --no-lockstep --out out/bench_graph_free   # free-running, to compare
+    bench_graph --skin magnetic --model out/models/M3-lambda.yaml ...  # after reproduce --skin magnetic
 """
 from __future__ import annotations
 
@@ -33,7 +34,8 @@ from tacforce_ros.control.force_controller import MODE_HOLD, MODE_SAFE
 from tacforce_ros.estimation.model_set import (ModelConfigError, default_model_config,
                                                load_model_set, model_files)
 from tacforce_ros.experiments import node_path
-from tacforce_ros.experiments.pipeline import Settings, controller_config, tare_frames
+from tacforce_ros.experiments.pipeline import (SKINS, Settings, controller_config, skin_scene,
+                                               tare_frames)
 from tacforce_ros.hand.description import load_hand
 from tacforce_ros.hand.kinematics import TIP_LINKS, HandKinematics
 from tacforce_ros.nodes.session_plan import SCENE_DONE_MARKER
@@ -193,7 +195,7 @@ def crash_run(k: int, args, kinematics, out: Path) -> dict:
     seed = load_scene(LOOP_SCENE).seed + k
     sequence = ForceSequence.load(FAULT_SEQUENCE)
     session_dir = out / f'crash_{k}'
-    bag = node_path.run_session('closed_loop', LOOP_SCENE, 'spherical', session_dir,
+    bag = node_path.run_session('closed_loop', args.loop_scene, 'spherical', session_dir,
                                 node_path.closed_loop_session_seconds(sequence.duration),
                                 args.model, seed=seed, lockstep=args.lockstep, crash=CRASH,
                                 sequence=sequence.source)
@@ -226,7 +228,7 @@ def closed_loop_run(k: int, args, hand, kinematics, sequence, out: Path,
     seed = load_scene(LOOP_SCENE).seed + k
     session_dir = out / f'closed_loop_{k}{"_composed" if compose else ""}'
     compared, *_, bag = node_path.closed_loop_against_direct(
-        hand, kinematics, LOOP_SCENE, 'spherical', seed, args.model, sequence, session_dir,
+        hand, kinematics, args.loop_scene, 'spherical', seed, args.model, sequence, session_dir,
         controller_config('M3-lambda'), tare_frames(), lockstep=args.lockstep, compose=compose)
     node, direct_m = compared['node'], compared['direct']
     return {'run': k, 'seed': seed, 'composed': compose,
@@ -243,9 +245,10 @@ def closed_loop_run(k: int, args, hand, kinematics, sequence, out: Path,
 def calibration_run(args, hand, kinematics, out: Path) -> dict:
     seed = load_scene(CALIBRATION_SCENE).seed
     session_dir = out / 'calibration'
-    bag = node_path.run_session('calibration', CALIBRATION_SCENE, 'spherical', session_dir,
+    scene = skin_scene(out / 'scenes', CALIBRATION_SCENE, args.skin)
+    bag = node_path.run_session('calibration', scene, 'spherical', session_dir,
                                 args.calibration_seconds, seed=seed, lockstep=args.lockstep)
-    compared = node_path.compare_calibration(bag, hand, kinematics, CALIBRATION_SCENE, seed,
+    compared = node_path.compare_calibration(bag, hand, kinematics, scene, seed,
                                              str(model_files(args.model)['index_tip']),
                                              Settings().static_force)
     streams = stream_counts(bag)
@@ -322,7 +325,7 @@ def _crash_text(f: dict) -> str:
 
 def table(result: dict) -> str:
     lines = [f'bench_graph ({"lockstep" if result["lockstep"] else "free-running"}, '
-             f'{result["sequence"]}, model {result["model"]})', '',
+             f'{result["sequence"]}, model {result["model"]}, {result["skin"]} skin)', '',
              '| run | seed | processes | e~ node | e~ direct | diff | e_track node | '
              'e_track direct | diff | safe ticks | hold after engaging | real-time factor | '
              'session wall s | CPU s nodes / simulator | duplicate stamps '
@@ -385,6 +388,9 @@ def main(argv: list[str] | None = None) -> None:
                         'killed mid-sequence and restarted (default 3; 0: none)')
     parser.add_argument('--lockstep', action=argparse.BooleanOptionalAction, default=True,
                         help='sessions in lockstep (default) or free-running at real time')
+    parser.add_argument('--skin', choices=SKINS, default='empirical',
+                        help='the simulated skin of every session (default empirical; magnetic '
+                        'needs a --model trained on it, e.g. `reproduce --skin magnetic`\'s)')
     parser.add_argument('--out', type=output_folder, default='out/bench_graph',
                         help='folder for bench_graph.json, bench_graph.md and the sessions')
     args = parser.parse_args(argv)
@@ -399,7 +405,8 @@ def main(argv: list[str] | None = None) -> None:
     except ModelConfigError as exc:
         parser.error(str(exc))
     sequence = ForceSequence.load(args.sequence)
-    result: dict = {'lockstep': args.lockstep, 'sequence': args.sequence,
+    args.loop_scene = skin_scene(args.out / 'scenes', LOOP_SCENE, args.skin)
+    result: dict = {'lockstep': args.lockstep, 'sequence': args.sequence, 'skin': args.skin,
                     'model': str(args.model), 'closed_loop': [], 'closed_loop_composed': []}
     for k in range(args.runs):
         for compose in (False, True) if args.compose else (False,):

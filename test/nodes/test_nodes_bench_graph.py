@@ -148,14 +148,14 @@ def test_session_figures_are_read_from_its_log_and_tabled_side_by_side(tmp_path)
                 'streams': {}}
     separate = run(False, {'sim_world': 16.0, 'estimator': 3.0, 'allegro_driver': 10.0})
     composed = run(True, {'sim_world': 17.0, 'tacforce_container': 30.0})
-    result = {'lockstep': True, 'sequence': 'paper_70s', 'model': 'm.yaml',
+    result = {'lockstep': True, 'sequence': 'paper_70s', 'model': 'm.yaml', 'skin': 'magnetic',
               'closed_loop': [separate], 'closed_loop_composed': [composed],
               'summary': summary([separate]), 'summary_composed': summary([composed]),
               'fault_runs': [{'run': 0, 'seed': 0,
                               'failed': 'session closed_loop: 80 s simulated did not run'}]}
     text = table(result)
     assert 'fault run 0 (seed 0, fault_drill): FAILED: session closed_loop: 80 s' in text
-    assert 'fault runs passed: 0 of 1' in text
+    assert 'fault runs passed: 0 of 1' in text and 'magnetic skin)' in text
     assert '| 0 | 0 | one per node |' in text and '| 0 | 0 | one (composed) |' in text
     assert '| 13 / 16 |' in text and '| 30 / 17 |' in text
     assert 'composed in one process: agree' in text and '1 of 1' in text

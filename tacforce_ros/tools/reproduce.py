@@ -34,7 +34,8 @@ DEFAULT_OUT = Path(__file__).resolve().parents[2] / 'out'
 
 PATHS = [
     'Direct path (core objects composed in-process, faster than real time): every calibration '
-    'session, Table I, Table II and every Table III run.',
+    'session, Table I, Table II and every Table III run; a tick\'s torque reaches the simulated '
+    'hand one control period after the state it was computed from (actuation_delay).',
     'Node graph (`session` tool: sim_world + emulators + drivers + recorder / estimator / '
     'controller over DDS, in simulated time): one calibration session on the spherical plate and '
     'one closed-loop run (M3λ, spherical plate), compared below with the direct path on the same '

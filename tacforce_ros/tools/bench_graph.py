@@ -377,8 +377,9 @@ def main(argv: list[str] | None = None) -> None:
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument('--runs', type=int, default=3, help='closed-loop runs (default 3)')
     parser.add_argument('--sequence', default='paper_70s', help='force command sequence')
-    parser.add_argument('--model', type=Path, default=default_model_config(load_hand()),
-                        help='estimator models YAML (index_tip closes the loop)')
+    parser.add_argument('--model', type=Path,
+                        help='estimator models YAML (index_tip closes the loop); default the '
+                        'shipped models, trained on the empirical skin')
     parser.add_argument('--calibration-seconds', type=float, default=40.0,
                         help='simulated seconds of the calibration session; 0: none')
     parser.add_argument('--compose', action='store_true',
@@ -397,6 +398,11 @@ def main(argv: list[str] | None = None) -> None:
     if args.runs < 0 or args.calibration_seconds < 0 or args.fault_runs < 0:
         parser.error('--runs, --calibration-seconds and --fault-runs must be >= 0')
     hand = load_hand()
+    if args.model is None:
+        if args.skin != 'empirical':
+            parser.error(f'--skin {args.skin} needs a --model trained on that skin: the shipped '
+                         'models were trained on the empirical one')
+        args.model = default_model_config(hand)
     kinematics = HandKinematics.for_hand(hand)
     try:
         load_model_set(args.model, hand)        # a bad model list fails before any session

@@ -1,5 +1,5 @@
-"""bench_graph, run as a user runs it: a model list that cannot close the loop is refused before
-any session starts; what it reads from a recorded closed-loop bag (watchdog ticks, duplicate
+"""bench_graph, run as a user runs it: a model list that cannot close the loop, or the magnetic
+skin without models trained on it, is refused before any session starts; what it reads from a recorded closed-loop bag (watchdog ticks, duplicate
 stamps, missing tactile frames) is checked on a bag of known content, and what it reads from a
 fault run on ticks of known content."""
 import subprocess
@@ -23,6 +23,15 @@ def test_a_model_list_that_cannot_close_the_loop_is_refused_first(tmp_path, mode
                           capture_output=True, text=True, timeout=120)
     assert done.returncode == 2, done.stderr
     assert message in done.stderr
+    assert not (tmp_path / 'out' / 'closed_loop_0').exists()
+
+
+def test_the_magnetic_skin_without_a_model_trained_on_it_is_refused_first(tmp_path):
+    done = subprocess.run([sys.executable, '-m', 'tacforce_ros.tools.bench_graph', '--runs', '1',
+                           '--skin', 'magnetic', '--out', str(tmp_path / 'out')],
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode == 2, done.stderr
+    assert '--skin magnetic needs a --model trained on that skin' in done.stderr
     assert not (tmp_path / 'out' / 'closed_loop_0').exists()
 
 

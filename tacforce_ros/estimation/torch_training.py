@@ -95,16 +95,23 @@ def reproducible_torch(threads: int, device: torch.device) -> Iterator[None]:
         os.environ.setdefault('CUBLAS_WORKSPACE_CONFIG', ':4096:8')
 
     saved = (torch.get_num_threads(), torch.are_deterministic_algorithms_enabled(),
-             torch.utils.deterministic.fill_uninitialized_memory)
+             torch.utils.deterministic.fill_uninitialized_memory,
+             torch.backends.cuda.matmul.allow_tf32, torch.backends.cudnn.allow_tf32)
     torch.set_num_threads(threads)
     torch.use_deterministic_algorithms(True)
     torch.utils.deterministic.fill_uninitialized_memory = False
+    # float32 means float32 on a GPU too: cuDNN's convolutions default to TF32 (10-bit
+    # mantissa), which would make a model trained there another model than the CPU's.
+    torch.backends.cuda.matmul.allow_tf32 = False
+    torch.backends.cudnn.allow_tf32 = False
     try:
         yield
     finally:
         torch.set_num_threads(saved[0])
         torch.use_deterministic_algorithms(saved[1])
         torch.utils.deterministic.fill_uninitialized_memory = saved[2]
+        torch.backends.cuda.matmul.allow_tf32 = saved[3]
+        torch.backends.cudnn.allow_tf32 = saved[4]
 
 
 def fit_torch_regressor(build: Callable[[Any], torch.nn.Module], inputs: np.ndarray,

@@ -3,6 +3,7 @@ a time with torch's own modules and Adam, to float32 rounding: same seeds, same 
 short last batch of each epoch, datasets of different sizes, BatchNorm statistics included."""
 import numpy as np
 import pytest
+import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -25,6 +26,9 @@ WEIGHT_RTOL = 1e-4
 # <= 5e-6: a jump, not growth, so (inferred) a unit near its ReLU threshold whose branch the
 # rounding decided at the larger step.
 LEARNING_RATE = 3e-3
+# The GPU cases run where one is (never in CI): `--device cuda` has no other test.
+DEVICES = ['cpu', pytest.param('cuda', marks=pytest.mark.skipif(
+    not torch.cuda.is_available(), reason='no CUDA GPU here'))]
 
 
 def datasets(array, sizes, seed=0):
@@ -56,11 +60,12 @@ def fit_both(cls, arrays, data, **hyper):
     return one, together
 
 
+@pytest.mark.parametrize('device', DEVICES)
 @pytest.mark.parametrize('cls, array', [(MLPModel, TIP), (CNNModel, TIP), (CNNModel, PHALANX)])
-def test_networks_trained_together_equal_one_at_a_time(cls, array):
+def test_networks_trained_together_equal_one_at_a_time(cls, array, device):
     data = datasets(array, SIZES)
     one, together = fit_both(cls, [array] * len(SIZES), data, epochs=3, batch_size=64,
-                             learning_rate=LEARNING_RATE)
+                             learning_rate=LEARNING_RATE, device=device)
     assert_same_training(one, together)
     if cls is CNNModel:     # the BatchNorm running statistics moved, and moved alike
         assert not np.allclose(together[0].state_arrays()['norm_running_var_'], 1.0)
@@ -91,11 +96,13 @@ def test_any_sizes_and_batch_size_train_alike(sizes, batch_size, seed):
     assert_same_training(one, together)
 
 
-def test_training_together_is_deterministic():
+@pytest.mark.parametrize('device', DEVICES)
+def test_training_together_is_deterministic(device):
     data = datasets(TIP, SIZES)
     runs = []
     for _ in range(2):
-        models = [CNNModel(TIP, seed=i, epochs=1, batch_size=64) for i in range(len(SIZES))]
+        models = [CNNModel(TIP, seed=i, epochs=1, batch_size=64, device=device)
+                  for i in range(len(SIZES))]
         CNNModel.fit_many(models, data)
         runs.append([m.state_arrays() for m in models])
     for a, b in zip(*runs):
@@ -239,6 +246,19 @@ def test_the_dense_form_of_a_valid_convolution_is_the_convolution():
 def test_a_device_training_cannot_run_on_is_refused_with_the_reason(device, reason):
     with pytest.raises(ValueError, match=reason):
         fit_both(MLPModel, [TIP], datasets(TIP, (20,)), epochs=1, device=device)
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason='no CUDA GPU here')
+@pytest.mark.parametrize('cls, array', [(MLPModel, TIP), (CNNModel, TIP), (CNNModel, PHALANX)])
+def test_a_gpu_trains_the_network_the_cpu_does(cls, array):
+    """Same seeds, same shuffles, float32 on both (no TF32): the weights agree to the rounding
+    of reordered sums, one at a time and stacked."""
+    data = datasets(array, SIZES)
+    hyper = dict(epochs=3, batch_size=64, learning_rate=LEARNING_RATE)
+    cpu = fit_both(cls, [array] * len(SIZES), data, device='cpu', **hyper)
+    gpu = fit_both(cls, [array] * len(SIZES), data, device='cuda', **hyper)
+    assert_same_training(cpu[0], gpu[0])
+    assert_same_training(cpu[1], gpu[1])
 
 
 @pytest.mark.parametrize('cls', [MLPModel, CNNModel])

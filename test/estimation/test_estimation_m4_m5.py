@@ -118,10 +118,12 @@ def test_cnn_predict_in_chunks_matches_torch():
     np.testing.assert_allclose(model.predict(X), torch_forward(model, X), rtol=1e-5, atol=1e-5)
 
 
+@pytest.mark.parametrize('device', ['cpu', pytest.param('cuda', marks=pytest.mark.skipif(
+    not torch.cuda.is_available(), reason='no CUDA GPU here'))])
 @pytest.mark.parametrize('kind', MODELS)
-def test_same_seed_bit_identical_other_seed_different(kind):
+def test_same_seed_bit_identical_other_seed_different(kind, device):
     X, F = contact_dataset(PHALANX, 200, seed=1)
-    hyper = dict(FAST, epochs=2)
+    hyper = dict(FAST, epochs=2, device=device)
     states = [MODELS[kind](PHALANX, seed=s, **hyper).fit(X, F).state_arrays() for s in (5, 5, 6)]
     assert states[0].keys() == states[1].keys()
     for name in states[0]:

@@ -4,28 +4,64 @@ A uSkin taxel is a small magnet in a silicone layer over a 3-axis Hall chip (Tom
 An indenter presses the layer; the pressure under it (Hertz) displaces the elastomer around the
 magnet (point loads summed over the contact patch, each displacing a layer bonded to the chip's
 board: sim/elastic_layer.py); the column under the magnet stiffens as it is squeezed; the chip
-reads the displaced magnet's dipole field (the elastomer's creep and hysteresis:
+reads the displaced magnet's field (the elastomer's creep and hysteresis:
 sim/elastomer_memory.py). Formulas: K. L. Johnson, Contact Mechanics (1985), chapter 4 (Hertz,
-the approximate ellipse ratio); J. D. Jackson, Classical Electrodynamics (1999), eq. 5.56
-(dipole field). Parameter values live with their sources in docs/SKIN_PHYSICS.md and in
+the approximate ellipse ratio); J. D. Jackson, Classical Electrodynamics (1999), sec. 5.5 and
+5.8 (a circular current loop's field, the equivalent surface current of a uniformly magnetised
+body). Parameter values live with their sources in docs/SKIN_PHYSICS.md and in
 sim/effects/magnetic_skin.py; this module holds no numbers of the hardware.
 """
 from __future__ import annotations
 
 import numpy as np
+from scipy.special import ellipe, ellipk
 
 MU0 = 4e-7 * np.pi   # T m / A
+# Gauss-Legendre loops along a magnet's length: 8 reproduce the closed-form axial field to
+# 1e-9 from one magnet length beyond its face outwards (test_sim_skin_physics.py); nearer, the
+# chip reads beyond its range on this skin.
+CYLINDER_LOOPS = 8
+_LOOP_NODES, _LOOP_WEIGHTS = np.polynomial.legendre.leggauss(CYLINDER_LOOPS)
 
 
-def dipole_field(moment: np.ndarray, offset: np.ndarray) -> np.ndarray:
-    """(..., 3) T: field of point dipoles `moment` (A m^2) at `offset` (m) from each dipole.
+def loop_field(radius: float, current: float | np.ndarray, rho: np.ndarray,
+               z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(B_rho, B_z) T of a circular loop of `radius` (m) carrying `current` (A) about the z axis
+    in the plane z = 0, at distance `rho` from the axis and height `z` (m), off the wire: the
+    closed form in complete elliptic integrals (Jackson 1999, sec. 5.5; in the form of Simpson et
+    al., NASA/TP-2001-210605: alpha^2 = a^2 + r^2 - 2 a rho, beta^2 = a^2 + r^2 + 2 a rho,
+    k^2 = 1 - alpha^2 / beta^2)."""
+    rho, z = np.asarray(rho, np.float64), np.asarray(z, np.float64)
+    r2 = rho * rho + z * z
+    alpha2 = radius * radius + r2 - 2.0 * radius * rho
+    beta2 = radius * radius + r2 + 2.0 * radius * rho
+    beta = np.sqrt(beta2)
+    m = 1.0 - alpha2 / beta2
+    big_k, big_e = ellipk(m), ellipe(m)
+    scale = MU0 * current / (2.0 * np.pi * alpha2 * beta)
+    b_z = scale * ((radius * radius - r2) * big_e + alpha2 * big_k)
+    # B_rho vanishes on the axis, where the bracket does too (as rho^2): no division by zero.
+    on_axis = rho == 0.0
+    b_rho = np.where(on_axis, 0.0, scale * z / np.where(on_axis, 1.0, rho)
+                     * ((radius * radius + r2) * big_e - alpha2 * big_k))
+    return b_rho, b_z
 
-    B = mu0 / (4 pi) (3 r (m . r) / |r|^5 - m / |r|^3)."""
+
+def cylinder_field(remanence: float, diameter: float, length: float,
+                   offset: np.ndarray) -> np.ndarray:
+    """(..., 3) T: field of a cylinder magnet uniformly magnetised along +z (remanence T,
+    diameter and length m) at `offset` (m) from its centre, in the magnet's frame. Uniform
+    magnetisation M = B_r / mu0 is a surface current M per unit length on the side (Jackson
+    1999, sec. 5.8): loops summed by Gauss-Legendre along the length. Far away it is the point
+    dipole of moment M x volume."""
     offset = np.asarray(offset, np.float64)
-    r2 = np.sum(offset * offset, axis=-1, keepdims=True)
-    r = np.sqrt(r2)
-    along = np.sum(moment * offset, axis=-1, keepdims=True)
-    return MU0 / (4.0 * np.pi) * (3.0 * offset * along / (r2 * r2 * r) - moment / (r2 * r))
+    rho = np.hypot(offset[..., 0], offset[..., 1])
+    # The current loops along a last axis, summed.
+    radial, axial = loop_field(0.5 * diameter, remanence / MU0 * 0.5 * length * _LOOP_WEIGHTS,
+                               rho[..., None], offset[..., 2, None] - 0.5 * length * _LOOP_NODES)
+    b_rho, b_z = radial.sum(axis=-1), axial.sum(axis=-1)
+    lateral = np.where(rho > 0.0, b_rho / np.where(rho > 0.0, rho, 1.0), 0.0)
+    return np.stack([lateral * offset[..., 0], lateral * offset[..., 1], b_z], axis=-1)
 
 
 def neo_hookean_stretch(linear_strain: np.ndarray, max_iterations: int = 100) -> np.ndarray:

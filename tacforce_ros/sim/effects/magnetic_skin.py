@@ -4,9 +4,9 @@ Per frame: the Hertz pressure of the plate on the skin (relative curvature of pl
 the contact, the skin's from the hand description's taxels), sampled as point loads carrying the
 contact force (shear in proportion to pressure); the displacement of each magnet relative to
 its chip from those loads (the exact solution for a layer bonded to the chip's board); the
-elastomer's creep and hysteresis; the displaced magnet's dipole field at the chip, converted to
-counts by the chip's sensitivity. Pieces: sim/skin_physics.py, sim/elastic_layer.py. Parameter
-sources: docs/SKIN_PHYSICS.md.
+elastomer's creep and hysteresis; the field of the displaced magnet (a uniformly magnetised
+cylinder) at the chip, converted to counts by the chip's sensitivity. Pieces:
+sim/skin_physics.py, sim/elastic_layer.py. Parameter sources: docs/SKIN_PHYSICS.md.
 
 It supersedes what the empirical chain stood in for: the foundation-spring pressure weights
 and the tanh response (sim/contact.py, sim/taxel_response.py), `taxel_variation` (here the
@@ -39,10 +39,11 @@ FLAT_CURVATURE = 10.0         # 1/m
 LINE_REACH = 0.003
 LINE_TABLE_STEP = 0.00005
 LINE_PROFILE = (np.arange(8) + 0.5) / 4.0 - 1.0   # across-line sample points, in half-widths
-# The parameters without a source (docs/SKIN_PHYSICS.md): skin_sensitivity varies these.
-# The magnet acts only through its moment (diameter^2 x thickness x remanence): its thickness
-# stands for all three (the moment scales with it).
-ESTIMATES = ('magnet_thickness', 'layer_thickness', 'youngs_modulus', 'poisson',
+# Newton steps placing a magnet where its field reads the rest value (5 on the shipped hand).
+PLACEMENT_ITERATIONS = 20
+# The parameters without a source (docs/SKIN_PHYSICS.md): skin_sensitivity varies these. The
+# field scales with the remanence as with 1 / the chip's sensitivities, which stand for it.
+ESTIMATES = ('magnet_diameter', 'magnet_thickness', 'layer_thickness', 'youngs_modulus', 'poisson',
              'sensitivity_xy', 'sensitivity_z', 'play_relative', 'play_width',
              'creep_share', 'creep_time_constant')
 
@@ -74,8 +75,6 @@ class MagneticSkin(Effect):
     creep_time_constant: float = 1.0        # s, estimate
 
     def __post_init__(self) -> None:
-        volume = np.pi * (0.5 * self.magnet_diameter) ** 2 * self.magnet_thickness
-        self.moment = self.remanence * volume / phys.MU0      # A m^2, uniform magnetisation
         self.shear_modulus = self.youngs_modulus / (2.0 * (1.0 + self.poisson))
         self.contact_modulus = self.youngs_modulus / (1.0 - self.poisson ** 2)
         self._sensitivity = np.array([self.sensitivity_xy, self.sensitivity_xy,
@@ -87,21 +86,41 @@ class MagneticSkin(Effect):
 
     # -- the hand: where each magnet sits ------------------------------------------------------
 
+    def field(self, position: np.ndarray) -> np.ndarray:
+        """(n, 3) T at the chips of magnets centred at `position` (n, 3) m from them."""
+        return phys.cylinder_field(self.remanence, self.magnet_diameter, self.magnet_thickness,
+                                   -position)
+
     def placement(self, rest: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(lateral (n, 2), height (n,)) m of magnets whose dipole fields read `rest` (n, 3)
-        counts at their chips. With the offset d = c h: B_xy / B_z = 3 c_xy / (2 - |c|^2) and
-        B_z = mu0 m (2 - |c|^2) / (4 pi h^3 (1 + |c|^2)^(5/2))."""
-        field = (np.asarray(rest, np.float64) - CHIP_ZERO) * self._sensitivity
-        if np.any(field[:, 2] <= 0.0):
+        """(lateral (n, 2), height (n,)) m of magnets whose fields read `rest` (n, 3) counts
+        at their chips. Newton's method from where a point dipole of the same moment would
+        read them: with the offset d = c h, B_xy / B_z = 3 c_xy / (2 - |c|^2) and
+        B_z = mu0 m (2 - |c|^2) / (4 pi h^3 (1 + |c|^2)^(5/2)); the finite magnet reads less
+        than its dipole at the same place (the chip is within a few diameters), so it sits a
+        little closer."""
+        target = (np.asarray(rest, np.float64) - CHIP_ZERO) * self._sensitivity
+        if np.any(target[:, 2] <= 0.0):
             raise ValueError('rest Z counts must lie above the chip zero (the magnet above it)')
-        ratio = field[:, :2] / field[:, 2:]
+        ratio = target[:, :2] / target[:, 2:]
         # |c| solves |r| |c|^2 + 3 |c| - 2 |r| = 0, taken in its cancellation-free form.
         r2 = np.sum(ratio * ratio, axis=1, keepdims=True)
         c = ratio * 4.0 / (3.0 + np.sqrt(9.0 + 8.0 * r2))
         c2 = np.sum(c * c, axis=1)
-        height = (phys.MU0 * self.moment * (2.0 - c2)
-                  / (4.0 * np.pi * field[:, 2] * (1.0 + c2) ** 2.5)) ** (1.0 / 3.0)
-        return c * height[:, None], height
+        moment = self.remanence * np.pi * (0.5 * self.magnet_diameter) ** 2 \
+            * self.magnet_thickness / phys.MU0
+        height = (phys.MU0 * moment * (2.0 - c2)
+                  / (4.0 * np.pi * target[:, 2] * (1.0 + c2) ** 2.5)) ** (1.0 / 3.0)
+        position = np.column_stack([c * height[:, None], height])
+        step = 1e-9 * self.magnet_diameter          # central differences for the Jacobian
+        for _ in range(PLACEMENT_ITERATIONS):
+            jacobian = np.stack([(self.field(position + step * axis)
+                                  - self.field(position - step * axis)) / (2.0 * step)
+                                 for axis in np.eye(3)], axis=-1)
+            move = np.linalg.solve(jacobian, (target - self.field(position))[..., None])[..., 0]
+            position = position + move
+            if np.abs(move).max() <= 1e-12 * self.magnet_diameter:
+                return position[:, :2], position[:, 2]
+        raise ArithmeticError('magnetic_skin: no magnet placement reads the rest values')
 
     def draw_hand(self, rng: np.random.Generator, ctx) -> None:
         """Where each magnet sits: at the place whose field reads a rest value drawn from the
@@ -112,26 +131,30 @@ class MagneticSkin(Effect):
             CHIP_ZERO + rng.uniform(-self.rest_xy_spread, self.rest_xy_spread, (n, 2)),
             rng.uniform(*self.rest_z_range, n)])
         self.lateral, self.height = self.placement(rest)
-        if self.height.max() >= self.layer_thickness:
+        top = self.height.max() + 0.5 * self.magnet_thickness
+        if top >= self.layer_thickness:
             raise SkinPlacementError(
-                f'magnetic_skin: a magnet must sit {self.height.max() * 1e3:.2f} mm above its '
-                f'chip to read the rest values, above the {self.layer_thickness * 1e3:.2f} mm '
-                'layer: these magnet, chip and layer parameters do not fit the measured rest '
-                'readings')
+                f'magnetic_skin: a magnet must reach {top * 1e3:.2f} mm above its chip to read '
+                f'the rest values, above the {self.layer_thickness * 1e3:.2f} mm layer: these '
+                'magnet, chip and layer parameters do not fit the measured rest readings')
+        if self.height.min() <= self.magnet_thickness:
+            raise SkinPlacementError(
+                f'magnetic_skin: a magnet must sit {self.height.min() * 1e3:.2f} mm above its '
+                'chip to read the rest values, within its own thickness of it: these magnet '
+                'and chip parameters do not fit the measured rest readings')
         self.rest_counts = self.counts_at(np.zeros((n, 3)), slice(None))
 
     def counts_at(self, displacement: np.ndarray, rows) -> np.ndarray:
         """(n, 3) float counts of the taxels `rows` with their magnets displaced by
         `displacement` (n, 3) m in the taxel frames (z out of the skin) as linear elasticity
-        gives it. The elastomer between magnet and chip, a column of the magnet's height,
-        stiffens as it is squeezed (neo-Hookean; the linear solution is its small-strain limit),
-        so a magnet never reaches its chip."""
-        height = self.height[rows]
-        squeezed = height * phys.neo_hookean_stretch(displacement[:, 2] / height)
-        position = np.column_stack([self.lateral[rows] + displacement[:, :2], squeezed])
-        moment = np.zeros_like(position)
-        moment[:, 2] = self.moment
-        counts = phys.dipole_field(moment, -position) / self._sensitivity
+        gives it. The elastomer under the magnet, a column from the board to the magnet's lower
+        face, stiffens as it is squeezed (neo-Hookean; the linear solution is its small-strain
+        limit), so a magnet never reaches its chip."""
+        column = self.height[rows] - 0.5 * self.magnet_thickness
+        squeezed = column * phys.neo_hookean_stretch(displacement[:, 2] / column)
+        position = np.column_stack([self.lateral[rows] + displacement[:, :2],
+                                    squeezed + 0.5 * self.magnet_thickness])
+        counts = self.field(position) / self._sensitivity
         return CHIP_ZERO + np.clip(counts, -CHIP_RANGE, CHIP_RANGE)
 
     # -- a session -------------------------------------------------------------------------------

@@ -21,6 +21,10 @@ MU0 = 4e-7 * np.pi   # T m / A
 # 1e-9 from one magnet length beyond its face outwards (test_sim_skin_physics.py); nearer, the
 # chip reads beyond its range on this skin.
 CYLINDER_LOOPS = 8
+# Within this fraction of a loop's radius from its axis, B_rho is its axial series: the closed
+# form's bracket cancels there (it vanishes as rho^2, so its rounding grows as (radius / rho)^2),
+# while the series is exact to (rho / radius)^2; at 1e-4 both are within 1e-8 of B_rho.
+NEAR_AXIS = 1e-4
 _LOOP_NODES, _LOOP_WEIGHTS = np.polynomial.legendre.leggauss(CYLINDER_LOOPS)
 
 
@@ -29,8 +33,9 @@ def loop_field(radius: float, current: float | np.ndarray, rho: np.ndarray,
     """(B_rho, B_z) T of a circular loop of `radius` (m) carrying `current` (A) about the z axis
     in the plane z = 0, at distance `rho` from the axis and height `z` (m), off the wire: the
     closed form in complete elliptic integrals (Jackson 1999, sec. 5.5; in the form of Simpson et
-    al., NASA/TP-2001-210605: alpha^2 = a^2 + r^2 - 2 a rho, beta^2 = a^2 + r^2 + 2 a rho,
-    k^2 = 1 - alpha^2 / beta^2)."""
+    al., NASA/TP-2001-210605: r^2 = rho^2 + z^2, alpha^2 = a^2 + r^2 - 2 a rho,
+    beta^2 = a^2 + r^2 + 2 a rho, k^2 = 1 - alpha^2 / beta^2). Near the axis B_rho is
+    -rho / 2 dB_z/dz of the axial field B_z = mu0 I a^2 / (2 (a^2 + z^2)^(3/2)) (div B = 0)."""
     rho, z = np.asarray(rho, np.float64), np.asarray(z, np.float64)
     r2 = rho * rho + z * z
     alpha2 = radius * radius + r2 - 2.0 * radius * rho
@@ -40,11 +45,12 @@ def loop_field(radius: float, current: float | np.ndarray, rho: np.ndarray,
     big_k, big_e = ellipk(m), ellipe(m)
     scale = MU0 * current / (2.0 * np.pi * alpha2 * beta)
     b_z = scale * ((radius * radius - r2) * big_e + alpha2 * big_k)
-    # B_rho vanishes on the axis, where the bracket does too (as rho^2): no division by zero.
-    on_axis = rho == 0.0
-    b_rho = np.where(on_axis, 0.0, scale * z / np.where(on_axis, 1.0, rho)
-                     * ((radius * radius + r2) * big_e - alpha2 * big_k))
-    return b_rho, b_z
+    near_axis = rho < NEAR_AXIS * radius
+    closed = scale * z / np.where(near_axis, 1.0, rho) * (
+        (radius * radius + r2) * big_e - alpha2 * big_k)
+    series = 0.75 * MU0 * current * radius * radius * z * rho / (
+        radius * radius + z * z) ** 2.5
+    return np.where(near_axis, series, closed), b_z
 
 
 def cylinder_field(remanence: float, diameter: float, length: float,

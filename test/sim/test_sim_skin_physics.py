@@ -28,6 +28,26 @@ def test_a_current_loop_at_its_centre_and_on_its_axis():
     np.testing.assert_allclose(b_z, [1.2566371e-3, 3.9738353e-5], rtol=1e-7)
 
 
+@pytest.mark.parametrize('rho_over_a', [0.0, 1e-9, 1e-5, 2e-4, 0.3, 2.5])
+def test_a_current_loops_field_off_its_axis_is_biot_savarts(rho_over_a):
+    """Against dB = mu0 I / 4 pi dl x r / r^3 summed over 20 000 segments of the loop, on
+    either side of it, on, near and far from its axis (near it B_rho is the axial series)."""
+    a, current = 0.001, 2.0
+    phi = (np.arange(20000) + 0.5) * 2 * np.pi / 20000
+    wire = a * np.column_stack([np.cos(phi), np.sin(phi), np.zeros_like(phi)])
+    dl = a * 2 * np.pi / 20000 * np.column_stack([-np.sin(phi), np.cos(phi), np.zeros_like(phi)])
+    for z in (0.0024, -0.0007):
+        point = np.array([rho_over_a * a, 0.0, z])
+        r = point - wire
+        field = phys.MU0 * current / (4 * np.pi) * np.sum(
+            np.cross(dl, r) / np.linalg.norm(r, axis=1, keepdims=True) ** 3, axis=0)
+        b_rho, b_z = phys.loop_field(a, current, np.array(point[0]), np.array(z))
+        scale = np.abs(field).max()
+        np.testing.assert_allclose([b_rho, b_z], field[[0, 2]], rtol=0, atol=1e-9 * scale)
+        if 1e-6 < rho_over_a < 1e-3:    # B_rho itself, where the sum's rounding allows it
+            np.testing.assert_allclose(b_rho, field[0], rtol=1e-6)
+
+
 def test_a_cylinder_magnets_field_on_its_axis_is_the_closed_form():
     """B_z = B_r / 2 ((z + L/2) / sqrt((z + L/2)^2 + R^2) - (z - L/2) / sqrt((z - L/2)^2 + R^2))
     on either side, from one length beyond its face outwards (the chip reads nearer fields
@@ -176,6 +196,20 @@ def test_rest_readings_span_the_measured_ranges(skin):
     lateral, height = effect.placement(rest)
     np.testing.assert_allclose(height, effect.height, rtol=1e-9)
     np.testing.assert_allclose(lateral, effect.lateral, atol=1e-12)
+
+
+def test_a_magnet_is_placed_where_its_field_reads_the_rest_value(skin):
+    """Counts computed from known places give those places back: on its chip's axis, a hair
+    off it (where the closed form of B_rho cancels), and well off it."""
+    effect, _, _ = skin()
+    lateral = np.array([[0.0, 0.0], [1e-12, 0.0], [0.0, -3e-9], [3e-4, -2e-4], [-6e-4, 1e-4]])
+    height = np.array([0.0023, 0.0035, 0.0041, 0.0027, 0.0039])
+    field = effect.field(np.column_stack([lateral, height]))
+    rest = CHIP_ZERO + field / np.array([effect.sensitivity_xy, effect.sensitivity_xy,
+                                         effect.sensitivity_z])
+    placed_lateral, placed_height = effect.placement(rest)
+    np.testing.assert_allclose(placed_height, height, rtol=1e-9)
+    np.testing.assert_allclose(placed_lateral, lateral, rtol=0, atol=1e-9 * height.max())
 
 
 def test_a_press_raises_z_most_under_it_and_a_sharp_plate_concentrates(skin):

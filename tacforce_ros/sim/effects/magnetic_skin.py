@@ -95,9 +95,9 @@ class MagneticSkin(Effect):
         """(lateral (n, 2), height (n,)) m of magnets whose fields read `rest` (n, 3) counts
         at their chips. Newton's method from where a point dipole of the same moment would
         read them: with the offset d = c h, B_xy / B_z = 3 c_xy / (2 - |c|^2) and
-        B_z = mu0 m (2 - |c|^2) / (4 pi h^3 (1 + |c|^2)^(5/2)); the finite magnet reads less
-        than its dipole at the same place (the chip is within a few diameters), so it sits a
-        little closer."""
+        B_z = mu0 m (2 - |c|^2) / (4 pi h^3 (1 + |c|^2)^(5/2)). Near its chip a disc as thin as
+        this one reads less than its dipole at the same place, so it sits a little closer.
+        Done when the field reads the rest value to 1e-12 of it."""
         target = (np.asarray(rest, np.float64) - CHIP_ZERO) * self._sensitivity
         if np.any(target[:, 2] <= 0.0):
             raise ValueError('rest Z counts must lie above the chip zero (the magnet above it)')
@@ -111,15 +111,17 @@ class MagneticSkin(Effect):
         height = (phys.MU0 * moment * (2.0 - c2)
                   / (4.0 * np.pi * target[:, 2] * (1.0 + c2) ** 2.5)) ** (1.0 / 3.0)
         position = np.column_stack([c * height[:, None], height])
-        step = 1e-9 * self.magnet_diameter          # central differences for the Jacobian
+        # Central differences for the Jacobian: their error is (step / distance)^2, ~1e-12.
+        step = 1e-6 * self.magnet_diameter
+        tolerance = 1e-12 * np.linalg.norm(target, axis=1)
         for _ in range(PLACEMENT_ITERATIONS):
+            residual = target - self.field(position)
+            if np.all(np.linalg.norm(residual, axis=1) <= tolerance):
+                return position[:, :2], position[:, 2]
             jacobian = np.stack([(self.field(position + step * axis)
                                   - self.field(position - step * axis)) / (2.0 * step)
                                  for axis in np.eye(3)], axis=-1)
-            move = np.linalg.solve(jacobian, (target - self.field(position))[..., None])[..., 0]
-            position = position + move
-            if np.abs(move).max() <= 1e-12 * self.magnet_diameter:
-                return position[:, :2], position[:, 2]
+            position = position + np.linalg.solve(jacobian, residual[..., None])[..., 0]
         raise ArithmeticError('magnetic_skin: no magnet placement reads the rest values')
 
     def draw_hand(self, rng: np.random.Generator, ctx) -> None:
@@ -137,11 +139,12 @@ class MagneticSkin(Effect):
                 f'magnetic_skin: a magnet must reach {top * 1e3:.2f} mm above its chip to read '
                 f'the rest values, above the {self.layer_thickness * 1e3:.2f} mm layer: these '
                 'magnet, chip and layer parameters do not fit the measured rest readings')
-        if self.height.min() <= self.magnet_thickness:
+        bottom = self.height.min() - 0.5 * self.magnet_thickness
+        if bottom <= 0.0:
             raise SkinPlacementError(
-                f'magnetic_skin: a magnet must sit {self.height.min() * 1e3:.2f} mm above its '
-                'chip to read the rest values, within its own thickness of it: these magnet '
-                'and chip parameters do not fit the measured rest readings')
+                f'magnetic_skin: a magnet\'s lower face must sit {bottom * 1e3:.2f} mm above its '
+                'chip to read the rest values, not above it: these magnet and chip parameters '
+                'do not fit the measured rest readings')
         self.rest_counts = self.counts_at(np.zeros((n, 3)), slice(None))
 
     def counts_at(self, displacement: np.ndarray, rows) -> np.ndarray:

@@ -96,22 +96,24 @@ def reproducible_torch(threads: int, device: torch.device) -> Iterator[None]:
 
     saved = (torch.get_num_threads(), torch.are_deterministic_algorithms_enabled(),
              torch.utils.deterministic.fill_uninitialized_memory,
-             torch.backends.cuda.matmul.allow_tf32, torch.backends.cudnn.allow_tf32)
+             torch.backends.cuda.matmul.fp32_precision, torch.backends.cudnn.conv.fp32_precision)
     torch.set_num_threads(threads)
     torch.use_deterministic_algorithms(True)
     torch.utils.deterministic.fill_uninitialized_memory = False
     # float32 means float32 on a GPU too: cuDNN's convolutions default to TF32 (10-bit
-    # mantissa), which would make a model trained there another model than the CPU's.
-    torch.backends.cuda.matmul.allow_tf32 = False
-    torch.backends.cudnn.allow_tf32 = False
+    # mantissa), which would make a model trained there another model than the CPU's. (torch's
+    # fp32_precision settings: mixing them with the older allow_tf32 flags breaks the caller's
+    # torch.get_float32_matmul_precision.)
+    torch.backends.cuda.matmul.fp32_precision = 'ieee'
+    torch.backends.cudnn.conv.fp32_precision = 'ieee'
     try:
         yield
     finally:
         torch.set_num_threads(saved[0])
         torch.use_deterministic_algorithms(saved[1])
         torch.utils.deterministic.fill_uninitialized_memory = saved[2]
-        torch.backends.cuda.matmul.allow_tf32 = saved[3]
-        torch.backends.cudnn.allow_tf32 = saved[4]
+        torch.backends.cuda.matmul.fp32_precision = saved[3]
+        torch.backends.cudnn.conv.fp32_precision = saved[4]
 
 
 def fit_torch_regressor(build: Callable[[Any], torch.nn.Module], inputs: np.ndarray,

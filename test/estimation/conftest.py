@@ -1,6 +1,7 @@
 """Shared fixtures of the estimation tests: the real hand description and small synthetic data."""
 import numpy as np
 import pytest
+import torch
 
 from tacforce_ros.estimation.synthetic import synthetic_dataset
 from tacforce_ros.hand.description import load_hand
@@ -37,3 +38,11 @@ def linear_problem(rng: np.random.Generator, n_samples: int, n_taxels: int,
     b = rng.standard_normal(3)
     F = X.reshape(n_samples, -1) @ A.T + b + noise * rng.standard_normal((n_samples, 3))
     return X, F, A, b
+
+
+@pytest.fixture(params=['cpu', pytest.param('cuda', marks=pytest.mark.skipif(
+    not torch.cuda.is_available(), reason='no CUDA GPU here'))])
+def training_device(request):
+    """Each torch device M4 and M5 train on: the GPU case runs where one is (never in CI), the
+    only test `--device cuda` has."""
+    return request.param

@@ -26,9 +26,6 @@ WEIGHT_RTOL = 1e-4
 # <= 5e-6: a jump, not growth, so (inferred) a unit near its ReLU threshold whose branch the
 # rounding decided at the larger step.
 LEARNING_RATE = 3e-3
-# The GPU cases run where one is (never in CI): `--device cuda` has no other test.
-DEVICES = ['cpu', pytest.param('cuda', marks=pytest.mark.skipif(
-    not torch.cuda.is_available(), reason='no CUDA GPU here'))]
 
 
 def datasets(array, sizes, seed=0):
@@ -60,12 +57,11 @@ def fit_both(cls, arrays, data, **hyper):
     return one, together
 
 
-@pytest.mark.parametrize('device', DEVICES)
 @pytest.mark.parametrize('cls, array', [(MLPModel, TIP), (CNNModel, TIP), (CNNModel, PHALANX)])
-def test_networks_trained_together_equal_one_at_a_time(cls, array, device):
+def test_networks_trained_together_equal_one_at_a_time(cls, array, training_device):
     data = datasets(array, SIZES)
     one, together = fit_both(cls, [array] * len(SIZES), data, epochs=3, batch_size=64,
-                             learning_rate=LEARNING_RATE, device=device)
+                             learning_rate=LEARNING_RATE, device=training_device)
     assert_same_training(one, together)
     if cls is CNNModel:     # the BatchNorm running statistics moved, and moved alike
         assert not np.allclose(together[0].state_arrays()['norm_running_var_'], 1.0)
@@ -96,12 +92,11 @@ def test_any_sizes_and_batch_size_train_alike(sizes, batch_size, seed):
     assert_same_training(one, together)
 
 
-@pytest.mark.parametrize('device', DEVICES)
-def test_training_together_is_deterministic(device):
+def test_training_together_is_deterministic(training_device):
     data = datasets(TIP, SIZES)
     runs = []
     for _ in range(2):
-        models = [CNNModel(TIP, seed=i, epochs=1, batch_size=64, device=device)
+        models = [CNNModel(TIP, seed=i, epochs=1, batch_size=64, device=training_device)
                   for i in range(len(SIZES))]
         CNNModel.fit_many(models, data)
         runs.append([m.state_arrays() for m in models])

@@ -1,7 +1,7 @@
 """bench_graph, run as a user runs it: a model list that cannot close the loop, or the magnetic
-skin without models trained on it, is refused before any session starts; what it reads from a recorded closed-loop bag (watchdog ticks, duplicate
-stamps, missing tactile frames) is checked on a bag of known content, and what it reads from a
-fault run on ticks of known content."""
+skin without models trained on it, is refused before any session starts; what it reads from a
+recorded closed-loop bag (watchdog ticks, duplicate stamps, missing tactile frames) is checked on
+a bag of known content, and what it reads from a fault run on ticks of known content."""
 import subprocess
 import sys
 

@@ -13,7 +13,8 @@ from tacforce_ros.sim import skin_physics as phys
 from tacforce_ros.sim.contact import Contact
 from tacforce_ros.sim.elastomer_memory import Creep, Play
 from tacforce_ros.sim.effects import Pipeline
-from tacforce_ros.sim.effects.magnetic_skin import CHIP_RANGE, MagneticSkin
+from tacforce_ros.sim.effects import magnetic_skin
+from tacforce_ros.sim.effects.magnetic_skin import CHIP_RANGE, MagneticSkin, SkinPlacementError
 from tacforce_ros.sim.scene import Plate
 from tacforce_ros.sim.taxel_response import CHIP_ZERO
 
@@ -210,6 +211,14 @@ def test_a_magnet_is_placed_where_its_field_reads_the_rest_value(skin):
     placed_lateral, placed_height = effect.placement(rest)
     np.testing.assert_allclose(placed_height, height, rtol=1e-9)
     np.testing.assert_allclose(placed_lateral, lateral, rtol=0, atol=1e-9 * height.max())
+
+
+def test_a_placement_that_does_not_converge_is_refused_with_the_reason(skin, monkeypatch):
+    """The error skin_sensitivity reports as an infeasible variant, not a crash."""
+    effect, _, _ = skin()
+    monkeypatch.setattr(magnetic_skin, 'PLACEMENT_ITERATIONS', 1)
+    with pytest.raises(SkinPlacementError, match='no magnet place reads the rest values within 1'):
+        effect.placement(effect.rest_counts)
 
 
 def test_a_press_raises_z_most_under_it_and_a_sharp_plate_concentrates(skin):

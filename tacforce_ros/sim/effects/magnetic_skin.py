@@ -121,8 +121,14 @@ class MagneticSkin(Effect):
             jacobian = np.stack([(self.field(position + step * axis)
                                   - self.field(position - step * axis)) / (2.0 * step)
                                  for axis in np.eye(3)], axis=-1)
-            position = position + np.linalg.solve(jacobian, residual[..., None])[..., 0]
-        raise ArithmeticError('magnetic_skin: no magnet placement reads the rest values')
+            try:
+                position = position + np.linalg.solve(jacobian, residual[..., None])[..., 0]
+            except np.linalg.LinAlgError:
+                break
+        raise SkinPlacementError(
+            f'magnetic_skin: no magnet place reads the rest values within '
+            f'{PLACEMENT_ITERATIONS} Newton steps: these magnet and chip parameters do not fit '
+            'the measured rest readings')
 
     def draw_hand(self, rng: np.random.Generator, ctx) -> None:
         """Where each magnet sits: at the place whose field reads a rest value drawn from the

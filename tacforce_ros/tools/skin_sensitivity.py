@@ -12,6 +12,11 @@ run once per --seeds entry (a seed draws the operator's sessions, the noise and 
 the hand, where each magnet sits, is the scenes' sensor_seed), the variants at the first seed;
 a table says, per issue-15 target, in how many seeds it is met.
 
+--set NAME=VALUE (repeatable) changes a magnetic_skin parameter in every run, variants included
+(a variant of it scales the value set): a lab's measured value of an estimate, or a what-if
+such as `--set rest_z_range=35600,35600` (every magnet at one height; the rest spread would then
+be the chips' offsets, which the models' tare removes). The report names the settings.
+
 Writes skin_sensitivity.json and skin_sensitivity.md in --out (created before any work).
 Variants run in parallel (--jobs); the load average is recorded with them.
 """
@@ -34,20 +39,44 @@ NOISE = ('taxel_noise', 'sigma')           # counts: an estimate too (sim/effect
 POISSON_LIMIT = 0.499
 
 
-def variants(factors: list[float], params: list[str], seeds: list[int]) -> list[dict]:
-    """[{'name', 'seed', 'skin': {param: value}, 'noise': factor}]: the values at each seed
-    first, then each variant at the first seed."""
+def skin_setting(text: str) -> tuple[str, float | tuple[float, ...]]:
+    """NAME=VALUE of --set: a magnetic_skin parameter and its value, in the parameter's shape
+    (comma-separated for a range)."""
     from tacforce_ros.sim.effects.magnetic_skin import MagneticSkin
-    nominal = MagneticSkin()
-    rows = [{'name': 'values', 'seed': seed, 'skin': {}, 'noise': 1.0} for seed in seeds]
+    name, _, value = text.partition('=')
+    defaults = {f.name: f.default for f in dataclasses.fields(MagneticSkin)}
+    if name not in defaults:
+        raise argparse.ArgumentTypeError(
+            f'{name!r} is not a magnetic_skin parameter (one of {", ".join(defaults)})')
+    try:
+        numbers = tuple(float(v) for v in value.split(','))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f'{text!r}: the value must be numbers') from None
+    shape = len(defaults[name]) if isinstance(defaults[name], tuple) else 1
+    if len(numbers) != shape:
+        raise argparse.ArgumentTypeError(f'{name} takes {shape} comma-separated number(s), not '
+                                         f'{value!r}')
+    return name, numbers if shape > 1 else numbers[0]
+
+
+def variants(factors: list[float], params: list[str], seeds: list[int],
+             settings: dict | None = None) -> list[dict]:
+    """[{'name', 'seed', 'skin': {param: value}, 'noise': factor}]: the values (with
+    `settings`) at each seed first, then each variant at the first seed."""
+    from tacforce_ros.sim.effects.magnetic_skin import MagneticSkin
+    settings = dict(settings or {})
+    nominal = MagneticSkin(**settings)
+    rows = [{'name': 'values', 'seed': seed, 'skin': dict(settings), 'noise': 1.0}
+            for seed in seeds]
     for param in params:
         for factor in factors:
-            row = {'name': f'{param} x{factor:g}', 'seed': seeds[0], 'skin': {}, 'noise': 1.0}
+            row = {'name': f'{param} x{factor:g}', 'seed': seeds[0], 'skin': dict(settings),
+                   'noise': 1.0}
             if param == 'taxel_noise.sigma':
                 row['noise'] = factor
             else:
                 value = getattr(nominal, param) * factor
-                row['skin'] = {param: min(value, POISSON_LIMIT) if param == 'poisson' else value}
+                row['skin'][param] = min(value, POISSON_LIMIT) if param == 'poisson' else value
             rows.append(row)
     return rows
 
@@ -167,8 +196,11 @@ def table(result: dict) -> str:
              '', f"{result['sessions']} x {result['seconds']:g} s per plate and array, "
              f"M4/M5 {result['epochs']} epochs, seeds {', '.join(map(str, result['seeds']))}; "
              f"load average before / after: {result['load_before'][0]:.2f} / "
-             f"{result['load_after'][0]:.2f}", '',
-             '| ' + ' | '.join(head) + ' |', '|' + '---|' * len(head)]
+             f"{result['load_after'][0]:.2f}", '']
+    if result['settings']:
+        lines += ['magnetic_skin set (--set), in every row: ' + ', '.join(
+            f'{name} = {value}' for name, value in result['settings'].items()), '']
+    lines += ['| ' + ' | '.join(head) + ' |', '|' + '---|' * len(head)]
     paper_row = ['paper', ''] + [f"{paper.TABLE_I[a][m]['e_hat'][0]:.2f}" for a in arrays
                                  for m in models]
     lines.append('| ' + ' | '.join(paper_row) + ' |')
@@ -254,6 +286,9 @@ def main(argv: list[str] | None = None) -> int:
                         help='models of the closed loop run at the values (none: no loop)')
     parser.add_argument('--seeds', nargs='+', type=int, default=[0],
                         help='the values run at each; the variants at the first')
+    parser.add_argument('--set', type=skin_setting, action='append', default=[],
+                        metavar='NAME=VALUE', dest='settings',
+                        help='a magnetic_skin parameter in every run (repeatable)')
     parser.add_argument('--jobs', type=int, default=os.cpu_count() or 1)
     parser.add_argument('--out', type=output_folder, default='skin_sensitivity_out')
     args = parser.parse_args(argv)
@@ -264,10 +299,11 @@ def main(argv: list[str] | None = None) -> int:
     if unknown:
         parser.error(f'--arrays: the paper has Table I rows for {sorted(paper.TABLE_I)} only, '
                      f'not {unknown}')
-    rows = variants(args.factors, args.params, args.seeds)
+    settings = dict(args.settings)
+    rows = variants(args.factors, args.params, args.seeds, settings)
     result = {'arrays': args.arrays, 'models': args.models, 'sessions': args.sessions,
               'seconds': args.seconds, 'epochs': args.epochs, 'seeds': args.seeds,
-              'load_before': os.getloadavg()}
+              'settings': settings, 'load_before': os.getloadavg()}
     with ProcessPoolExecutor(max_workers=min(args.jobs, len(rows))) as pool:
         futures = [pool.submit(evaluate, row, args.arrays, args.sessions, args.seconds,
                                args.models, args.epochs,

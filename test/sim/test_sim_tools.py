@@ -89,12 +89,16 @@ def test_skin_sensitivity_varies_each_estimate_and_writes_its_table(tmp_path):
     assert skin_sensitivity.main(['--out', str(out), '--arrays', 'index_middle', '--seconds',
                                   '15', '--models', 'M3', 'M3-lambda', '--params', 'poisson',
                                   'taxel_noise.sigma', '--factors', '0.5', '1.5',
-                                  '--closed-loop', '--seeds', '3', '4', '--jobs', '1']) == 0
+                                  '--closed-loop', '--seeds', '3', '4', '--jobs', '1',
+                                  '--set', 'play_width=2e-06']) == 0
     result = json.loads((out / 'skin_sensitivity.json').read_text())
     names = [(v['name'], v['seed']) for v in result['variants']]
     assert names == [('values', 3), ('values', 4), ('poisson x0.5', 3), ('poisson x1.5', 3),
                      ('taxel_noise.sigma x0.5', 3), ('taxel_noise.sigma x1.5', 3)]
-    assert result['variants'][3]['skin'] == {'poisson': skin_sensitivity.POISSON_LIMIT}
+    # --set holds in every row, variants included
+    assert result['variants'][3]['skin'] == {'poisson': skin_sensitivity.POISSON_LIMIT,
+                                             'play_width': 2e-06}
+    assert all(v['skin']['play_width'] == 2e-06 for v in result['variants'])
     errors = [v['e_hat']['index_middle']['M3'] for v in result['variants']]
     assert all(np.isfinite(errors)) and len(set(errors)) == len(errors)   # each one changed it
     band = 'index_middle M3-lambda e_hat over the paper in [0.6, 1.5]'
@@ -107,6 +111,7 @@ def test_skin_sensitivity_varies_each_estimate_and_writes_its_table(tmp_path):
         result['variants'][0]['e_hat']['index_middle']['M3-lambda'])
     text = (out / 'skin_sensitivity.md').read_text()
     assert '| paper |' in text and f'| {band} |' in text and 'seed 4' in text
+    assert 'play_width = 2e-06' in text
     assert '| index_middle | M3-lambda | 4 |' in text     # the per-plate table, each seed
 
 
@@ -153,3 +158,24 @@ def test_skin_sensitivity_refuses_an_array_without_a_table_i_row(tmp_path, capsy
     with pytest.raises(SystemExit):
         skin_sensitivity.main(['--out', str(tmp_path), '--factors', '0', '1.5'])
     assert '--factors must be positive' in capsys.readouterr().err
+
+
+@pytest.mark.parametrize('setting, message', [
+    ('magnet_colour=1', "'magnet_colour' is not a magnetic_skin parameter"),
+    ('poisson=soft', 'the value must be numbers'),
+    ('rest_z_range=35600', 'rest_z_range takes 2 comma-separated number(s)'),
+    ('poisson=0.4,0.45', 'poisson takes 1 comma-separated number(s)')])
+def test_skin_sensitivity_refuses_a_setting_it_cannot_apply(tmp_path, capsys, setting, message):
+    from tacforce_ros.tools import skin_sensitivity
+    with pytest.raises(SystemExit):
+        skin_sensitivity.main(['--out', str(tmp_path), '--set', setting])
+    assert message in capsys.readouterr().err
+
+
+def test_a_skin_setting_takes_the_parameters_shape():
+    from tacforce_ros.tools.skin_sensitivity import skin_setting, variants
+    assert skin_setting('rest_z_range=35600,35600') == ('rest_z_range', (35600.0, 35600.0))
+    assert skin_setting('layer_thickness=0.004') == ('layer_thickness', 0.004)
+    # a variant of a parameter set scales the value set, not the default
+    rows = variants([0.5], ['layer_thickness'], [0], {'layer_thickness': 0.004})
+    assert rows[1]['skin'] == {'layer_thickness': 0.002}

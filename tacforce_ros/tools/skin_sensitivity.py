@@ -112,7 +112,7 @@ def evaluate(variant: dict, arrays: list[str], sessions: int, seconds: float,
     hand = load_hand()
     kinematics = HandKinematics.for_hand(hand)
     configs = paper_configurations(seed, epochs)
-    rows, per_plate, loop = {}, {}, None
+    rows, per_plate, per_axis, loop = {}, {}, {}, None
     for array in arrays:
         parts = []
         for plate in paper.TRAINING_PLATES:
@@ -126,19 +126,20 @@ def evaluate(variant: dict, arrays: list[str], sessions: int, seconds: float,
                             'seconds': time.perf_counter() - started}
         dataset = concatenate(parts)
         X, F, offset = dataset.without_offsets(force_threshold=0.3)
-        rows[array], per_plate[array] = {}, {}
+        rows[array], per_plate[array], per_axis[array] = {}, {}, {}
         for label in models:
             kind, hyper = configs[label]
             summary = cross_validate(hand.array(array), kind, hyper, X, F,
                                      dataset.plates).summary()
             rows[array][label] = summary['e_hat_mean']
+            per_axis[array][label] = summary['mae_axis']
             per_plate[array][label] = {fold['test_plate']: fold['e_hat_mean']
                                        for fold in summary['per_fold']}
         if array == LOOP_ARRAY and loop_models:
             loop = closed_loop(hand, kinematics, magnetic(LOOP_SCENE), loop_models, configs,
                                X, F, dataset.plates, offset, seed)
     return {**variant, 'infeasible': None, 'e_hat': rows, 'e_hat_per_plate': per_plate,
-            'closed_loop': loop,
+            'mae_axis': per_axis, 'closed_loop': loop,
             'seconds': time.perf_counter() - started}
 
 
@@ -248,21 +249,24 @@ def table(result: dict) -> str:
 
 
 def per_plate_table(result: dict) -> list[str]:
-    """Lines: each model's held-out e_hat per test plate at the values, per seed."""
+    """Lines: each model's held-out e_hat per test plate at the values, per seed, and its
+    error per axis."""
     rows = [row for row in result['variants'] if row['name'] == 'values' and row['e_hat']]
     if not rows:
         return []
     plates = list(paper.TRAINING_PLATES)
     lines = ['', '## Held-out e_hat [N] per test plate at the values', '',
-             '| array | model | seed | ' + ' | '.join(plates) + ' |',
-             '|' + '---|' * (len(plates) + 3)]
+             '| array | model | seed | ' + ' | '.join(plates) + ' | MAE x / y / z |',
+             '|' + '---|' * (len(plates) + 4)]
     for array in result['arrays']:
         for model in result['models']:
             for row in rows:
                 fold = row['e_hat_per_plate'][array][model]
+                axes = ' / '.join(f'{v:.3f}' for v in row['mae_axis'][array][model])
                 lines.append(f"| {array} | {model} | {row['seed']} | "
-                             + ' | '.join(f'{fold[p]:.3f}' for p in plates) + ' |')
-    return lines
+                             + ' | '.join(f'{fold[p]:.3f}' for p in plates) + f' | {axes} |')
+    return lines + ['', 'MAE x / y / z: the held-out error per axis of {S0} (x, y shear, z '
+                    'normal), mean over the five folds.']
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -113,6 +113,10 @@ def test_skin_sensitivity_varies_each_estimate_and_writes_its_table(tmp_path):
     assert '| paper |' in text and f'| {band} |' in text and 'seed 4' in text
     assert 'play_width = 2e-06' in text
     assert '| index_middle | M3-lambda | 4 |' in text     # the per-plate table, each seed
+    # e_hat is the mean over axes of the per-axis error (each fold's, then over folds)
+    axes = result['variants'][0]['mae_axis']['index_middle']['M3-lambda']
+    assert len(axes) == 3 and np.mean(axes) == pytest.approx(
+        result['variants'][0]['e_hat']['index_middle']['M3-lambda'])
 
 
 def test_skin_sensitivity_counts_the_seeds_that_meet_each_target():

@@ -112,7 +112,7 @@ def evaluate(variant: dict, arrays: list[str], sessions: int, seconds: float,
     hand = load_hand()
     kinematics = HandKinematics.for_hand(hand)
     configs = paper_configurations(seed, epochs)
-    rows, per_plate, per_axis, loop = {}, {}, {}, None
+    rows, per_plate, per_axis, normal_gain, loop = {}, {}, {}, {}, None
     for array in arrays:
         parts = []
         for plate in paper.TRAINING_PLATES:
@@ -127,6 +127,8 @@ def evaluate(variant: dict, arrays: list[str], sessions: int, seconds: float,
         dataset = concatenate(parts)
         X, F, offset = dataset.without_offsets(force_threshold=0.3)
         rows[array], per_plate[array], per_axis[array] = {}, {}, {}
+        normal_gain[array] = normal_activity_per_newton(X, F, dataset.plates,
+                                                        hand.array(array).rotations)
         for label in models:
             kind, hyper = configs[label]
             summary = cross_validate(hand.array(array), kind, hyper, X, F,
@@ -139,8 +141,27 @@ def evaluate(variant: dict, arrays: list[str], sessions: int, seconds: float,
             loop = closed_loop(hand, kinematics, magnetic(LOOP_SCENE), loop_models, configs,
                                X, F, dataset.plates, offset, seed)
     return {**variant, 'infeasible': None, 'e_hat': rows, 'e_hat_per_plate': per_plate,
-            'mae_axis': per_axis, 'closed_loop': loop,
+            'mae_axis': per_axis, 'normal_activity_per_newton': normal_gain,
+            'closed_loop': loop,
             'seconds': time.perf_counter() - started}
+
+
+def normal_activity_per_newton(X, F, plates, rotations, min_force: float = 0.3) -> dict:
+    """{plate: counts per N}: per plate, the least-squares slope through the origin of M1's
+    normal input (z of the taxels' counts X (N, n, 3) summed in {S0}, rotated_sum) over the
+    normal force F[:, 2],
+    on the samples with |F_z| >= min_force (N). M1 reads the force as one linear map of that
+    sum, so it can only be as good as these slopes are alike across plates."""
+    import numpy as np
+
+    from tacforce_ros.estimation.m1_rotation_linear import rotated_sum
+    z = rotated_sum(X, rotations)[:, 2]
+    gains = {}
+    for plate in dict.fromkeys(np.asarray(plates).tolist()):
+        pressed = (plates == plate) & (np.abs(F[:, 2]) >= min_force)
+        force = F[pressed, 2]
+        gains[str(plate)] = float(z[pressed] @ force / (force @ force)) if force.size else None
+    return gains
 
 
 def closed_loop(hand, kinematics, scene, labels: list[str], configs: dict, X, F, plates,
@@ -233,7 +254,7 @@ def table(result: dict) -> str:
                   f"{m['e_track']:.3f} | {m['e_hat']:.3f} | "
                   + ' / '.join('-' if g is None else f'{g:.2f}' for g in m['estimate_gain'])
                   + ' |' for label, m in loop.items() if label != 'open_loop']
-    lines += per_plate_table(result)
+    lines += per_plate_table(result) + normal_gain_table(result)
     checks = result['targets']
     if checks:
         seeds = [row['seed'] for row in result['variants'] if row['name'] == 'values'
@@ -267,6 +288,26 @@ def per_plate_table(result: dict) -> list[str]:
                              + ' | '.join(f'{fold[p]:.3f}' for p in plates) + f' | {axes} |')
     return lines + ['', 'MAE x / y / z: the held-out error per axis of {S0} (x, y shear, z '
                     'normal), mean over the five folds.']
+
+
+def normal_gain_table(result: dict) -> list[str]:
+    """Lines: per row and array, M1's normal input per newton by plate."""
+    rows = [row for row in result['variants'] if row['e_hat']]
+    if not rows:
+        return []
+    plates = list(paper.TRAINING_PLATES)
+    lines = ['', "## M1's normal input per newton, by plate", '',
+             'The slope of the taxels\' counts summed in {S0} (z) over the normal force '
+             '(|F_z| >= 0.3 N), counts / N: M1 maps that sum to the force linearly, so it needs '
+             'these alike across plates.', '',
+             '| variant | seed | array | ' + ' | '.join(plates) + ' |',
+             '|' + '---|' * (len(plates) + 3)]
+    for row in rows:
+        for array in result['arrays']:
+            gains = row['normal_activity_per_newton'][array]
+            lines.append(f"| {row['name']} | {row['seed']} | {array} | " + ' | '.join(
+                '-' if gains.get(p) is None else f'{gains[p]:.0f}' for p in plates) + ' |')
+    return lines
 
 
 def main(argv: list[str] | None = None) -> int:

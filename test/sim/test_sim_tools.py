@@ -109,8 +109,11 @@ def test_skin_sensitivity_varies_each_estimate_and_writes_its_table(tmp_path):
     # Table I's entry is the mean of the five held-out plates'.
     assert np.mean(list(folds.values())) == pytest.approx(
         result['variants'][0]['e_hat']['index_middle']['M3-lambda'])
+    gains = [v['normal_activity_per_newton']['index_middle'] for v in result['variants']]
+    assert all(sorted(g) == sorted(folds) and all(np.isfinite(list(g.values()))) for g in gains)
     text = (out / 'skin_sensitivity.md').read_text()
     assert '| paper |' in text and f'| {band} |' in text and 'seed 4' in text
+    assert "| poisson x0.5 | 3 | index_middle |" in text     # the normal gain, every row
     assert 'play_width = 2e-06' in text
     assert '| index_middle | M3-lambda | 4 |' in text     # the per-plate table, each seed
     # e_hat is the mean over axes of the per-axis error (each fold's, then over folds)
@@ -174,6 +177,21 @@ def test_skin_sensitivity_refuses_a_setting_it_cannot_apply(tmp_path, capsys, se
     with pytest.raises(SystemExit):
         skin_sensitivity.main(['--out', str(tmp_path), '--set', setting])
     assert message in capsys.readouterr().err
+
+
+def test_m1s_normal_input_per_newton_is_the_slope_of_the_rotated_sum():
+    from tacforce_ros.tools.skin_sensitivity import normal_activity_per_newton
+    # Two taxels, the second turned upside down about x: its z counts enter M1's sum negated.
+    rotations = np.stack([np.eye(3), np.diag([1.0, -1.0, -1.0])])
+    force = np.zeros((6, 3))
+    force[:, 2] = [-1.0, -2.0, -3.0, -0.1, -1.0, -2.0]
+    X = np.zeros((6, 2, 3))
+    X[:3, 0, 2], X[:3, 1, 2] = -500.0 * force[:3, 2], 100.0 * force[:3, 2]   # sum -600 F
+    X[3:, 0, 2] = 250.0 * force[3:, 2]                                      # sum 250 F
+    X[3, 0, 2] = 1e6                 # below 0.3 N: not counted
+    gains = normal_activity_per_newton(X, force, np.array(['a'] * 3 + ['b'] * 3),
+                                       rotations)
+    assert gains == {'a': pytest.approx(-600.0), 'b': pytest.approx(250.0)}
 
 
 def test_a_skin_setting_takes_the_parameters_shape():

@@ -29,6 +29,7 @@ import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
 
+from tacforce_ros.estimation.m1_rotation_linear import NORMAL_INPUT_NOTE
 from tacforce_ros.experiments import paper_reference as paper
 from tacforce_ros.experiments.skin_targets import targets
 from tacforce_ros.paths import output_folder, write_results
@@ -89,6 +90,7 @@ def evaluate(variant: dict, arrays: list[str], sessions: int, seconds: float,
 
     from tacforce_ros.estimation.cross_validation import cross_validate
     from tacforce_ros.estimation.dataset import concatenate
+    from tacforce_ros.estimation.m1_rotation_linear import normal_input_per_newton
     from tacforce_ros.estimation.registry import paper_configurations
     from tacforce_ros.experiments.calibration_data import simulate_calibration
     from tacforce_ros.hand.description import load_hand
@@ -127,8 +129,8 @@ def evaluate(variant: dict, arrays: list[str], sessions: int, seconds: float,
         dataset = concatenate(parts)
         X, F, offset = dataset.without_offsets(force_threshold=0.3)
         rows[array], per_plate[array], per_axis[array] = {}, {}, {}
-        normal_gain[array] = normal_activity_per_newton(X, F, dataset.plates,
-                                                        hand.array(array).rotations)
+        normal_gain[array] = normal_input_per_newton(X, F, dataset.plates,
+                                                     hand.array(array).rotations)
         for label in models:
             kind, hyper = configs[label]
             summary = cross_validate(hand.array(array), kind, hyper, X, F,
@@ -144,24 +146,6 @@ def evaluate(variant: dict, arrays: list[str], sessions: int, seconds: float,
             'mae_axis': per_axis, 'normal_activity_per_newton': normal_gain,
             'closed_loop': loop,
             'seconds': time.perf_counter() - started}
-
-
-def normal_activity_per_newton(X, F, plates, rotations, min_force: float = 0.3) -> dict:
-    """{plate: counts per N}: per plate, the least-squares slope through the origin of M1's
-    normal input (z of the taxels' counts X (N, n, 3) summed in {S0}, rotated_sum) over the
-    normal force F[:, 2],
-    on the samples with |F_z| >= min_force (N). M1 reads the force as one linear map of that
-    sum, so it can only be as good as these slopes are alike across plates."""
-    import numpy as np
-
-    from tacforce_ros.estimation.m1_rotation_linear import rotated_sum
-    z = rotated_sum(X, rotations)[:, 2]
-    gains = {}
-    for plate in dict.fromkeys(np.asarray(plates).tolist()):
-        pressed = (plates == plate) & (np.abs(F[:, 2]) >= min_force)
-        force = F[pressed, 2]
-        gains[str(plate)] = float(z[pressed] @ force / (force @ force)) if force.size else None
-    return gains
 
 
 def closed_loop(hand, kinematics, scene, labels: list[str], configs: dict, X, F, plates,
@@ -297,9 +281,7 @@ def normal_gain_table(result: dict) -> list[str]:
         return []
     plates = list(paper.TRAINING_PLATES)
     lines = ['', "## M1's normal input per newton, by plate", '',
-             'The slope of the taxels\' counts summed in {S0} (z) over the normal force '
-             '(|F_z| >= 0.3 N), counts / N: M1 maps that sum to the force linearly, so it needs '
-             'these alike across plates.', '',
+             NORMAL_INPUT_NOTE, '',
              '| variant | seed | array | ' + ' | '.join(plates) + ' |',
              '|' + '---|' * (len(plates) + 3)]
     for row in rows:

@@ -7,9 +7,10 @@ A campaign folder (`campaign`) stands for the bags of it that count (coverage ve
 Per array: offsets from static segments per session, optional leave-one-plate-out
 cross-validation (metrics go into the model's provenance), then a final fit on all plates.
 Writes `<array>_<kind>.npz`, a models list per kind for the estimator (`models_<kind>.yaml`),
-report.md/json (arrays grouped by type: curved fingertips, flat phalanx pads, palm pads) and,
-with cross-validation, a picture of the hand coloured by each array's held-out error
-(`hand_<kind>.png`).
+report.md/json (arrays grouped by type: curved fingertips, flat phalanx pads, palm pads; and
+per array and plate M1's normal input per newton, how alike the plates' summed responses are,
+to compare with skin_sensitivity's on the simulated skin) and, with cross-validation, a picture
+of the hand coloured by each array's held-out error (`hand_<kind>.png`).
 """
 from __future__ import annotations
 
@@ -25,6 +26,7 @@ from tqdm import tqdm
 
 from tacforce_ros.estimation.cross_validation import cross_validate
 from tacforce_ros.estimation.dataset import CalibrationDataset, DatasetError, concatenate
+from tacforce_ros.estimation.m1_rotation_linear import NORMAL_INPUT_NOTE, normal_input_per_newton
 from tacforce_ros.estimation.m3_lambda import DEFAULT_GRID
 from tacforce_ros.estimation.model_io import save_model
 from tacforce_ros.estimation.model_set import write_model_config
@@ -128,6 +130,14 @@ def markdown_report(report: dict) -> str:
             lines.append(f'| **{title}** ({len({e["array"] for e in entries})}) '
                          '| | | | | | | |')
         lines += [_report_row(entry) for entry in entries]
+    gains = report['normal_input_per_newton']
+    plates = list(dict.fromkeys(p for g in gains.values() for p in g))
+    if gains:
+        lines += ['', "## M1's normal input per newton, by plate", '', NORMAL_INPUT_NOTE, '',
+                  '| array | ' + ' | '.join(plates) + ' |', '|' + '---|' * (len(plates) + 1)]
+        lines += [f'| {name} | ' + ' | '.join(
+            '-' if g.get(p) is None else f'{g[p]:.0f}' for p in plates) + ' |'
+                  for name, g in gains.items()]
     return '\n'.join(lines) + '\n'
 
 
@@ -214,7 +224,8 @@ def main(argv: list[str] | None = None) -> int:
 
     version, date = code_version(), time.strftime('%Y-%m-%dT%H:%M:%S%z')
     report = {'code_version': version, 'date': date, 'seed': args.seed, 'hand_side': hand.side,
-              'inputs': [str(p) for p in args.inputs], 'dropped_messages': dropped, 'models': []}
+              'inputs': [str(p) for p in args.inputs], 'dropped_messages': dropped, 'models': [],
+              'normal_input_per_newton': {}}
     jobs = [(name, kind) for name in names for kind in args.kinds]
     prepared = {}
     for name, kind in tqdm(jobs, desc='models', unit='model'):
@@ -234,6 +245,8 @@ def main(argv: list[str] | None = None) -> int:
             except StaticSegmentError as exc:
                 print(f'train: {name}: {exc}', file=sys.stderr)
                 return 2
+            report['normal_input_per_newton'][name] = normal_input_per_newton(
+                *prepared[name][1:3], dataset.plates, array.rotations)
         dataset, X, F, x_offset = prepared[name]
         hyper = model_hyper(kind, args.seed, args.lambda_cv, args.lam, args.device)
         # The shipped model trains in the cross-validation's own fit (final=True).

@@ -7,7 +7,8 @@ from hypothesis import strategies as st
 
 from tacforce_ros.estimation.base import ModelNotFittedError
 from tacforce_ros.estimation.least_squares import CentredSVD, GroupFactors, fit_affine
-from tacforce_ros.estimation.m1_rotation_linear import M1Linear, rotated_sum
+from tacforce_ros.estimation.m1_rotation_linear import (M1Linear, normal_input_per_newton,
+                                                       rotated_sum)
 from tacforce_ros.estimation.m2_rotation_quadratic import M2Quadratic, quadratic_features
 from tacforce_ros.estimation.m3_lambda import M3Lambda
 from tacforce_ros.estimation.m3_linear import M3Linear
@@ -224,3 +225,19 @@ def test_float32_and_float64_inputs_agree(tip, kind):
     np.testing.assert_allclose(m32.predict(X32), m64.predict(X32), rtol=1e-5, atol=1e-5)
     assert m32.predict(X32).dtype == np.float64
     assert fit_affine(X32.reshape(300, -1), F)[0].dtype == np.float64
+
+
+def test_m1s_normal_input_per_newton_is_the_slope_of_the_rotated_sum():
+    # Two taxels, the second turned upside down about x: its z counts enter M1's sum negated.
+    rotations = np.stack([np.eye(3), np.diag([1.0, -1.0, -1.0])])
+    force = np.zeros((6, 3))
+    force[:, 2] = [-1.0, -2.0, -3.0, -0.1, -1.0, -2.0]
+    X = np.zeros((6, 2, 3))
+    X[:3, 0, 2], X[:3, 1, 2] = -500.0 * force[:3, 2], 100.0 * force[:3, 2]   # sum -600 F
+    X[3:, 0, 2] = 250.0 * force[3:, 2]                                      # sum 250 F
+    X[3, 0, 2] = 1e6                 # below 0.3 N: not counted
+    gains = normal_input_per_newton(X, force, np.array(['a'] * 3 + ['b'] * 3), rotations)
+    assert gains == {'a': pytest.approx(-600.0), 'b': pytest.approx(250.0)}
+    # a plate without a press has no slope
+    assert normal_input_per_newton(X[3:4], force[3:4], np.array(['b']),
+                                   rotations) == {'b': None}

@@ -124,6 +124,10 @@ def test_train_from_bags_writes_loadable_models_and_report(hand, bags, tmp_path)
     assert bundle.provenance['metrics']['folds'] == 3
     assert (out / 'report.md').read_text().count('index_middle') >= 2
     assert '**flat phalanx pads** (1)' in (out / 'report.md').read_text()
+    # M1's normal input per newton, per plate of the bags, once per array
+    gains = report['normal_input_per_newton']['index_middle']
+    assert sorted(gains) == ['button', 'edge', 'flat'] and all(np.isfinite(list(gains.values())))
+    assert "M1's normal input per newton" in (out / 'report.md').read_text()
     assert CalibrationDataset.load(out / 'index_middle.npz').array == 'index_middle'
     for kind in ('M1', 'M3-lambda'):          # the estimator's model lists, one per kind
         models = load_model_set(out / f'models_{kind}.yaml', hand)

@@ -179,21 +179,6 @@ def test_skin_sensitivity_refuses_a_setting_it_cannot_apply(tmp_path, capsys, se
     assert message in capsys.readouterr().err
 
 
-def test_m1s_normal_input_per_newton_is_the_slope_of_the_rotated_sum():
-    from tacforce_ros.tools.skin_sensitivity import normal_activity_per_newton
-    # Two taxels, the second turned upside down about x: its z counts enter M1's sum negated.
-    rotations = np.stack([np.eye(3), np.diag([1.0, -1.0, -1.0])])
-    force = np.zeros((6, 3))
-    force[:, 2] = [-1.0, -2.0, -3.0, -0.1, -1.0, -2.0]
-    X = np.zeros((6, 2, 3))
-    X[:3, 0, 2], X[:3, 1, 2] = -500.0 * force[:3, 2], 100.0 * force[:3, 2]   # sum -600 F
-    X[3:, 0, 2] = 250.0 * force[3:, 2]                                      # sum 250 F
-    X[3, 0, 2] = 1e6                 # below 0.3 N: not counted
-    gains = normal_activity_per_newton(X, force, np.array(['a'] * 3 + ['b'] * 3),
-                                       rotations)
-    assert gains == {'a': pytest.approx(-600.0), 'b': pytest.approx(250.0)}
-
-
 def test_a_skin_setting_takes_the_parameters_shape():
     from tacforce_ros.tools.skin_sensitivity import skin_setting, variants
     assert skin_setting('rest_z_range=35600,35600') == ('rest_z_range', (35600.0, 35600.0))

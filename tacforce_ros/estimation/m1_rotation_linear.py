@@ -20,10 +20,8 @@ def normal_input_per_newton(X: np.ndarray, F: np.ndarray, plates: np.ndarray,
                             rotations: np.ndarray, min_force: float = 0.3) -> dict:
     """{plate: counts per N or None}: per plate, the least-squares slope through the origin of
     M1's normal input (z of rotated_sum of the counts X (N, n, 3)) over the normal force
-    F[:, 2], on the samples with |F_z| >= min_force (N); None where a plate has none. M1 reads
-    the force as one linear map of that sum, so it can only be as good as these slopes are
-    alike across plates (train reports them from real bags, skin_sensitivity from the
-    simulated skin)."""
+    F[:, 2], on the samples with |F_z| >= min_force (N); None where a plate has none. Why it
+    matters: NORMAL_INPUT_NOTE."""
     z = rotated_sum(X, rotations)[:, 2]
     plates = np.asarray(plates)
     gains = {}

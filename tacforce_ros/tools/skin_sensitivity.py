@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import math
 import os
 import sys
 import time
@@ -57,6 +58,11 @@ def skin_setting(text: str) -> tuple[str, float | tuple[float, ...]]:
     if len(numbers) != shape:
         raise argparse.ArgumentTypeError(f'{name} takes {shape} comma-separated number(s), not '
                                          f'{value!r}')
+    if not all(math.isfinite(v) and v >= 0.0 for v in numbers):
+        raise argparse.ArgumentTypeError(f'{text!r}: the value must be finite and >= 0')
+    if name == 'poisson' and not 0.0 < numbers[0] <= POISSON_LIMIT:
+        raise argparse.ArgumentTypeError(f'poisson must lie in (0, {POISSON_LIMIT}], not '
+                                         f'{value}')
     return name, numbers if shape > 1 else numbers[0]
 
 
@@ -114,7 +120,7 @@ def evaluate(variant: dict, arrays: list[str], sessions: int, seconds: float,
     hand = load_hand()
     kinematics = HandKinematics.for_hand(hand)
     configs = paper_configurations(seed, epochs)
-    rows, per_plate, per_axis, normal_gain, loop = {}, {}, {}, {}, None
+    rows, per_plate, per_axis, normal_input, loop = {}, {}, {}, {}, None
     for array in arrays:
         parts = []
         for plate in paper.TRAINING_PLATES:
@@ -129,8 +135,8 @@ def evaluate(variant: dict, arrays: list[str], sessions: int, seconds: float,
         dataset = concatenate(parts)
         X, F, offset = dataset.without_offsets(force_threshold=0.3)
         rows[array], per_plate[array], per_axis[array] = {}, {}, {}
-        normal_gain[array] = normal_input_per_newton(X, F, dataset.plates,
-                                                     hand.array(array).rotations)
+        normal_input[array] = normal_input_per_newton(X, F, dataset.plates,
+                                                      hand.array(array).rotations)
         for label in models:
             kind, hyper = configs[label]
             summary = cross_validate(hand.array(array), kind, hyper, X, F,
@@ -143,7 +149,7 @@ def evaluate(variant: dict, arrays: list[str], sessions: int, seconds: float,
             loop = closed_loop(hand, kinematics, magnetic(LOOP_SCENE), loop_models, configs,
                                X, F, dataset.plates, offset, seed)
     return {**variant, 'infeasible': None, 'e_hat': rows, 'e_hat_per_plate': per_plate,
-            'mae_axis': per_axis, 'normal_activity_per_newton': normal_gain,
+            'mae_axis': per_axis, 'normal_input_per_newton': normal_input,
             'closed_loop': loop,
             'seconds': time.perf_counter() - started}
 
@@ -238,7 +244,7 @@ def table(result: dict) -> str:
                   f"{m['e_track']:.3f} | {m['e_hat']:.3f} | "
                   + ' / '.join('-' if g is None else f'{g:.2f}' for g in m['estimate_gain'])
                   + ' |' for label, m in loop.items() if label != 'open_loop']
-    lines += per_plate_table(result) + normal_gain_table(result)
+    lines += per_plate_table(result) + normal_input_table(result)
     checks = result['targets']
     if checks:
         seeds = [row['seed'] for row in result['variants'] if row['name'] == 'values'
@@ -274,8 +280,8 @@ def per_plate_table(result: dict) -> list[str]:
                     'normal), mean over the five folds.']
 
 
-def normal_gain_table(result: dict) -> list[str]:
-    """Lines: per row and array, M1's normal input per newton by plate."""
+def normal_input_table(result: dict) -> list[str]:
+    """Lines: per row and array, M1's normal input per newton by plate (NORMAL_INPUT_NOTE)."""
     rows = [row for row in result['variants'] if row['e_hat']]
     if not rows:
         return []
@@ -286,7 +292,7 @@ def normal_gain_table(result: dict) -> list[str]:
              '|' + '---|' * (len(plates) + 3)]
     for row in rows:
         for array in result['arrays']:
-            gains = row['normal_activity_per_newton'][array]
+            gains = row['normal_input_per_newton'][array]
             lines.append(f"| {row['name']} | {row['seed']} | {array} | " + ' | '.join(
                 '-' if gains.get(p) is None else f'{gains[p]:.0f}' for p in plates) + ' |')
     return lines
@@ -327,6 +333,8 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f'--arrays: the paper has Table I rows for {sorted(paper.TABLE_I)} only, '
                      f'not {unknown}')
     settings = dict(args.settings)
+    if len(settings) != len(args.settings):
+        parser.error('--set names a parameter twice')
     rows = variants(args.factors, args.params, args.seeds, settings)
     result = {'arrays': args.arrays, 'models': args.models, 'sessions': args.sessions,
               'seconds': args.seconds, 'epochs': args.epochs, 'seeds': args.seeds,

@@ -8,8 +8,8 @@ Per array: offsets from static segments per session, optional leave-one-plate-ou
 cross-validation (metrics go into the model's provenance), then a final fit on all plates.
 Writes `<array>_<kind>.npz`, a models list per kind for the estimator (`models_<kind>.yaml`),
 report.md/json (arrays grouped by type: curved fingertips, flat phalanx pads, palm pads; and
-per array and plate M1's normal input per newton, how alike the plates' summed responses are,
-to compare with skin_sensitivity's on the simulated skin) and, with cross-validation, a picture
+M1's normal input per newton per array and plate, to set beside skin_sensitivity's for the
+simulated skin) and, with cross-validation, a picture
 of the hand coloured by each array's held-out error (`hand_<kind>.png`).
 """
 from __future__ import annotations
@@ -245,8 +245,9 @@ def main(argv: list[str] | None = None) -> int:
             except StaticSegmentError as exc:
                 print(f'train: {name}: {exc}', file=sys.stderr)
                 return 2
+            _, X, F, _ = prepared[name]
             report['normal_input_per_newton'][name] = normal_input_per_newton(
-                *prepared[name][1:3], dataset.plates, array.rotations)
+                X, F, dataset.plates, array.rotations)
         dataset, X, F, x_offset = prepared[name]
         hyper = model_hyper(kind, args.seed, args.lambda_cv, args.lam, args.device)
         # The shipped model trains in the cross-validation's own fit (final=True).

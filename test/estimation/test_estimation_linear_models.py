@@ -230,14 +230,18 @@ def test_float32_and_float64_inputs_agree(tip, kind):
 def test_m1s_normal_input_per_newton_is_the_slope_of_the_rotated_sum():
     # Two taxels, the second turned upside down about x: its z counts enter M1's sum negated.
     rotations = np.stack([np.eye(3), np.diag([1.0, -1.0, -1.0])])
-    force = np.zeros((6, 3))
-    force[:, 2] = [-1.0, -2.0, -3.0, -0.1, -1.0, -2.0]
-    X = np.zeros((6, 2, 3))
+    force = np.zeros((8, 3))
+    force[:, 2] = [-1.0, -2.0, -3.0, -0.1, -1.0, -2.0, -1.0, -3.0]
+    X = np.zeros((8, 2, 3))
     X[:3, 0, 2], X[:3, 1, 2] = -500.0 * force[:3, 2], 100.0 * force[:3, 2]   # sum -600 F
-    X[3:, 0, 2] = 250.0 * force[3:, 2]                                      # sum 250 F
+    X[3:6, 0, 2] = 250.0 * force[3:6, 2]                                    # sum 250 F
     X[3, 0, 2] = 1e6                 # below 0.3 N: not counted
-    gains = normal_input_per_newton(X, force, np.array(['a'] * 3 + ['b'] * 3), rotations)
-    assert gains == {'a': pytest.approx(-600.0), 'b': pytest.approx(250.0)}
+    # an offset: the slope through the origin is (60 + 780) / 10 = 84, a fitted line's 100
+    X[6:, 0, 2] = 100.0 * force[6:, 2] + 40.0
+    plates = np.array(['a'] * 3 + ['b'] * 3 + ['c'] * 2)
+    gains = normal_input_per_newton(X, force, plates, rotations)
+    assert gains == {'a': pytest.approx(-600.0), 'b': pytest.approx(250.0),
+                     'c': pytest.approx(84.0)}
     # a plate without a press has no slope
     assert normal_input_per_newton(X[3:4], force[3:4], np.array(['b']),
                                    rotations) == {'b': None}

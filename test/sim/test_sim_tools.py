@@ -1,5 +1,7 @@
 """sim_record writes contract-layout bags; bench_sim writes its JSON."""
+import argparse
 import json
+import re
 from collections import Counter
 
 import numpy as np
@@ -109,7 +111,7 @@ def test_skin_sensitivity_varies_each_estimate_and_writes_its_table(tmp_path):
     # Table I's entry is the mean of the five held-out plates'.
     assert np.mean(list(folds.values())) == pytest.approx(
         result['variants'][0]['e_hat']['index_middle']['M3-lambda'])
-    gains = [v['normal_activity_per_newton']['index_middle'] for v in result['variants']]
+    gains = [v['normal_input_per_newton']['index_middle'] for v in result['variants']]
     assert all(sorted(g) == sorted(folds) and all(np.isfinite(list(g.values()))) for g in gains)
     text = (out / 'skin_sensitivity.md').read_text()
     assert '| paper |' in text and f'| {band} |' in text and 'seed 4' in text
@@ -171,12 +173,34 @@ def test_skin_sensitivity_refuses_an_array_without_a_table_i_row(tmp_path, capsy
     ('magnet_colour=1', "'magnet_colour' is not a magnetic_skin parameter"),
     ('poisson=soft', 'the value must be numbers'),
     ('rest_z_range=35600', 'rest_z_range takes 2 comma-separated number(s)'),
-    ('poisson=0.4,0.45', 'poisson takes 1 comma-separated number(s)')])
-def test_skin_sensitivity_refuses_a_setting_it_cannot_apply(tmp_path, capsys, setting, message):
+    ('poisson=0.4,0.45', 'poisson takes 1 comma-separated number(s)'),
+    ('layer_thickness=nan', 'the value must be finite and >= 0'),
+    ('youngs_modulus=-1', 'the value must be finite and >= 0'),
+    ('poisson=0.5', 'poisson must lie in (0, 0.499]')])
+def test_skin_sensitivity_refuses_a_setting_it_cannot_apply(setting, message):
+    from tacforce_ros.tools.skin_sensitivity import skin_setting
+    with pytest.raises(argparse.ArgumentTypeError, match=re.escape(message)):
+        skin_setting(setting)
+
+
+def test_skin_sensitivity_refuses_a_parameter_set_twice(tmp_path, capsys):
     from tacforce_ros.tools import skin_sensitivity
     with pytest.raises(SystemExit):
-        skin_sensitivity.main(['--out', str(tmp_path), '--set', setting])
-    assert message in capsys.readouterr().err
+        skin_sensitivity.main(['--out', str(tmp_path), '--set', 'poisson=0.4', '--set',
+                               'poisson=0.45'])
+    assert 'names a parameter twice' in capsys.readouterr().err
+
+
+def test_a_skin_setting_reaches_the_simulated_skin(tmp_path):
+    from tacforce_ros.tools import skin_sensitivity
+    # A 1 mm layer cannot hold magnets that read the measured rest values: every row says so.
+    assert skin_sensitivity.main(['--out', str(tmp_path), '--arrays', 'index_middle',
+                                  '--seconds', '5', '--models', 'M3', '--params', 'poisson',
+                                  '--factors', '1.2', '--closed-loop', '--jobs', '1',
+                                  '--set', 'layer_thickness=0.001']) == 0
+    result = json.loads((tmp_path / 'skin_sensitivity.json').read_text())
+    assert len(result['variants']) == 2
+    assert all('above the 1.00 mm layer' in v['infeasible'] for v in result['variants'])
 
 
 def test_a_skin_setting_takes_the_parameters_shape():

@@ -9,8 +9,8 @@ cross-validation (metrics go into the model's provenance), then a final fit on a
 Writes `<array>_<kind>.npz`, a models list per kind for the estimator (`models_<kind>.yaml`),
 report.md/json (arrays grouped by type: curved fingertips, flat phalanx pads, palm pads; and
 M1's normal input per newton per array and plate, to set beside skin_sensitivity's for the
-simulated skin) and, with cross-validation, a picture
-of the hand coloured by each array's held-out error (`hand_<kind>.png`).
+simulated skin) and, with cross-validation, a picture of the hand coloured by each array's
+held-out error (`hand_<kind>.png`).
 """
 from __future__ import annotations
 
@@ -239,13 +239,13 @@ def main(argv: list[str] | None = None) -> int:
             if args.save_dataset:
                 dataset.save(args.out / f'{name}.npz')
             try:
-                prepared[name] = (dataset, *dataset.without_offsets(
+                X, F, x_offset = dataset.without_offsets(
                     force_threshold=args.static_force, activity_threshold=args.static_activity,
-                    min_duration=args.static_seconds))
+                    min_duration=args.static_seconds)
             except StaticSegmentError as exc:
                 print(f'train: {name}: {exc}', file=sys.stderr)
                 return 2
-            _, X, F, _ = prepared[name]
+            prepared[name] = (dataset, X, F, x_offset)
             report['normal_input_per_newton'][name] = normal_input_per_newton(
                 X, F, dataset.plates, array.rotations)
         dataset, X, F, x_offset = prepared[name]

@@ -39,7 +39,7 @@ from tacforce_ros.nodes.common import use_realtime_scheduling
 from tacforce_ros.nodes.latency_probe import Probe, bench_controller, bench_estimator
 from tacforce_ros.nodes.session_plan import NodeLaunch, params_file
 from tacforce_ros.paths import output_file
-from tacforce_ros.tools.session import first_exited, start_nodes, stop_nodes
+from tacforce_ros.bringup.processes import first_exited, start_nodes, stop_nodes
 
 LATENCY_TARGET_P99_MS = 2.0
 RATE_TARGET_HZ = 1000.0

@@ -34,6 +34,8 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from tacforce_ros.bringup.processes import (cpu_seconds, first_exited, start_nodes,
+                                           stop_nodes)
 from tacforce_ros.nodes.session_plan import (CAN_PORT, MODES, NETFT_PORT, SCENE_DONE_MARKER,
                                              SESSION_SCENE_ENDED, XELA_PORT, NodeLaunch,
                                              PlanError, SessionArgs, campaign_session, plan)
@@ -41,67 +43,6 @@ from tacforce_ros.paths import output_folder
 
 POLL_S = 0.1
 CPU_REPORT = 'session: CPU seconds per process:'
-EXECUTABLES = Path(sys.prefix) / 'lib' / 'tacforce_ros'
-
-
-def executable(name: str) -> Path:
-    """The installed executable (ament layout lib/<package>/<name>) of a node."""
-    path = EXECUTABLES / name
-    if not path.is_file():
-        raise FileNotFoundError(f'{path} is not installed; run ./run.sh setup')
-    return path
-
-
-def start_nodes(nodes: list[NodeLaunch], log_dir: Path, env: dict[str, str] | None = None,
-                log_mode: str = 'w') -> list[tuple[str, subprocess.Popen]]:
-    """Start the nodes together, in plan order, as launch does: none waits for another (the
-    drivers wait for their devices themselves, sim time for the first /clock). `log_mode` 'a':
-    a restarted node goes on in its log."""
-    log_dir.mkdir(parents=True, exist_ok=True)
-    procs = []
-    for node in nodes:
-        with open(log_dir / f'{node.executable}.log', log_mode) as log:   # the child keeps one
-            proc = subprocess.Popen([str(executable(node.executable)), *node.command_args()],
-                                    stdout=log, stderr=subprocess.STDOUT, start_new_session=True,
-                                    env=env)
-        procs.append((node.executable, proc))
-    return procs
-
-
-def first_exited(procs: list[tuple[str, subprocess.Popen]]) -> tuple[str, int] | None:
-    """(name, exit code) of the first node in `procs` that is no longer running, or None."""
-    return next(((name, proc.returncode) for name, proc in procs if proc.poll() is not None),
-                None)
-
-
-def cpu_seconds(pid: int) -> float | None:
-    """User + system CPU seconds a running process has used, all its threads (Linux /proc;
-    None elsewhere or once it is gone)."""
-    try:
-        fields = Path(f'/proc/{pid}/stat').read_text().rsplit(')', 1)[1].split()
-    except OSError:
-        return None
-    # after the command name: state is field 3 of proc(5), utime and stime fields 14 and 15
-    return (int(fields[11]) + int(fields[12])) / os.sysconf('SC_CLK_TCK')
-
-
-def stop_nodes(procs: list[tuple[str, subprocess.Popen]], grace: float) -> dict[str, int]:
-    """SIGINT to every node (reverse start order: the recorder and controllers first, the clock
-    source last), wait up to `grace` s in total, then kill what is left. Returns exit codes
-    (negative: killed by that signal)."""
-    for _, proc in reversed(procs):
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGINT)
-    deadline = time.monotonic() + grace
-    for name, proc in procs:
-        try:
-            proc.wait(timeout=max(0.0, deadline - time.monotonic()))
-        except subprocess.TimeoutExpired:
-            print(f'session: {name} did not stop within {grace:g} s; killing it',
-                  file=sys.stderr)
-            proc.kill()
-            proc.wait(timeout=5.0)
-    return {name: proc.returncode for name, proc in procs}
 
 
 class SceneLog:
@@ -225,7 +166,10 @@ def run(args: SessionArgs, duration: float | None, grace: float,
           + ', '.join(f'{n}={c}' for n, c in codes.items()))
     print('bags:' + ''.join(f'\n  {p.resolve()}' for p in bags) if bags else
           f'no bag in {out.resolve()}')
-    return 0 if exited_early is None and all(c == 0 for c in codes.values()) else 1
+    # A node stopped while Python itself was still starting (before any of the node's code ran,
+    # a few tenths of a second at most) ends by the SIGINT it was sent: stopped, as asked.
+    return 0 if exited_early is None and all(c in (0, -signal.SIGINT)
+                                             for c in codes.values()) else 1
 
 
 def main(argv: list[str] | None = None) -> None:

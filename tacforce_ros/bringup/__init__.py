@@ -1,0 +1,1 @@
+"""tacforce_ros.bringup: starting and stopping a session's processes (no rclpy here)."""

@@ -1,0 +1,75 @@
+"""A session's node processes: started together as launch starts them, stopped as launch stops
+them (SIGINT, a grace period, then SIGKILL), with their CPU time. Shared by the `session` tool,
+the benchmarks and the tests that run node graphs."""
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+from tacforce_ros.nodes.session_plan import NodeLaunch
+
+EXECUTABLES = Path(sys.prefix) / 'lib' / 'tacforce_ros'
+
+
+def executable(name: str) -> Path:
+    """The installed executable (ament layout lib/<package>/<name>) of a node or tool."""
+    path = EXECUTABLES / name
+    if not path.is_file():
+        raise FileNotFoundError(f'{path} is not installed; run ./run.sh setup')
+    return path
+
+
+def start_nodes(nodes: list[NodeLaunch], log_dir: Path, env: dict[str, str] | None = None,
+                log_mode: str = 'w') -> list[tuple[str, subprocess.Popen]]:
+    """Start the nodes together, in plan order, as launch does: none waits for another (the
+    drivers wait for their devices themselves, sim time for the first /clock). `log_mode` 'a':
+    a restarted node goes on in its log."""
+    log_dir.mkdir(parents=True, exist_ok=True)
+    procs = []
+    for node in nodes:
+        with open(log_dir / f'{node.executable}.log', log_mode) as log:   # the child keeps one
+            proc = subprocess.Popen([str(executable(node.executable)), *node.command_args()],
+                                    stdout=log, stderr=subprocess.STDOUT, start_new_session=True,
+                                    env=env)
+        procs.append((node.executable, proc))
+    return procs
+
+
+def first_exited(procs: list[tuple[str, subprocess.Popen]]) -> tuple[str, int] | None:
+    """(name, exit code) of the first node in `procs` that is no longer running, or None."""
+    return next(((name, proc.returncode) for name, proc in procs if proc.poll() is not None),
+                None)
+
+
+def cpu_seconds(pid: int) -> float | None:
+    """User + system CPU seconds a running process has used, all its threads (Linux /proc;
+    None elsewhere or once it is gone)."""
+    try:
+        fields = Path(f'/proc/{pid}/stat').read_text().rsplit(')', 1)[1].split()
+    except OSError:
+        return None
+    # after the command name: state is field 3 of proc(5), utime and stime fields 14 and 15
+    return (int(fields[11]) + int(fields[12])) / os.sysconf('SC_CLK_TCK')
+
+
+def stop_nodes(procs: list[tuple[str, subprocess.Popen]], grace: float) -> dict[str, int]:
+    """SIGINT to every node (reverse start order: the recorder and controllers first, the clock
+    source last), wait up to `grace` s in total, then kill what is left. Returns exit codes
+    (negative: killed by that signal)."""
+    for _, proc in reversed(procs):
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGINT)
+    deadline = time.monotonic() + grace
+    for name, proc in procs:
+        try:
+            proc.wait(timeout=max(0.0, deadline - time.monotonic()))
+        except subprocess.TimeoutExpired:
+            print(f'session: {name} did not stop within {grace:g} s; killing it',
+                  file=sys.stderr)
+            proc.kill()
+            proc.wait(timeout=5.0)
+    return {name: proc.returncode for name, proc in procs}

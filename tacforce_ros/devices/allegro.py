@@ -91,24 +91,6 @@ class AllegroError(RuntimeError):
     """The hand did not answer, or the bus failed."""
 
 
-def _socketcand_socket(bus: can.BusABC) -> socket.socket | None:
-    """The TCP socket of python-can's socketcand client, None for other interfaces. That client
-    (python-can 4.6, pinned) reads a closed connection as "no data yet": recv() returns b'' and
-    it polls on until the timeout, at 100 % CPU and with no error, so the driver looks for the
-    end of the stream itself."""
-    return getattr(bus, '_SocketCanDaemonBus__socket', None)
-
-
-def _peer_closed(sock: socket.socket) -> bool:
-    """True when the peer closed or reset the TCP connection (reads nothing)."""
-    try:
-        return sock.recv(1, socket.MSG_PEEK | socket.MSG_DONTWAIT) == b''
-    except BlockingIOError:
-        return False            # open, nothing to read
-    except OSError:
-        return True             # reset, or the socket is closed
-
-
 def wire_id(command: int, device: int = 0) -> int:
     """11-bit CAN id of a command, e.g. SET_TORQUE of finger 1 -> 0x184."""
     return (command << 2) | device
@@ -211,6 +193,65 @@ class JointSample:
     stamp: ArrivalStamp
 
 
+# Longest wait on the socketcand server for one socket operation (connect, its greeting, a
+# frame sent): a server that is gone or stopped answering must not hold the driver.
+SOCKETCAND_TIMEOUT_S = 0.5
+_DEFAULT_TIMEOUT = threading.Lock()     # socket.setdefaulttimeout is process-wide
+
+
+def open_bus(config: AllegroConfig) -> can.BusABC:
+    """The python-can bus of `config`; for socketcand with every socket operation bounded.
+
+    python-can 4.6's socketcand client retries a refused connection for 10 s without a pause and
+    waits for the server's greeting, and sends, without a timeout: a driver asked to stop then
+    stayed 10 s, or for ever with a server that accepts and never answers. So the server is
+    asked first, the client's socket is made with SOCKETCAND_TIMEOUT_S as its timeout, and then
+    left blocking (the driver peeks at it without waiting) with SOCKETCAND_TIMEOUT_S as the
+    kernel's send timeout: a send the server does not take fails with BlockingIOError."""
+    kwargs = dict(config.bus_kwargs)
+    if config.interface != 'socketcand':
+        return can.Bus(interface=config.interface, channel=config.channel, **kwargs)
+    address = (kwargs.get('host', '127.0.0.1'), kwargs.get('port', 29536))
+    try:
+        socket.create_connection(address, timeout=SOCKETCAND_TIMEOUT_S).close()
+    except OSError as error:
+        raise AllegroError(f'no socketcand server at {address[0]}:{address[1]}: {error}') from None
+    with _DEFAULT_TIMEOUT:
+        before = socket.getdefaulttimeout()
+        socket.setdefaulttimeout(SOCKETCAND_TIMEOUT_S)
+        try:
+            bus = can.Bus(interface='socketcand', channel=config.channel, **kwargs)
+        except TimeoutError as error:
+            raise AllegroError(f'the socketcand server at {address[0]}:{address[1]} did not '
+                               f'answer within {SOCKETCAND_TIMEOUT_S} s') from error
+        finally:
+            socket.setdefaulttimeout(before)
+    sock = _socketcand_socket(bus)
+    sock.settimeout(None)
+    seconds = int(SOCKETCAND_TIMEOUT_S)
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDTIMEO,
+                    struct.pack('ll', seconds, int((SOCKETCAND_TIMEOUT_S - seconds) * 1e6)))
+    return bus
+
+
+def _socketcand_socket(bus: can.BusABC) -> socket.socket | None:
+    """The TCP socket of python-can's socketcand client, None for other interfaces. That client
+    (python-can 4.6, pinned) reads a closed connection as "no data yet": recv() returns b'' and
+    it polls on until the timeout, at 100 % CPU and with no error, so the driver looks for the
+    end of the stream itself."""
+    return getattr(bus, '_SocketCanDaemonBus__socket', None)
+
+
+def _peer_closed(sock: socket.socket) -> bool:
+    """True when the peer closed or reset the TCP connection (reads nothing)."""
+    try:
+        return sock.recv(1, socket.MSG_PEEK | socket.MSG_DONTWAIT) == b''
+    except BlockingIOError:
+        return False            # open, nothing to read
+    except OSError:
+        return True             # reset, or the socket is closed
+
+
 class AllegroV4Driver(PollingDriver[JointSample]):
     """Torque driver: start-up in the constructor (``servos_on`` False: identified only, until
     :meth:`servos_on`), pose stream via poll()/start(), torques via
@@ -229,14 +270,13 @@ class AllegroV4Driver(PollingDriver[JointSample]):
         if config.interface == 'socketcand':
             logging.getLogger(SOCKETCAND_LOGGER).addFilter(SOCKETCAND_LOG)   # once: same object
             SOCKETCAND_LOG.begin_attempt()
-        self.bus = bus if bus is not None else can.Bus(interface=config.interface,
-                                                       channel=config.channel,
-                                                       **config.bus_kwargs)
+        self.bus = bus if bus is not None else open_bus(config)
         self._socket = _socketcand_socket(self.bus)
         # Frames go out from the polling thread (stream requests, safe stops) and the caller's
         # (torques, servos on/off): one at a time, and the stream state with them.
         self._lock = threading.RLock()
         self.safe_stop = ''
+        self._send_failure = ''                   # a send timed out: the peer reads nothing
         self._streaming = False                   # the stream was asked for (start-up done)
         self._last_cycle: float | None = None     # monotonic time of the last complete cycle
         self._last_watch: float | None = None     # monotonic time of the last silence check
@@ -257,12 +297,17 @@ class AllegroV4Driver(PollingDriver[JointSample]):
             raise
 
     def _send(self, command: int, data: bytes = b'') -> None:
+        if self._send_failure:          # each frame would wait out the timeout again
+            raise LinkLost(self._send_failure)
         try:
             with self._lock:
                 self.bus.send(can.Message(arbitration_id=wire_id(command, self.config.device_id),
                                           data=data, is_extended_id=False))
         except (can.CanError, OSError) as error:
-            raise LinkLost(f'link lost: sending to the hand failed: {error!r}') from error
+            message = f'link lost: sending to the hand failed: {error!r}'
+            if isinstance(error, (BlockingIOError, TimeoutError)):    # the send timed out
+                self._send_failure = message
+            raise LinkLost(message) from error
 
     def _request(self, command: int) -> None:
         if self.config.rtr_requests:

@@ -151,6 +151,9 @@ class XelaConfig:
     sensor_key: str = '1'
     n_taxels: int = ALLEGRO_TAXELS
     open_timeout: float = 1.0
+    # The closing handshake's wait for the server (the library waits 10 s): a server that
+    # stopped answering must not hold a driver that is asked to stop.
+    close_timeout: float = 0.5
     reconnect_initial: float = 0.05
     reconnect_factor: float = 2.0
     reconnect_max: float = 2.0
@@ -182,6 +185,7 @@ class XelaClient(PollingDriver[XelaFrame]):
     def _connect(self) -> None:
         try:
             self._connection = connect(self.config.url, open_timeout=self.config.open_timeout,
+                                       close_timeout=self.config.close_timeout,
                                        max_size=None, compression=None, legacy=True)
         except (OSError, TimeoutError, InvalidHandshake, InvalidURI) as error:
             self._failures += 1

@@ -58,7 +58,7 @@ from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityP
 
 from tacforce_ros.hand.description import (FRAME_PREFIX_PATTERN, HandConfigError, HandDescription,
                                            load_hand)
-from tacforce_ros.topics import PUBLISHER_DEPTH, SENSOR, qos_kind
+from tacforce_ros.topics import PUBLISHER_DEPTH, SENSOR, qos_kind, relative
 
 EXIT_OK = 0
 EXIT_FAILURE = 1          # an unexpected exception while running
@@ -293,6 +293,10 @@ class TacforceNode(Node):
         its `frame_prefix` (FRAME_PREFIX) in front, for nodes that have one."""
         return self.params.get(FRAME_PREFIX.name, '') + name
 
+    def topic_name(self, topic: str) -> str:
+        """`topic` (a TOPIC_* name) as this node resolves it, namespace included: for log lines."""
+        return self.resolve_topic_name(relative(topic))
+
     def now_ns(self) -> int:
         """Node clock time (sim time when use_sim_time is true), integer nanoseconds."""
         return self.get_clock().now().nanoseconds
@@ -464,10 +468,18 @@ def run_nodes(parts: Sequence[tuple[type[TacforceNode], Sequence[str] | None]],
     """run_node for one or several nodes in this process, on one executor: each part is a node
     class and its own ROS arguments (None: the process's, `args`, which rclpy is initialised
     with). Built in order; any node's error ends them all; leave_safe() in reverse order."""
-    _init_without_rclpy_signal_handlers(args)
     stop = threading.Event()
-    previous = {sig: signal.signal(sig, lambda *_: stop.set())
-                for sig in (signal.SIGINT, signal.SIGTERM)}
+    building = threading.Event()
+
+    def on_signal(signum: int, _frame) -> None:
+        stop.set()
+        if building.is_set():       # a node's constructor has no waits that look at `stop`
+            building.clear()
+            raise StopRequested(f'stopped by {signal.Signals(signum).name} while starting')
+
+    # Before rclpy.init: a signal from here on is a stop, never a KeyboardInterrupt.
+    previous = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
+    _init_without_rclpy_signal_handlers(args)
     nodes: list[TacforceNode] = []
     spinner = None
     logger = rclpy.logging.get_logger(parts[0][0].NODE_NAME)
@@ -477,8 +489,14 @@ def run_nodes(parts: Sequence[tuple[type[TacforceNode], Sequence[str] | None]],
             for node_cls, node_args in parts:
                 logger = rclpy.logging.get_logger(node_cls.NODE_NAME)
                 try:
-                    node = (node_cls() if node_args is None else
-                            node_cls(cli_args=list(node_args), use_global_arguments=False))
+                    if stop.is_set():
+                        raise StopRequested('stopped while starting')
+                    building.set()
+                    try:
+                        node = (node_cls() if node_args is None else
+                                node_cls(cli_args=list(node_args), use_global_arguments=False))
+                    finally:
+                        building.clear()
                     nodes.append(node)
                     node.stop_event = stop
                     node.on_built()

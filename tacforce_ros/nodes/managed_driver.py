@@ -84,7 +84,10 @@ class ManagedDriver(TacforceNode, LifecycleNode):
         except Exception as exc:     # noqa: BLE001 - a failed transition says why, in the log
             if first:
                 self.transition_error = exc
-            self.get_logger().error(f'{transition} failed: {type(exc).__name__}: {exc}')
+            if isinstance(exc, StopRequested):      # asked to stop meanwhile: no failure
+                self.get_logger().info(f'{transition} not done: {exc}')
+            else:
+                self.get_logger().error(f'{transition} failed: {type(exc).__name__}: {exc}')
             return FAILURE
         return SUCCESS
 
@@ -170,6 +173,13 @@ class ManagedDriver(TacforceNode, LifecycleNode):
                                           else 'see the log above'))
         finally:
             self.autostarting = False
+
+    def destroy_node(self) -> None:
+        super().destroy_node()
+        # rclpy's LifecycleNode leaves its state machine, which holds the node, to the garbage
+        # collector; the process ends without one (run_nodes), so it is destroyed here and the
+        # node leaves the ROS graph now, not when its DDS lease runs out (20 s).
+        self._state_machine.destroy_when_not_in_use()
 
     def leave_safe(self) -> None:
         if self.configured and self.trigger_shutdown() != SUCCESS:

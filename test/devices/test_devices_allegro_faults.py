@@ -1,12 +1,14 @@
-"""Allegro driver faults on loopback socketcand: no server (one log line per connection attempt,
-not python-can's flood), a server that closes the link, a hand that goes silent."""
+"""Allegro driver faults on loopback socketcand: no server, a server that accepts and never
+answers, a link that stops reading (each ends the driver's wait instead of holding it), a server
+that closes the link, a hand that goes silent."""
 import logging
 import socket
+import threading
 import time
 
 import numpy as np
 import pytest
-from devices_support import EVENT_TIMEOUT, wait_until
+from devices_support import EVENT_TIMEOUT, Relay, wait_until
 
 from tacforce_ros.devices import allegro
 from tacforce_ros.devices.allegro import AllegroConfig, AllegroError, AllegroV4Driver
@@ -28,14 +30,56 @@ def unused_port() -> int:
         return probe.getsockname()[1]
 
 
-def test_no_server_logs_one_connect_failure_per_attempt(caplog):
-    suppressed = allegro.SOCKETCAND_LOG.suppressed
+def test_no_server_is_refused_at_once_without_python_cans_retries(caplog):
+    """python-can's client retries a refused connection for 10 s without a pause, so a driver
+    asked to stop meanwhile stayed: the server is asked first, and no retry loop runs."""
+    port = unused_port()
     with caplog.at_level(logging.WARNING, logger=allegro.SOCKETCAND_LOGGER):
-        with pytest.raises(OSError):        # python-can gives up after its 10 s of retries
-            AllegroV4Driver(config(unused_port()))
-    failures = [r for r in caplog.records if 'Failed to connect' in r.getMessage()]
-    assert len(failures) == 1, f'{len(failures)} lines'
-    assert allegro.SOCKETCAND_LOG.suppressed - suppressed > 100
+        with pytest.raises(AllegroError, match=f'no socketcand server at 127.0.0.1:{port}'):
+            AllegroV4Driver(config(port))
+    assert not [r for r in caplog.records if 'Failed to connect' in r.getMessage()]
+
+
+def test_a_server_that_accepts_and_never_answers_is_refused_not_waited_for():
+    """A socketcand server that hangs: python-can waits for its greeting without a timeout."""
+    with socket.create_server(('127.0.0.1', 0)) as mute:
+        outcome = []
+
+        def open_it():
+            try:
+                AllegroV4Driver(config(mute.getsockname()[1]))
+            except AllegroError as error:
+                outcome.append(error)
+
+        opener = threading.Thread(target=open_it, daemon=True)
+        opener.start()
+        opener.join(EVENT_TIMEOUT)
+        assert not opener.is_alive(), 'still waiting for the greeting'
+        assert 'did not answer within' in str(outcome[0])
+
+
+def test_a_link_that_stops_reading_is_lost_once_and_the_driver_closes():
+    """The hand's end stops reading (a hung relay): the send that cannot go through is a lost
+    link after the socket timeout, every later send fails at once, and close() ends."""
+    with AllegroEmulator(lambda: POSE, lambda tau: None) as hand, \
+            Relay(hand.address, buffer=4096) as relay:
+        driver = AllegroV4Driver(config(relay.address[1], silent_timeout=60.0))
+        try:
+            allegro._socketcand_socket(driver.bus).setsockopt(socket.SOL_SOCKET,
+                                                              socket.SO_SNDBUF, 4096)
+            relay.freeze()
+            with pytest.raises(LinkLost, match='sending to the hand failed'):
+                for _ in range(100_000):          # kilobytes of buffers fill long before
+                    driver.set_torques(np.zeros(16))
+            started = time.monotonic()
+            with pytest.raises(LinkLost):
+                driver.set_torques(np.zeros(16))
+            assert time.monotonic() - started < allegro.SOCKETCAND_TIMEOUT_S, 'waited again'
+        finally:
+            closer = threading.Thread(target=driver.close, daemon=True)
+            closer.start()
+            closer.join(EVENT_TIMEOUT)
+            assert not closer.is_alive(), 'close() waits on the hung link'
 
 
 def test_a_closed_link_stops_the_driver_at_once():

@@ -19,29 +19,37 @@ PAUSE_S = 0.0003    # between pieces: each one leaves as its own TCP segment
 
 
 class ChoppingRelay:
-    """Accepts one client and relays it to `target`; the target's bytes go on in PIECE-byte
-    pieces, the client's unchanged."""
+    """Relays each client to `target`; the target's bytes go on in PIECE-byte pieces, the
+    client's unchanged."""
 
     def __init__(self, target: tuple[str, int]) -> None:
         self.target = target
         self.listener = socket.create_server(('127.0.0.1', 0))
+        self.listener.settimeout(0.1)
         self.address = self.listener.getsockname()
         self.stop = threading.Event()
         self.threads = [threading.Thread(target=self._accept, daemon=True)]
         self.threads[0].start()
 
     def _accept(self) -> None:
-        client, _ = self.listener.accept()
-        upstream = socket.create_connection(self.target)
-        for sock in (client, upstream):
-            sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-            sock.settimeout(0.1)
-        self.threads += [threading.Thread(target=self._pump, args=(upstream, client, PIECE),
-                                          daemon=True),
-                         threading.Thread(target=self._pump, args=(client, upstream, None),
-                                          daemon=True)]
-        for thread in self.threads[1:]:
-            thread.start()
+        while not self.stop.is_set():
+            try:
+                client, _ = self.listener.accept()
+            except (TimeoutError, socket.timeout):
+                continue
+            except OSError:
+                return
+            upstream = socket.create_connection(self.target)
+            for sock in (client, upstream):
+                sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+                sock.settimeout(0.1)
+            pumps = [threading.Thread(target=self._pump, args=(upstream, client, PIECE),
+                                      daemon=True),
+                     threading.Thread(target=self._pump, args=(client, upstream, None),
+                                      daemon=True)]
+            self.threads += pumps
+            for thread in pumps:
+                thread.start()
 
     def _pump(self, source: socket.socket, sink: socket.socket, piece: int | None) -> None:
         while not self.stop.is_set():

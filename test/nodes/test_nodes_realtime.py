@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from ros_processes import executable, start, stop, unique_domain_id  # noqa: E402
+from ros_processes import OutputLines, executable, start, unique_domain_id  # noqa: E402
 
 DOMAIN = unique_domain_id(offset=67)
 
@@ -63,7 +63,9 @@ def _fifo_allowed() -> bool:
 def test_the_estimator_node_applies_its_realtime_priority():
     if not _fifo_allowed():
         pytest.skip('this machine refuses SCHED_FIFO')
-    proc = start([executable('estimator'), '--ros-args', '-p', 'realtime_priority:=5'], DOMAIN)
+    out = OutputLines(start([executable('estimator'), '--ros-args', '-p',
+                             'realtime_priority:=5'], DOMAIN))
+    proc = out.proc
     try:
         deadline, policies = time.monotonic() + 30.0, set()
         while time.monotonic() < deadline and proc.poll() is None:
@@ -76,7 +78,10 @@ def test_the_estimator_node_applies_its_realtime_priority():
             if policies == {(os.SCHED_FIFO, 5)} and len(tasks) >= 3:
                 break
             time.sleep(0.2)
+        # A stop while the node is still being built ends the build there: the node says so
+        # once built.
+        out.wait_for('threads run SCHED_FIFO at priority 5', 30.0)
     finally:
-        output = stop(proc)
+        output = out.stop()
     assert policies == {(os.SCHED_FIFO, 5)}, output[-800:]
     assert 'threads run SCHED_FIFO at priority 5' in output

@@ -1,35 +1,35 @@
-"""Shared body of calibration.launch.py and closed_loop.launch.py (needs a full ROS 2 install with
-the launch and launch_ros packages; on this machine `session <mode>` starts the same graph).
+"""Shared body of calibration.launch.py, closed_loop.launch.py and two_hands_sim.launch.py (needs a
+full ROS 2 install with the launch and launch_ros packages; on this machine `session <mode>` starts
+the same graph).
 
 The node list, parameter files and overrides come from tacforce_ros.nodes.session_plan, the
-same source the `session` tool reads. robot_state_publisher publishes the package URDF on /tf
-for RViz; our nodes compute frames from the URDF in-process and do not need /tf.
+same source the `session` tool reads, and so do the checks of every argument: a bad argument
+ends the launch before any process starts, naming the argument (launch prints "Caught exception
+in launch", exit code 1). A node that exits with an error while the session runs ends the launch
+with exit code 1, naming the node; a shutdown (Ctrl-C, the end of the scene) exits 0.
+robot_state_publisher publishes the package URDF on /tf for RViz; our nodes compute frames from
+the URDF in-process and do not need /tf.
 """
 from launch import LaunchDescription
-from launch.actions import DeclareLaunchArgument, OpaqueFunction, RegisterEventHandler, Shutdown
+from launch.actions import (DeclareLaunchArgument, LogInfo, OpaqueFunction, RegisterEventHandler,
+                            Shutdown)
 from launch.event_handlers import OnProcessExit, OnProcessIO
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
 from tacforce_ros.hand.description import hand_config, load_hand
 from tacforce_ros.nodes.session_plan import (CAN_PORT, NETFT_PORT, SCENE_DONE_MARKER, XELA_PORT,
-                                             SessionArgs, campaign_session, launch_bool,
-                                             plan)
+                                             PlanError, SessionArgs, campaign_session, launch_bool,
+                                             launch_number, plan, two_hands)
 
-ARGUMENTS = {
+COMMON = {
     'sim': ('true', 'true: sim_world and its device emulators; false: the hardware'),
     'hand_side': ('right', 'right or left: the hand description '
                   'config/hand/allegro_<side>_uskin.yaml (and its models)'),
     'array': ('index_tip', 'array pressed on the plate (calibration) or controlled'),
     'plate': ('spherical', 'push-plate (calibration) or object (closed loop)'),
     'scene': ('', 'sim scene; empty: derived from the mode, array and plate'),
-    'model': ('', 'estimator models YAML; empty: config/models/default.yaml (the left hand: '
-              'config/models/left/default.yaml)'),
-    'sequence': ('', 'closed loop: force command sequence, a name in config/commands/ or a '
-                 'path; empty: paper_70s'),
     'out': ('bags', 'folder for the recorded bags'),
-    'campaign': ('', 'calibration: record the next session this campaign folder has due (its '
-                 'array, plate and folder; in simulation its length and seed)'),
     'real_time_factor': ('1.0', 'simulated seconds per wall second (sim only; with lockstep '
                          'the most it runs at)'),
     'lockstep': ('true', 'sim only: simulated time waits for the nodes closing the loop; '
@@ -42,52 +42,111 @@ ARGUMENTS = {
                   'empty: the root namespace'),
     'frame_prefix': ('', 'put in front of every frame id (e.g. left/), also in '
                      'robot_state_publisher\'s TF; empty: the URDF\'s names'),
-    'xela_port': (str(XELA_PORT), 'sim only: the simulated xela_server\'s port (another per hand)'),
+    'xela_port': (str(XELA_PORT), 'sim only: the simulated xela_server\'s port (another per '
+                  'hand)'),
     'netft_port': (str(NETFT_PORT), 'sim only: the simulated Net F/T box\'s UDP port'),
     'can_port': (str(CAN_PORT), 'sim only: the simulated hand\'s socketcand port'),
     'autostart': ('true', 'the lifecycle drivers (xela_driver, ft_bridge, allegro_driver) '
                   'configure and activate themselves; false: they start unconfigured, for '
                   'ros2 lifecycle set or a lifecycle manager'),
 }
+ONLY = {
+    'calibration': {
+        'campaign': ('', 'record the next session this campaign folder has due (its array, '
+                     'plate and folder; in simulation its length and seed)'),
+    },
+    'closed_loop': {
+        'model': ('', 'estimator models YAML; empty: config/models/default.yaml (the left hand: '
+                  'config/models/left/default.yaml)'),
+        'sequence': ('', 'force command sequence, a name in config/commands/ or a path; empty: '
+                     'paper_70s'),
+    },
+}
+# two_hands_sim: what both hands share (the rest is set per hand, session_plan.two_hands).
+TWO_HANDS = ('array', 'plate', 'out', 'real_time_factor', 'lockstep', 'sim_duration', 'seed',
+             'compose', 'autostart', 'sequence')
 
 
-def _nodes(context, mode: str):
-    value = {name: LaunchConfiguration(name).perform(context) for name in ARGUMENTS}
-    args = SessionArgs(mode=mode, sim=launch_bool('sim', value['sim']),
-                       hand_side=value['hand_side'], array=value['array'],
-                       plate=value['plate'], scene=value['scene'],
-                       model_config=value['model'], sequence=value['sequence'],
-                       out=value['out'], campaign=value['campaign'],
-                       real_time_factor=float(value['real_time_factor']),
-                       lockstep=launch_bool('lockstep', value['lockstep']),
-                       sim_duration=float(value['sim_duration']),
-                       seed=int(value['seed']), compose=launch_bool('compose', value['compose']),
-                       autostart=launch_bool('autostart', value['autostart']),
-                       namespace=value['namespace'], frame_prefix=value['frame_prefix'],
-                       xela_port=int(value['xela_port']), netft_port=int(value['netft_port']),
-                       can_port=int(value['can_port']))
-    if args.campaign:
-        args = campaign_session(args)
+def arguments(mode: str) -> dict[str, tuple[str, str]]:
+    """The launch arguments of a mode: name -> (default, description)."""
+    if mode == 'two_hands':
+        every = {**COMMON, **ONLY['closed_loop']}
+        return {name: every[name] for name in TWO_HANDS}
+    return {**COMMON, **ONLY[mode]}
+
+
+def session_args(mode: str, value: dict[str, str]) -> SessionArgs:
+    """SessionArgs from the launch arguments' text; PlanError names a value it cannot read."""
+    text = {**{name: default for name, (default, _) in COMMON.items()},
+            **{name: default for only in ONLY.values() for name, (default, _) in only.items()},
+            **value}
+    return SessionArgs(
+        mode='closed_loop' if mode == 'two_hands' else mode, sim=launch_bool('sim', text['sim']),
+        hand_side=text['hand_side'], array=text['array'], plate=text['plate'],
+        scene=text['scene'], model_config=text['model'], sequence=text['sequence'],
+        out=text['out'], campaign=text['campaign'],
+        real_time_factor=launch_number('real_time_factor', text['real_time_factor']),
+        lockstep=launch_bool('lockstep', text['lockstep']),
+        sim_duration=launch_number('sim_duration', text['sim_duration']),
+        seed=launch_number('seed', text['seed'], int),
+        compose=launch_bool('compose', text['compose']),
+        autostart=launch_bool('autostart', text['autostart']),
+        namespace=text['namespace'], frame_prefix=text['frame_prefix'],
+        xela_port=launch_number('xela_port', text['xela_port'], int),
+        netft_port=launch_number('netft_port', text['netft_port'], int),
+        can_port=launch_number('can_port', text['can_port'], int))
+
+
+def _actions(context, mode: str):
+    """Every process of the session, after every argument was checked (nothing starts before)."""
+    declared = arguments(mode)
+    try:
+        # Another session file's argument, given here, would be ignored: refused by name. (Other
+        # names may be a including launch file's own, and are left alone.)
+        ours = set(COMMON) | set(ONLY['closed_loop']) | set(ONLY['calibration'])
+        foreign = sorted(set(context.launch_configurations) & ours - set(declared))
+        if foreign:
+            raise PlanError(f'{", ".join(foreign)}: not an argument of this launch file (it '
+                            f'takes {", ".join(declared)})'
+                            + ('; two_hands_sim sets hand, namespace, frame prefix, ports and '
+                               'models per hand' if mode == 'two_hands' else ''))
+        args = session_args(mode, {name: LaunchConfiguration(name).perform(context)
+                                   for name in declared})
+        sessions = two_hands(args) if mode == 'two_hands' else [args]
+        sessions = [campaign_session(a) if a.campaign else a for a in sessions]
+        plans = [(a, plan(a)) for a in sessions]
+    except PlanError as exc:
+        raise PlanError(f'{mode}: {exc}') from None
+    return [action for a, nodes in plans for action in _session_actions(a, nodes)]
+
+
+def _session_actions(args: SessionArgs, nodes):
     # All nodes start together (as in `session`): the hand driver waits for the first /clock,
     # which sim_world publishes once its emulators listen (on hardware: up to connect_timeout
     # for the hand), the XELA and F/T clients keep trying their devices, and the command player
     # starts its sequence only when the controller and the recorder listen.
     actions = []
-    for node in plan(args):
+    for node in nodes:
         action = (Node(package='tacforce_ros', executable=node.executable, output='screen',
                        arguments=node.command_args()) if node.parts else
                   Node(package='tacforce_ros', executable=node.executable, output='screen',
                        namespace=node.namespace or None, remappings=list(node.remappings),
                        parameters=[str(p) for p in node.param_files] + [node.overrides]))
         actions.append(action)
-        # A node that exits with an error ends the launch, naming itself (as `session` does).
+        # A node that exits with an error ends the launch with exit code 1, naming itself.
         actions.append(RegisterEventHandler(OnProcessExit(
-            target_action=action, on_exit=_shutdown_on_failure(node.executable))))
+            target_action=action, on_exit=_fail_on_error(node.namespace, node.executable))))
         if node.executable == 'sim_world':
             # The end of the scene (sim_duration): shut down, the drivers before the emulators.
             actions.append(RegisterEventHandler(OnProcessIO(
                 target_action=action, on_stdout=_shutdown_when_done,
                 on_stderr=_shutdown_when_done)))
+    if not _installed('robot_state_publisher'):
+        # Checked here, before anything starts: launch ends on a package it cannot find, and
+        # leaves the processes it already started running.
+        actions.append(LogInfo(msg='robot_state_publisher is not installed: no /tf of the hand '
+                               'for RViz (the session\'s nodes do not need it)'))
+        return actions
     urdf = load_hand(hand_config(args.hand_side)).urdf_path    # plan() checked it exists
     actions.append(Node(package='robot_state_publisher', executable='robot_state_publisher',
                         namespace=args.namespace or None,
@@ -99,10 +158,26 @@ def _nodes(context, mode: str):
     return actions
 
 
-def _shutdown_on_failure(name: str):
+def _installed(package: str) -> bool:
+    from ament_index_python.packages import PackageNotFoundError, get_package_prefix
+    try:
+        get_package_prefix(package)
+    except PackageNotFoundError:
+        return False
+    return True
+
+
+class NodeFailed(RuntimeError):
+    """A node of the session exited with an error: launch ends with exit code 1."""
+
+
+def _fail_on_error(namespace: str, name: str):
     def handler(event, context):
-        if event.returncode not in (0, None):
-            return [Shutdown(reason=f'{name} exited with code {event.returncode}')]
+        # launch sets no exit code for Shutdown; an exception in a handler it reports and ends
+        # on with exit code 1. Exit codes met while shutting down are the stop's, not failures.
+        if event.returncode not in (0, None) and not context.is_shutdown:
+            raise NodeFailed(f'{namespace}/{name} exited with code {event.returncode}; its log '
+                             'is above')
         return None
     return handler
 
@@ -114,7 +189,8 @@ def _shutdown_when_done(event):
 
 
 def session_launch_description(mode: str) -> LaunchDescription:
+    """calibration, closed_loop, or two_hands (two simulated closed-loop hands)."""
     return LaunchDescription(
         [DeclareLaunchArgument(name, default_value=default, description=text)
-         for name, (default, text) in ARGUMENTS.items()]
-        + [OpaqueFunction(function=_nodes, args=[mode])])
+         for name, (default, text) in arguments(mode).items()]
+        + [OpaqueFunction(function=_actions, args=[mode])])

@@ -186,7 +186,7 @@ class AllegroDriver(ManagedDriver):
         self.get_logger().info(
             f'Allegro {self.driver.serial} ({info.side}, fw 0x{info.firmware_version:04x}) on '
             f'{p["interface"]}:{p["channel"]}; '
-            + (f'joint torques from {TOPIC_TORQUE_COMMAND} (zero after '
+            + (f'joint torques from {self.topic_name(TOPIC_TORQUE_COMMAND)} (zero after '
                f'{p["command_timeout"]:g} s without)' if self.controlled
                else 'control off (joint states only)'))
 

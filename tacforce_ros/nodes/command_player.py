@@ -75,7 +75,8 @@ class CommandPlayer(TacforceNode):
         if self._start_requested and (self.publisher.get_subscription_count()
                                       < self.params['min_subscribers']):
             self.get_logger().info(f'waiting for {self.params["min_subscribers"]} subscribers '
-                                   f'on {TOPIC_DESIRED}', throttle_duration_sec=5.0)
+                                   f'on {self.topic_name(TOPIC_DESIRED)}',
+                                   throttle_duration_sec=5.0)
             return
         if self._start_requested:
             self._start_requested = False

@@ -73,7 +73,8 @@ class FtBridge(ManagedDriver):
         # asked again, so a silent link is re-requested (wall time: a device matter).
         self.restart_timer = self.create_timer(p['restart_after'], self._restart_if_silent,
                                                clock=Clock(clock_type=ClockType.STEADY_TIME))
-        self.get_logger().info(f'reading udp {p["host"]}:{p["port"]} -> {TOPIC_WRENCH} '
+        self.get_logger().info(f'reading udp {p["host"]}:{p["port"]} '
+                               f'-> {self.topic_name(TOPIC_WRENCH)} '
                                f'in {self.frame(p["frame_id"])} while active')
 
     def close_device(self) -> None:

@@ -144,6 +144,58 @@ def launch_bool(name: str, text: str) -> bool:
     return value in ('true', '1')
 
 
+def launch_number(name: str, text: str, kind: type = float) -> float | int:
+    """A numeric launch argument (float or int), or PlanError naming it."""
+    try:
+        return kind(text.strip())
+    except ValueError:
+        raise PlanError(f'{name}:={text!r}: expected {"an integer" if kind is int else "a number"}'
+                        ) from None
+
+
+# What only one mode, or only simulation, reads: refused where it would be ignored.
+ONLY_FOR_MODE = {'model_config': 'closed_loop', 'sequence': 'closed_loop',
+                 'campaign': 'calibration'}
+SIM_ONLY = ('real_time_factor', 'lockstep', 'sim_duration', 'seed', 'xela_port', 'netft_port',
+            'can_port')
+# The launch files' names of SessionArgs fields that differ from them.
+ARGUMENT_NAMES = {'model_config': 'model'}
+PLATE_NAME = re.compile(r'[a-z][a-z0-9_]*')
+
+
+def check_arguments(args: SessionArgs, hand: Any) -> None:
+    """PlanError for an argument the session would ignore or could not use: one meant for the
+    other mode or for simulation alone, an array the hand does not have, a plate name that cannot
+    name a bag, a port out of range."""
+    defaults = {f.name: f.default for f in dataclasses.fields(SessionArgs)}
+    for name, mode in ONLY_FOR_MODE.items():
+        if getattr(args, name) != defaults[name] and args.mode != mode:
+            raise PlanError(f'{ARGUMENT_NAMES.get(name, name)}: only a {mode} session reads it; '
+                            f'this is a {args.mode} session')
+    if not args.sim:
+        given = [name for name in SIM_ONLY if getattr(args, name) != defaults[name]]
+        if given:
+            them = 'them' if len(given) > 1 else 'it'
+            raise PlanError(f'{", ".join(given)}: only simulation reads {them} (sim is false: '
+                            'the devices are the hardware)')
+    arrays = [a.name for a in hand.arrays]
+    if args.array not in arrays:
+        raise PlanError(f'array: {args.array!r} is not an array of the {hand.side} hand '
+                        f'(its arrays: {", ".join(arrays)})')
+    if not PLATE_NAME.fullmatch(args.plate):
+        raise PlanError(f'plate: {args.plate!r} is not a plate name (lower-case letters, digits '
+                        'and _, as the bags are named after it)')
+    if not args.real_time_factor > 0:
+        raise PlanError(f'real_time_factor: {args.real_time_factor} must be above 0')
+    ports = {'xela_port': args.xela_port, 'netft_port': args.netft_port,
+             'can_port': args.can_port}
+    for name, port in ports.items():
+        if not 1 <= port <= 65535:
+            raise PlanError(f'{name}: {port} is not a port (1-65535)')
+    if len(set(ports.values())) < len(ports):
+        raise PlanError(f'xela_port, netft_port, can_port: {sorted(ports.values())} must differ')
+
+
 def tare_file(session_id: str, namespace: str = '') -> Path:
     """Where a session's estimator keeps its tare: under ROS_HOME (~/.ros), not among the bags;
     one per namespace (two hands planned in the same second by one process)."""
@@ -245,6 +297,32 @@ def campaign_session(args: SessionArgs) -> SessionArgs:
                                out=str(campaign.folder), **simulated)
 
 
+# two_hands_sim: each simulated hand in the namespace of its side, with device ports of its own
+# (the right hand on the hardware defaults).
+TWO_HANDS_PORTS = {'right': (XELA_PORT, NETFT_PORT, CAN_PORT), 'left': (5010, 49162, 29546)}
+# What two_hands() sets per hand, so a two-hand launch takes none of them.
+PER_HAND = ('hand_side', 'namespace', 'frame_prefix', 'xela_port', 'netft_port', 'can_port',
+            'model_config', 'scene', 'campaign')
+
+
+def two_hands(args: SessionArgs) -> list[SessionArgs]:
+    """The closed-loop sessions of two simulated hands in one ROS graph (two_hands_sim.launch.py):
+    `args` (what both share) for each side, in namespace /<side> with that side's description,
+    models, frame prefix <side>/ and device ports, its bags in <out>/<side>. PlanError when `args`
+    sets what is per hand, or is not a simulated closed loop."""
+    defaults = {f.name: f.default for f in dataclasses.fields(SessionArgs)}
+    given = [ARGUMENT_NAMES.get(n, n) for n in PER_HAND if getattr(args, n) != defaults[n]]
+    if given:
+        raise PlanError(f'{", ".join(given)}: set per hand by the two-hand session, not an '
+                        'argument of it')
+    if args.mode != 'closed_loop' or not args.sim:
+        raise PlanError('two hands: a simulated closed-loop session only')
+    return [dataclasses.replace(args, hand_side=side, namespace=f'/{side}',
+                                frame_prefix=f'{side}/', out=str(Path(args.out) / side),
+                                xela_port=xela, netft_port=netft, can_port=can)
+            for side, (xela, netft, can) in TWO_HANDS_PORTS.items()]
+
+
 def plan(args: SessionArgs) -> list[NodeLaunch]:
     """The nodes of one session, in start order (the clock source first); `args` with a
     campaign are campaign_session's."""
@@ -265,6 +343,7 @@ def plan(args: SessionArgs) -> list[NodeLaunch]:
     if not hand.is_file():
         raise PlanError(f'hand_side {args.hand_side!r}: no hand description {hand}')
     description = load_hand(hand)
+    check_arguments(args, description)
     loop = fingertip_loop(args, description) if args.mode == 'closed_loop' else None
     if args.sim:
         try:
@@ -273,6 +352,9 @@ def plan(args: SessionArgs) -> list[NodeLaunch]:
             raise PlanError(f'scene: {exc}') from exc
         if scene.kind != args.mode:
             raise PlanError(f'scene {scene.name!r} is a {scene.kind} scene, not {args.mode}')
+        if scene.array not in {a.name for a in description.arrays}:
+            raise PlanError(f'scene {scene.name!r} presses {scene.array!r}, not an array of the '
+                            f'{description.side} hand')
     if args.sequence:
         try:
             ForceSequence.load(args.sequence)    # a bad sequence fails before any node starts

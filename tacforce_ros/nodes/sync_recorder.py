@@ -248,7 +248,8 @@ class SyncRecorder(TacforceNode):
         self._counts[topic] += 1
         if self._desired_subscription is None and all(self._counts[t] for t in INPUTS):
             self._desired_subscription = self._subscribe_passthrough(TOPIC_DESIRED)
-            self.get_logger().info(f'recording every input: listening to {TOPIC_DESIRED}')
+            self.get_logger().info('recording every input: listening to '
+                                   f'{self.topic_name(TOPIC_DESIRED)}')
 
     def _write_sample(self, hand, wrench, joints) -> None:
         """hand, wrench, joints: rosbags messages; the sample is published as CDR bytes."""

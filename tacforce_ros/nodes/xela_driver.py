@@ -85,7 +85,8 @@ class XelaDriver(ManagedDriver):
                              if self.wrong_sensor else ''))
         self.client.start()     # connects, and reconnects on its own
         self.get_logger().info(f'reading {p["url"]} ({self.hand.n_taxels} taxels, '
-                               f'{len(self.hand.arrays)} arrays) -> {TOPIC_TACTILE} while active')
+                               f'{len(self.hand.arrays)} arrays) -> '
+                               f'{self.topic_name(TOPIC_TACTILE)} while active')
 
     def close_device(self) -> None:
         if self.client is not None:

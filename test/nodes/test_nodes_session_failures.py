@@ -28,3 +28,13 @@ def test_a_simulator_that_cannot_listen_ends_the_session_naming_it(tmp_path):
     assert 'xela_driver=' in stopped and 'sim_world=1' in stopped, stopped
     log = (tmp_path / 'out' / 'logs' / 'sim_world.log').read_text()
     assert 'Address already in use' in log
+
+
+def test_an_unknown_array_starts_nothing_and_names_the_argument(tmp_path):
+    done = subprocess.run(
+        [sys.executable, '-m', 'tacforce_ros.tools.session', 'calibration', '--array',
+         'palm_nosuch', '--out', str(tmp_path / 'out'), '--duration', '60'],
+        capture_output=True, text=True, timeout=120, env=ros_env(DOMAIN))
+    assert done.returncode == 2, done.stdout + done.stderr
+    assert "array: 'palm_nosuch' is not an array of the right hand" in done.stderr
+    assert not (tmp_path / 'out' / 'logs').exists(), 'a node was started'

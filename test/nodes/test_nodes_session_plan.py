@@ -33,9 +33,10 @@ def test_every_named_executable_and_file_exists(mode, sim):
         assert node.overrides.get('use_sim_time', False) is wants_sim_time
 
 
-@pytest.mark.parametrize('mode', MODES)
-def test_launch_files_build_their_graph_from_the_plan(mode):
-    path = LAUNCH / f'{mode}.launch.py'
+@pytest.mark.parametrize('name, mode', [(mode, mode) for mode in MODES]
+                         + [('two_hands_sim', 'two_hands')])
+def test_launch_files_build_their_graph_from_the_plan(name, mode):
+    path = LAUNCH / f'{name}.launch.py'
     tree = ast.parse(path.read_text())
     calls = [n for n in ast.walk(tree) if isinstance(n, ast.Call)
              and getattr(n.func, 'id', '') == 'session_launch_description']
@@ -230,24 +231,15 @@ def test_a_namespace_that_is_not_one_is_refused(namespace):
         plan(SessionArgs(mode='calibration', namespace=namespace))
 
 
-def test_the_two_hands_example_includes_the_closed_loop_in_two_namespaces_on_distinct_ports():
-    tree = ast.parse((LAUNCH / 'two_hands_sim.launch.py').read_text())
-    hands = next(n.value for n in ast.walk(tree) if isinstance(n, ast.Assign)
-                 and getattr(n.targets[0], 'id', '') == 'HANDS')
-    hands = ast.literal_eval(hands)
-    assert set(hands) == {'/left', '/right'}
-    ports = [p for triple in hands.values() for p in triple]
-    assert len(set(ports)) == len(ports)
-    # Each hand's include passes these (its side, prefix, ports), and the shared launch file
-    # declares them.
-    passed = next(n for n in ast.walk(tree) if isinstance(n, ast.keyword)
-                  and n.arg == 'launch_arguments').value.func.value
-    keys = {k.value for k in passed.keys}
-    shared = (LAUNCH / 'session_launch.py').read_text()
-    for argument in ('namespace', 'hand_side', 'frame_prefix', 'xela_port', 'netft_port',
-                     'can_port'):
-        assert argument in keys
-        assert f"'{argument}': (" in shared
+def test_the_two_hands_launch_takes_what_both_hands_share_and_nothing_set_per_hand():
+    """two_hands_sim.launch.py declares only the arguments session_plan.two_hands shares (out
+    among them); what it sets per hand is not among them, and is refused when given."""
+    from tacforce_ros.nodes.session_plan import ARGUMENT_NAMES, PER_HAND
+    tree = ast.parse((LAUNCH / 'session_launch.py').read_text())
+    shared = next(ast.literal_eval(n.value) for n in ast.walk(tree) if isinstance(n, ast.Assign)
+                  and getattr(n.targets[0], 'id', '') == 'TWO_HANDS')
+    assert 'out' in shared
+    assert not {ARGUMENT_NAMES.get(name, name) for name in PER_HAND} & set(shared)
 
 
 def test_two_hands_planned_together_keep_their_own_tare():
@@ -311,3 +303,58 @@ def test_a_campaign_session_after_a_poor_one_takes_the_next_seed_and_a_complete_
                    Silent())
     with pytest.raises(PlanError, match='is complete, nothing is due'):
         campaign_session(SessionArgs('calibration', campaign=str(folder)))
+
+
+@pytest.mark.parametrize('args, message', [
+    (dict(mode='calibration', array='palm_nosuch'),
+     "array: 'palm_nosuch' is not an array of the right hand"),
+    (dict(mode='calibration', sim=False, array='palm_nosuch'), 'array: .* not an array'),
+    (dict(mode='calibration', model_config='m.yaml'), 'model: only a closed_loop session'),
+    (dict(mode='calibration', sequence='fault_drill'), 'sequence: only a closed_loop session'),
+    (dict(mode='closed_loop', campaign='somewhere'), 'campaign: only a calibration session'),
+    (dict(mode='calibration', sim=False, seed=4), 'seed: only simulation reads it'),
+    (dict(mode='closed_loop', sim=False, real_time_factor=2.0, lockstep=False),
+     'real_time_factor, lockstep: only simulation reads them'),
+    (dict(mode='calibration', plate='Flat plate'), "plate: 'Flat plate' is not a plate name"),
+    (dict(mode='calibration', real_time_factor=0.0), 'real_time_factor: 0.0 must be above 0'),
+    (dict(mode='calibration', can_port=70000), 'can_port: 70000 is not a port'),
+    (dict(mode='calibration', xela_port=6000, netft_port=6000), 'must differ')])
+def test_an_argument_the_session_would_ignore_or_cannot_use_is_refused(args, message):
+    """In both modes, simulated or not: what the session would silently ignore (another mode's,
+    or simulation's, on the hardware) or could not use is refused before any node starts."""
+    with pytest.raises(PlanError, match=message):
+        plan(SessionArgs(**args))
+
+
+def test_numeric_launch_arguments_name_themselves_when_unreadable():
+    from tacforce_ros.nodes.session_plan import launch_number
+    assert launch_number('seed', ' 7 ', int) == 7 and launch_number('sim_duration', '2.5') == 2.5
+    with pytest.raises(PlanError, match="seed:='7.5': expected an integer"):
+        launch_number('seed', '7.5', int)
+    with pytest.raises(PlanError, match="real_time_factor:='fast': expected a number"):
+        launch_number('real_time_factor', 'fast')
+
+
+def test_two_hands_share_the_arguments_and_keep_their_own_names_ports_and_bags():
+    from tacforce_ros.nodes.session_plan import two_hands
+    hands = two_hands(SessionArgs('closed_loop', out='runs/today', seed=5, array='middle_tip'))
+    assert [(h.hand_side, h.namespace, h.frame_prefix, h.out, h.seed, h.array) for h in hands] == [
+        ('right', '/right', 'right/', 'runs/today/right', 5, 'middle_tip'),
+        ('left', '/left', 'left/', 'runs/today/left', 5, 'middle_tip')]
+    ports = [p for h in hands for p in (h.xela_port, h.netft_port, h.can_port)]
+    assert len(set(ports)) == 6
+    for hand in hands:
+        recorder = next(n for n in plan(hand) if n.executable == 'sync_recorder')
+        assert recorder.overrides['output_dir'] == hand.out
+        assert recorder.namespace == hand.namespace
+
+
+@pytest.mark.parametrize('field, value, name', [
+    ('hand_side', 'left', 'hand_side'), ('namespace', '/x', 'namespace'),
+    ('can_port', 1234, 'can_port'), ('model_config', 'm.yaml', 'model')])
+def test_two_hands_refuse_what_they_set_per_hand(field, value, name):
+    from tacforce_ros.nodes.session_plan import two_hands
+    with pytest.raises(PlanError, match=f'{name}: set per hand'):
+        two_hands(SessionArgs('closed_loop', **{field: value}))
+    with pytest.raises(PlanError, match='simulated closed-loop session only'):
+        two_hands(SessionArgs('calibration'))

@@ -1,0 +1,61 @@
+"""The launch files under the real `ros2 launch`, where it is installed (a full ROS 2 install; it
+is not on PyPI, so this project's own machines skip these): a bad argument ends the launch before any
+process starts, naming the argument, exit code 1; a node that fails while the session runs ends
+it with exit code 1, naming the node. `ROS2_LAUNCH` may name another command that runs
+`ros2 launch` (e.g. a script that puts an upstream launch checkout on PYTHONPATH)."""
+import os
+import shlex
+import shutil
+import socket
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from graph_support import free_ports, ros_env, unique_domain_id  # noqa: E402
+
+pytestmark = pytest.mark.ros
+COMMAND = (shlex.split(os.environ['ROS2_LAUNCH']) if os.environ.get('ROS2_LAUNCH')
+           else ['ros2', 'launch'] if shutil.which('ros2') else None)
+if COMMAND is None:
+    pytest.skip('`ros2 launch` is not installed (set ROS2_LAUNCH to a command that runs it)',
+                allow_module_level=True)
+DOMAIN = unique_domain_id(offset=93)
+STARTED = 'process started with pid'
+
+
+def launch(tmp_path, *arguments: str, timeout: float = 120.0) -> subprocess.CompletedProcess:
+    return subprocess.run([*COMMAND, 'tacforce_ros', *arguments, f'out:={tmp_path / "bags"}'],
+                          capture_output=True, text=True, timeout=timeout,
+                          env=ros_env(DOMAIN), start_new_session=True)
+
+
+@pytest.mark.parametrize('arguments, message', [
+    (('calibration.launch.py', 'array:=palm_nosuch'),
+     "array: 'palm_nosuch' is not an array of the right hand"),
+    (('calibration.launch.py', 'model:=models.yaml'),
+     'model: not an argument of this launch file'),
+    (('closed_loop.launch.py', 'seed:=abc'), "seed:='abc': expected an integer"),
+    (('closed_loop.launch.py', 'sim:=false', 'seed:=3'), 'seed: only simulation reads it'),
+    (('two_hands_sim.launch.py', 'hand_side:=left'), 'hand_side: not an argument')])
+def test_a_bad_argument_starts_nothing_and_names_itself(tmp_path, arguments, message):
+    done = launch(tmp_path, *arguments)
+    output = done.stdout + done.stderr
+    assert done.returncode == 1, output
+    assert message in output, output
+    assert STARTED not in output, output
+
+
+def test_a_node_that_fails_ends_the_launch_non_zero_naming_it(tmp_path):
+    """The simulated hand's port is taken: sim_world exits 1, and so does the launch, after
+    stopping the rest."""
+    xela, netft, can = free_ports(offset=9)
+    with socket.create_server(('127.0.0.1', can)):
+        done = launch(tmp_path, 'closed_loop.launch.py', f'xela_port:={xela}',
+                      f'netft_port:={netft}', f'can_port:={can}', timeout=180.0)
+    output = done.stdout + done.stderr
+    assert done.returncode == 1, output
+    assert '/sim_world exited with code 1' in output, output
+    assert 'process has died' not in output.split('/sim_world exited with code 1')[1], output

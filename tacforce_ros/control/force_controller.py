@@ -25,7 +25,7 @@ Around the law, in this order per tick:
    stale, so that the law resumes where it left off when the estimate returns, and reset once stale
    joints have faded the torque out. When the streams come back, the gains ramp in again at the
    same rate (no torque step). Worst case from the last good message to the hold (or to zero
-   torque): timeout + ramp_time + one tick (defaults: 50 + 50 ms). Each state says why the
+   torque): timeout + ramp_time + one tick (defaults: 50 + 35 + 10 ms). Each state says why the
    controller is in its mode (`reason`), for the log of its transitions.
 2. Integral with a rate limiter (each axis of e_f clipped to `integral_rate_limit` N before
    integrating, so one bad estimate moves the integral by at most that many N s per second),
@@ -118,7 +118,8 @@ class ForceControllerConfig:
     integral_limit: float = _param(2.0, 'integral clamp per axis (N s)')
     estimate_timeout: float = _param(0.05, 'force estimates older than this are stale (s)')
     joints_timeout: float = _param(0.02, 'joint states older than this are stale (s)')
-    ramp_time: float = _param(0.05, 'time to ramp to the safe state once a stream is stale (s)')
+    ramp_time: float = _param(0.035, 'time to ramp to the hold (or zero torque) once a stream '
+                              'is stale (s)')
 
     def __post_init__(self) -> None:
         if self.finger not in FINGERS:
@@ -202,6 +203,7 @@ class ControllerState:
     saturation_scale: float
     estimate_fresh: bool
     joints_fresh: bool
+    estimate_age: float          # s, as the caller gave it (inf: no valid estimate)
     force_gain: float            # 1 normal, ramps to 0 when a stream goes stale
     hold_gain: float             # 1 normal, ramps to 0 only when the joints go stale
     reason: str                  # why this mode: cause, then ': ' and figures if any,
@@ -390,5 +392,6 @@ class ForceController:
             estimated_force=f_hat.copy() if f_hat.shape == (3,) else np.full(3, np.nan),
             integral_error=mem.integral.copy(), tau_cmd=tau.copy(), tau_unsaturated=tau_raw,
             saturation_scale=scale, estimate_fresh=estimate_fresh, joints_fresh=joints_fresh,
-            force_gain=mem.force_gain, hold_gain=mem.hold_gain, reason=reason)
+            estimate_age=float(f_hat_age), force_gain=mem.force_gain, hold_gain=mem.hold_gain,
+            reason=reason)
         return tau, state

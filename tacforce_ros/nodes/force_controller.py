@@ -96,7 +96,7 @@ class ForceControllerNode(TacforceNode):
         self.get_logger().info(
             f'force control of {self.session.config.finger} at {p["control_rate_hz"]:g} Hz, '
             f'{"open loop" if self.session.controller.open_loop else "closed loop"} with '
-            f'{p["estimate_array"]}; torques to {TOPIC_TORQUE_COMMAND}')
+            f'{p["estimate_array"]}; torques to {self.topic_name(TOPIC_TORQUE_COMMAND)}')
 
     def _controller_config(self) -> ForceControllerConfig:
         group = {name.split('.', 1)[1]: value for name, value in self.params.items()
@@ -189,6 +189,7 @@ class ForceControllerNode(TacforceNode):
                               tau_cmd=state.tau_cmd.tolist(),
                               saturation_scale=float(state.saturation_scale),
                               estimate_fresh=state.estimate_fresh,
+                              estimate_age=state.estimate_age,
                               joints_fresh=state.joints_fresh)
         msg.header.stamp = stamp(now)
         msg.header.frame_id = self.frame(self.session.config.force_frame)

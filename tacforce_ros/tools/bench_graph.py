@@ -21,14 +21,13 @@ into /calibration/sample. Writes JSON and a readable table to --out.
 from __future__ import annotations
 
 import argparse
-import json
 import re
 import sys
 from pathlib import Path
 
 import numpy as np
 
-from tacforce_ros import bagio, topics
+from tacforce_ros import bagio, results, topics
 from tacforce_ros.control.command_sequence import ForceSequence
 from tacforce_ros.control.force_controller import MODE_HOLD, MODE_SAFE
 from tacforce_ros.estimation.model_set import (ModelConfigError, default_model_config,
@@ -59,6 +58,9 @@ TACTILE_PERIOD_NS = 10_000_000      # uSkin frames at 100 Hz (the scenes' tactil
 # simulator's friction cone), tracking back under TRACK_N within RECOVERY_S of the estimate's
 # return.
 CRASH = ('estimator', 45.0, 3.0)
+# The hand's driver killed the same way (--driver-kill-runs): what the hand does while its
+# commands have stopped, and after the driver is back.
+DRIVER_KILL = ('allegro_driver', 45.0, 3.0)
 FAULT_SEQUENCE = 'fault_drill'
 HOLD_WITHIN_S = 0.1
 CONTACT_MIN_N = 0.2
@@ -135,17 +137,18 @@ def stale_spells(fresh: np.ndarray, offset: int = 0) -> list[tuple[int, int | No
             for a, b in zip(edges[::2], edges[1::2])]
 
 
-def crash_metrics(t: np.ndarray, modes: list[str], fresh: np.ndarray, f_d: np.ndarray,
-                  f_hat: np.ndarray, f_tilde: np.ndarray, tip: np.ndarray,
-                  estimate_timeout: float) -> dict:
+def crash_metrics(t: np.ndarray, modes: list[str], fresh: np.ndarray, age: np.ndarray,
+                  f_d: np.ndarray, f_hat: np.ndarray, f_tilde: np.ndarray,
+                  tip: np.ndarray) -> dict:
     """What the controller did around an estimator outage, per controller tick of the sequence
-    (t s, mode, estimate fresh, f_d, f_hat, zeroed F/T f_tilde in {F}, fingertip position in
-    the base frame, whose axes {F} shares: pressing the plate is -z). The outage is the longest
-    spell of stale ticks after the controller engaged (the drill keeps the estimator down for
-    seconds; any other spell is reported as `other_stale_spells`, not judged here); its last
-    estimate is stamped `estimate_timeout` before the spell's first tick (to within a tick: the
-    controller's own rule). Reported: how long after that estimate the controller reached its
-    hold, the least normal force on the plate, the most shear per normal force (the friction
+    (t s, mode, estimate fresh, the age of the controller's latest valid estimate, f_d, f_hat,
+    zeroed F/T f_tilde in {F}, fingertip position in the base frame, whose axes {F} shares:
+    pressing the plate is -z). The outage is the longest spell of stale ticks after the
+    controller engaged (the drill keeps the estimator down for seconds; any other spell is
+    reported as `other_stale_spells`, not judged here); its last estimate is the one the spell's
+    first tick was aging (stamped t - age there; where that age is not finite, an invalid
+    estimate, the last fresh tick's). Reported: how long after that estimate the controller
+    reached its hold, the least normal force on the plate, the most shear per normal force (the friction
     cone: above the simulator's friction coefficient the tip slides) and the tangential tip
     travel from the last fresh tick until the estimate returned, and how long after it returned
     the tracking error |f_d - f_hat|, averaged over TRACK_WINDOW_S, was back under TRACK_N."""
@@ -160,17 +163,14 @@ def crash_metrics(t: np.ndarray, modes: list[str], fresh: np.ndarray, f_d: np.nd
         return {'failed': f'the estimate went stale at {t[first_stale]:.2f} s and never returned'}
     others = [(t[a], (t[b] if b is not None else t[-1]) - t[a]) for a, b in spells
               if a != first_stale]
-    t_last = t[first_stale] - estimate_timeout
+    judged = first_stale if np.isfinite(age[first_stale]) else first_stale - 1
+    t_last = t[judged] - age[judged]
     hold = next((k for k in range(first_stale, back + 1) if modes[k] == MODE_HOLD), None)
     outage = slice(first_stale - 1, back + 1)
     normal = -f_tilde[outage, 2]
     shear = np.linalg.norm(f_tilde[outage, :2], axis=1)
     travel = np.linalg.norm(tip[outage, :2] - tip[first_stale - 1, :2], axis=1)
-    error = np.linalg.norm(f_d - f_hat, axis=1)         # NaN where the estimate is stale
-    window = max(1, int(round(TRACK_WINDOW_S / float(np.median(np.diff(t))))))
-    recovered = next((k for k in range(back + window - 1, len(t))
-                      if np.all(np.isfinite(error[k - window + 1:k + 1]))
-                      and np.mean(error[k - window + 1:k + 1]) < TRACK_N), None)
+    recovered = tracking_back(t, f_d, f_hat, back)
     result = {'last_estimate_s': float(t_last), 'estimate_back_s': float(t[back]),
               'hold_after_s': None if hold is None else float(t[hold] - t_last),
               'least_normal_force_n': float(np.min(normal)),
@@ -187,6 +187,70 @@ def crash_metrics(t: np.ndarray, modes: list[str], fresh: np.ndarray, f_d: np.nd
         and result['tracking_back_after_s'] is not None
         and result['tracking_back_after_s'] <= RECOVERY_S + 1e-9)
     return result
+
+
+def tracking_back(t: np.ndarray, f_d: np.ndarray, f_hat: np.ndarray, since: int) -> int | None:
+    """The first tick from `since` on at which |f_d - f_hat|, averaged over the TRACK_WINDOW_S
+    before it (every estimate there fresh), is under TRACK_N; None if none is."""
+    error = np.linalg.norm(f_d - f_hat, axis=1)         # NaN where the estimate is stale
+    window = max(1, int(round(TRACK_WINDOW_S / float(np.median(np.diff(t))))))
+    return next((k for k in range(since + window - 1, len(t))
+                 if np.all(np.isfinite(error[k - window + 1:k + 1]))
+                 and np.mean(error[k - window + 1:k + 1]) < TRACK_N), None)
+
+
+def driver_kill_metrics(t: np.ndarray, f_d: np.ndarray, f_hat: np.ndarray, f_tilde: np.ndarray,
+                        joints: np.ndarray) -> dict:
+    """What the hand did while its driver was down, per controller tick of the sequence (t s,
+    f_d, f_hat, zeroed F/T f_tilde in {F}) and the joint states' stamps on the same clock: the
+    outage is the longest gap between joint states (the driver publishes them); reported, the
+    normal force on the plate over the 0.5 s before it, its least and largest during it and in
+    the 2 s after the joints came back, and how long after that the tracking error was back
+    under TRACK_N."""
+    if joints.size < 2:
+        return {'failed': 'fewer than two joint states in the sequence'}
+    gap = int(np.argmax(np.diff(joints)))
+    off, on = float(joints[gap]), float(joints[gap + 1])
+    normal = -f_tilde[:, 2]
+
+    def span(a: float, b: float) -> np.ndarray:
+        return normal[(t >= a) & (t < b)]
+
+    before, during, after = span(off - 0.5, off), span(off, on), span(on, on + 2.0)
+    if not (before.size and during.size and after.size):
+        return {'failed': f'no controller ticks around the joints\' gap {off:.2f}-{on:.2f} s'}
+    back = int(np.searchsorted(t, on))
+    recovered = tracking_back(t, f_d, f_hat, back)
+    return {'joints_stopped_s': off, 'joints_back_s': on, 'outage_s': on - off,
+            'normal_force_before_n': float(np.mean(before)),
+            'normal_force_during_n': [float(np.min(during)), float(np.max(during))],
+            'normal_force_after_n': [float(np.min(after)), float(np.max(after))],
+            'tracking_back_after_s': (None if recovered is None
+                                      else float(t[recovered] - on))}
+
+
+def driver_kill_run(k: int, args, out: Path) -> dict:
+    """FAULT_SEQUENCE's closed loop with the hand's driver killed (SIGKILL: its torque commands
+    stop mid-stream) and restarted, DRIVER_KILL; free-running, since in lockstep simulated time
+    waits for the joint stream the dead driver no longer sends. The emulated hand keeps the last
+    torque it was sent (the Allegro V4 firmware's behaviour when commands stop is not
+    documented: the emulator takes the worst case)."""
+    seed = load_scene(LOOP_SCENE).seed + k
+    sequence = ForceSequence.load(FAULT_SEQUENCE)
+    session_dir = out / f'driver_kill_{k}'
+    bag = node_path.run_session('closed_loop', args.loop_scene, 'spherical', session_dir,
+                                node_path.closed_loop_session_seconds(sequence.duration),
+                                args.model, seed=seed, lockstep=False, crash=DRIVER_KILL,
+                                sequence=sequence.source)
+    trace, start = node_path.node_trace(bag, sequence, tare_frames())
+    joints = np.array(sorted(msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9 - start
+                             for _, _, msg in bagio.read_messages(bag, [topics.TOPIC_JOINTS])))
+    joints = joints[(joints >= 0.0) & (joints <= sequence.duration)]
+    return {'run': k, 'seed': seed, 'sequence': FAULT_SEQUENCE,
+            'crash': {'node': DRIVER_KILL[0], 'at_wall_s': DRIVER_KILL[1],
+                      'down_wall_s': DRIVER_KILL[2]},
+            **driver_kill_metrics(trace.t, trace.f_d, trace.f_hat, trace.f_tilde, joints),
+            'bag': str(bag)}
 
 
 def crash_run(k: int, args, kinematics, out: Path) -> dict:
@@ -209,7 +273,7 @@ def crash_report(bag: Path, kinematics, sequence) -> dict:
     """crash_metrics of a recorded closed-loop bag."""
     trace, start = node_path.node_trace(bag, sequence, tare_frames())
     states = sorted((msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9, msg.mode,
-                     msg.estimate_fresh, tuple(msg.q))
+                     msg.estimate_fresh, msg.estimate_age, tuple(msg.q))
                     for _, _, msg in bagio.read_messages(bag, [topics.TOPIC_CONTROLLER_STATE]))
     states = [s for s in states if 0.0 <= s[0] - start <= sequence.duration]
     joints = kinematics.finger_joints('index')
@@ -219,8 +283,8 @@ def crash_report(bag: Path, kinematics, sequence) -> dict:
         q16[joints] = q
         tips.append(kinematics.frame_pose(q16, TIP_LINKS['index'])[1])
     return crash_metrics(trace.t, [s[1] for s in states], np.array([s[2] for s in states]),
-                         trace.f_d, trace.f_hat, trace.f_tilde, np.asarray(tips),
-                         controller_config('M3-lambda').estimate_timeout)
+                         np.array([s[3] for s in states]), trace.f_d, trace.f_hat, trace.f_tilde,
+                         np.asarray(tips))
 
 
 def closed_loop_run(k: int, args, hand, kinematics, sequence, out: Path,
@@ -323,6 +387,17 @@ def _crash_text(f: dict) -> str:
                       for o in f.get('other_stale_spells', [])))
 
 
+def _driver_kill_text(d: dict) -> str:
+    during, after = d['normal_force_during_n'], d['normal_force_after_n']
+    return (f'{d["crash"]["node"]} killed {d["crash"]["at_wall_s"]:g} s into the session, '
+            f'restarted {d["crash"]["down_wall_s"]:g} s later: no joint states from '
+            f'{d["joints_stopped_s"]:.2f} to {d["joints_back_s"]:.2f} s of the sequence '
+            f'({d["outage_s"]:.2f} s); normal force {d["normal_force_before_n"]:.2f} N before, '
+            f'{during[0]:.2f}-{during[1]:.2f} N while the driver was down (the hand kept the '
+            f'last torque), {after[0]:.2f}-{after[1]:.2f} N in the 2 s after it was back; '
+            f'tracking under {TRACK_N:g} N {_n(d["tracking_back_after_s"], 2)} s after that')
+
+
 def table(result: dict) -> str:
     lines = [f'bench_graph ({"lockstep" if result["lockstep"] else "free-running"}, '
              f'{result["sequence"]}, model {result["model"]}, {result["skin"]} skin)', '',
@@ -369,6 +444,9 @@ def table(result: dict) -> str:
     if faults:
         lines += ['', f'fault runs passed: {sum(f.get("passed", False) for f in faults)} of '
                   f'{len(faults)}']
+    for d in result.get('driver_kill_runs', []):
+        lines += _part(f'driver kill {d["run"]} (seed {d["seed"]}, {FAULT_SEQUENCE}, '
+                       'free-running)', d, _driver_kill_text)
     return '\n'.join(lines)
 
 
@@ -387,6 +465,9 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument('--fault-runs', type=int, default=3,
                         help=f'fault runs: the closed loop of {FAULT_SEQUENCE} with the estimator '
                         'killed mid-sequence and restarted (default 3; 0: none)')
+    parser.add_argument('--driver-kill-runs', type=int, default=0,
+                        help=f'runs of {FAULT_SEQUENCE} with the hand\'s driver killed '
+                        'mid-sequence and restarted: what the hand does meanwhile (default 0)')
     parser.add_argument('--lockstep', action=argparse.BooleanOptionalAction, default=True,
                         help='sessions in lockstep (default) or free-running at real time')
     parser.add_argument('--skin', choices=SKINS, default='empirical',
@@ -395,8 +476,9 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument('--out', type=output_folder, default='out/bench_graph',
                         help='folder for bench_graph.json, bench_graph.md and the sessions')
     args = parser.parse_args(argv)
-    if args.runs < 0 or args.calibration_seconds < 0 or args.fault_runs < 0:
-        parser.error('--runs, --calibration-seconds and --fault-runs must be >= 0')
+    if min(args.runs, args.calibration_seconds, args.fault_runs, args.driver_kill_runs) < 0:
+        parser.error('--runs, --calibration-seconds, --fault-runs and --driver-kill-runs must '
+                     'be >= 0')
     hand = load_hand()
     if args.model is None:
         if args.skin != 'empirical':
@@ -412,7 +494,9 @@ def main(argv: list[str] | None = None) -> None:
         parser.error(str(exc))
     sequence = ForceSequence.load(args.sequence)
     args.loop_scene = skin_scene(args.out / 'scenes', LOOP_SCENE, args.skin)
-    result: dict = {'lockstep': args.lockstep, 'sequence': args.sequence, 'skin': args.skin,
+    command = 'bench_graph ' + ' '.join(sys.argv[1:] if argv is None else argv)
+    result: dict = {'provenance': results.provenance(), 'command': command,
+                    'lockstep': args.lockstep, 'sequence': args.sequence, 'skin': args.skin,
                     'model': str(args.model), 'closed_loop': [], 'closed_loop_composed': []}
     for k in range(args.runs):
         for compose in (False, True) if args.compose else (False,):
@@ -440,14 +524,23 @@ def main(argv: list[str] | None = None) -> None:
         result['fault_runs'].append(fault)
         print(f'fault run {k}: ' + (fault.get('failed') or
                                     ('passed' if fault['passed'] else 'FAILED')), flush=True)
+    result['driver_kill_runs'] = []
+    for k in range(args.driver_kill_runs):
+        try:
+            kill = driver_kill_run(k, args, args.out)
+        except (node_path.NodePathUnavailable, OSError, ValueError) as exc:
+            kill = {'run': k, 'seed': load_scene(LOOP_SCENE).seed + k, 'failed': str(exc)}
+        result['driver_kill_runs'].append(kill)
+        print(f'driver kill {k}: ' + (kill.get('failed') or _driver_kill_text(kill)), flush=True)
     for key in ('closed_loop', 'closed_loop_composed'):
         result['summary' if key == 'closed_loop' else 'summary_composed'] = summary(result[key])
     runs = result['closed_loop'] + result['closed_loop_composed']
-    (args.out / 'bench_graph.json').write_text(json.dumps(result, indent=2))
-    text = table(result)
-    (args.out / 'bench_graph.md').write_text(text + '\n')
-    print(text)
-    failed = (any('failed' in r for r in runs + result['fault_runs'])
+    _, md_path = results.write(args.out, 'bench_graph', result, lambda r: (
+        results.header(r, 'The node graph against the direct path', r['command']) + '\n'
+        + table(r) + '\n'))
+    print(md_path.read_text())
+    failed = (any('failed' in r for r in runs + result['fault_runs']
+                  + result['driver_kill_runs'])
               or 'failed' in result.get('calibration', {}))
     sys.exit(1 if failed else 0)
 

@@ -223,6 +223,40 @@ def test_stale_stream_ramps_to_safe_within_ramp_time(stale):
     assert not (state.estimate_fresh if stale == 'estimate' else state.joints_fresh)
 
 
+@given(intervals=st.lists(st.floats(0.008, 0.012), min_size=60, max_size=60),
+       last=st.floats(0.0, 0.01), estimate_timeout=st.sampled_from([0.03, 0.05]),
+       ramp_time=st.sampled_from([0.02, 0.035, 0.05]))
+def test_the_hold_comes_within_timeout_ramp_and_one_tick_of_the_last_estimate(
+        intervals, last, estimate_timeout, ramp_time):
+    """The watchdog's bound, whatever the ticks' phase and jitter (8-12 ms apart, as under
+    simulated time's 2 ms steps): the first tick in the hold is at most estimate_timeout +
+    ramp_time + the longest tick interval after the last estimate."""
+    cfg = config(estimate_timeout=estimate_timeout, ramp_time=ramp_time)
+    ctrl = ForceController(cfg, KIN)
+    f_d = np.array([0.0, 0.0, 1.5])
+    t_last = 0.3 + last                      # the estimate stops coming after this stamp
+    t, hold_at = 0.0, None
+    for k in range(30):                      # engaged, closed loop
+        ctrl.update(k * DT, Q16, ZERO16, f_d * 0.9, 0.0, 0.0, f_d)
+    t = 30 * DT
+    for interval in intervals:
+        t += interval
+        _, state = ctrl.update(t, Q16, ZERO16, f_d * 0.9, t - min(t, t_last), 0.0, f_d)
+        if state.mode == MODE_HOLD:
+            hold_at = t
+            break
+    assert hold_at is not None
+    assert hold_at - t_last <= estimate_timeout + ramp_time + max(intervals) + 1e-9
+
+
+def test_the_shipped_watchdog_holds_within_100_ms_of_the_last_estimate():
+    """The shipped timeout and ramp leave one control tick (up to 12 ms under simulated time)
+    inside the 100 ms the fault drill asks of the hold."""
+    from tacforce_ros.nodes.session_plan import params_file
+    shipped = ForceControllerConfig.from_yaml(params_file('force_controller'))
+    assert shipped.estimate_timeout + shipped.ramp_time + 0.012 <= 0.1
+
+
 finite = st.floats(-1.0, 1.0)
 
 

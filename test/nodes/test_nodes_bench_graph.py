@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from tacforce_ros import bagio, topics
-from tacforce_ros.tools.bench_graph import crash_metrics, stream_counts, watchdog_ticks
+from tacforce_ros.tools.bench_graph import (crash_metrics, driver_kill_metrics, stream_counts,
+                                            watchdog_ticks)
 
 
 @pytest.mark.parametrize('models, message', [
@@ -47,7 +48,7 @@ def test_watchdog_ticks_and_stream_counts_read_from_a_bag(tmp_path):
                           estimated_force=vector(0.0, 0.0, 0.0),
                           integral_error=vector(0.0, 0.0, 0.0), q=zero, qdot=zero,
                           tau_cmd=zero, saturation_scale=1.0, estimate_fresh=True,
-                          joints_fresh=True)
+                          estimate_age=0.0, joints_fresh=True)
 
     from tacforce_ros.hand.description import load_hand
     hand = load_hand()
@@ -85,19 +86,20 @@ def outage_ticks():
     modes[305:310] = ['safe'] * 5
     modes[310:500] = ['hold'] * 190
     fresh = (t < 3.05) | (t >= 5.0)
+    age = np.where(fresh, 0.005, t - 3.0)            # the controller's latest valid estimate
     f_d = np.tile([0.0, 0.0, -1.5], (1000, 1))
     f_hat = f_d + 0.02 * np.sin(t)[:, None]
     f_hat[~fresh] = np.nan
     f_hat[500:530] += 0.3                            # off by 0.3 N for 0.3 s after the return
     f_tilde = np.tile([0.1, 0.0, -1.2], (1000, 1))
     tip = np.zeros((1000, 3))
-    return t, modes, fresh, f_d, f_hat, f_tilde, tip
+    return t, modes, fresh, age, f_d, f_hat, f_tilde, tip
 
 
 def test_crash_metrics_read_the_hold_the_contact_and_the_recovery():
-    t, modes, fresh, f_d, f_hat, f_tilde, tip = outage_ticks()
-    result = crash_metrics(t, modes, fresh, f_d, f_hat, f_tilde, tip, 0.05)
-    assert result['last_estimate_s'] == 3.0 and result['estimate_back_s'] == 5.0
+    t, modes, fresh, age, f_d, f_hat, f_tilde, tip = outage_ticks()
+    result = crash_metrics(t, modes, fresh, age, f_d, f_hat, f_tilde, tip)
+    assert result['last_estimate_s'] == pytest.approx(3.0) and result['estimate_back_s'] == 5.0
     assert result['hold_after_s'] == pytest.approx(0.10)
     assert result['least_normal_force_n'] == pytest.approx(1.2)
     assert result['most_shear_per_normal'] == pytest.approx(0.1 / 1.2)
@@ -106,34 +108,45 @@ def test_crash_metrics_read_the_hold_the_contact_and_the_recovery():
     assert result['passed']
 
 
+def test_the_hold_is_timed_from_the_last_estimate_the_controller_had():
+    """The last estimate is the one the first stale tick was aging: 58 ms old there, it was
+    stamped 2.992 s, and the hold at 3.10 s came 0.108 s after it (too late)."""
+    t, modes, fresh, age, f_d, f_hat, f_tilde, tip = outage_ticks()
+    age[305:500] = t[305:500] - 2.992
+    result = crash_metrics(t, modes, fresh, age, f_d, f_hat, f_tilde, tip)
+    assert result['last_estimate_s'] == pytest.approx(2.992)
+    assert result['hold_after_s'] == pytest.approx(0.108) and not result['passed']
+
+
 def test_the_drill_outage_is_judged_and_a_short_stale_blip_before_it_is_reported():
     """An estimate stale for 30 ms just after engaging (session 15's failed fault run judged
     that blip instead of the kill's outage): the longest spell is the drill's."""
-    t, modes, fresh, f_d, f_hat, f_tilde, tip = outage_ticks()
+    t, modes, fresh, age, f_d, f_hat, f_tilde, tip = outage_ticks()
     fresh[20:23] = False
     modes[22:24] = ['safe'] * 2
-    result = crash_metrics(t, modes, fresh, f_d, f_hat, f_tilde, tip, 0.05)
-    assert result['last_estimate_s'] == 3.0 and result['passed']
+    result = crash_metrics(t, modes, fresh, age, f_d, f_hat, f_tilde, tip)
+    assert result['last_estimate_s'] == pytest.approx(3.0) and result['passed']
     assert result['other_stale_spells'] == [{'at_s': 0.2, 'lasted_s': pytest.approx(0.03)}]
     fresh[995:] = False                              # and stale at the very end
-    result = crash_metrics(t, modes, fresh, f_d, f_hat, f_tilde, tip, 0.05)
-    assert result['last_estimate_s'] == 3.0 and len(result['other_stale_spells']) == 2
+    result = crash_metrics(t, modes, fresh, age, f_d, f_hat, f_tilde, tip)
+    assert result['last_estimate_s'] == pytest.approx(3.0)
+    assert len(result['other_stale_spells']) == 2
     fresh[3000 // 10:] = False                       # the drill's outage never ends
-    assert 'never returned' in crash_metrics(t, modes, fresh, f_d, f_hat, f_tilde, tip,
-                                             0.05)['failed']
+    assert 'never returned' in crash_metrics(t, modes, fresh, age, f_d, f_hat, f_tilde,
+                                             tip)['failed']
 
 
 def test_crash_metrics_fail_a_lost_contact_a_late_hold_and_a_missing_outage():
-    t, modes, fresh, f_d, f_hat, f_tilde, tip = outage_ticks()
+    t, modes, fresh, age, f_d, f_hat, f_tilde, tip = outage_ticks()
     f_tilde[350:360, 2] = 0.0                        # off the plate for 0.1 s
-    assert not crash_metrics(t, modes, fresh, f_d, f_hat, f_tilde, tip, 0.05)['passed']
-    t, modes, fresh, f_d, f_hat, f_tilde, tip = outage_ticks()
+    assert not crash_metrics(t, modes, fresh, age, f_d, f_hat, f_tilde, tip)['passed']
+    t, modes, fresh, age, f_d, f_hat, f_tilde, tip = outage_ticks()
     modes[310:312] = ['safe'] * 2                    # hold 20 ms late
-    late = crash_metrics(t, modes, fresh, f_d, f_hat, f_tilde, tip, 0.05)
+    late = crash_metrics(t, modes, fresh, age, f_d, f_hat, f_tilde, tip)
     assert late['hold_after_s'] == pytest.approx(0.12) and not late['passed']
     always_fresh = np.ones(1000, bool)
-    assert 'never went stale' in crash_metrics(t, ['closed_loop'] * 1000, always_fresh, f_d,
-                                               f_d, f_tilde, tip, 0.05)['failed']
+    assert 'never went stale' in crash_metrics(t, ['closed_loop'] * 1000, always_fresh, age,
+                                               f_d, f_d, f_tilde, tip)['failed']
 
 
 def test_session_figures_are_read_from_its_log_and_tabled_side_by_side(tmp_path):
@@ -168,3 +181,22 @@ def test_session_figures_are_read_from_its_log_and_tabled_side_by_side(tmp_path)
     assert '| 0 | 0 | one per node |' in text and '| 0 | 0 | one (composed) |' in text
     assert '| 13 / 16 |' in text and '| 30 / 17 |' in text
     assert 'composed in one process: agree' in text and '1 of 1' in text
+
+
+def test_driver_kill_metrics_read_the_press_while_the_driver_was_down_and_after():
+    """Joint states stop from 3.00 to 6.00 s (the driver is down): the press is read before,
+    during and after that gap, and tracking from when the joints came back."""
+    t, modes, fresh, age, f_d, f_hat, f_tilde, tip = outage_ticks()
+    f_hat = f_d + 0.02 * np.sin(t)[:, None]
+    f_tilde[300:600, 2] = -1.1                       # the last torque kept: the press holds
+    f_tilde[600:650, 2] = -0.2                       # servos off on restart: the press drops
+    f_hat[600:700] += 0.3                            # then the loop takes it back
+    joints = np.r_[np.arange(0.0, 3.0, 0.003), np.arange(6.0, 10.0, 0.003)]
+    result = driver_kill_metrics(t, f_d, f_hat, f_tilde, joints)
+    assert result['joints_stopped_s'] == pytest.approx(2.997, abs=2e-3)
+    assert result['joints_back_s'] == pytest.approx(6.0) and result['outage_s'] > 2.99
+    assert result['normal_force_before_n'] == pytest.approx(1.2)
+    assert result['normal_force_during_n'] == pytest.approx([1.1, 1.1])
+    assert result['normal_force_after_n'] == pytest.approx([0.2, 1.2])
+    assert 1.0 < result['tracking_back_after_s'] <= 1.5
+    assert 'failed' in driver_kill_metrics(t, f_d, f_hat, f_tilde, joints[:1])

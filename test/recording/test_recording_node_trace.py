@@ -1,7 +1,7 @@
 """A closed-loop bag as sync_recorder writes it, read back as a trace on the sequence's clock
 (tacforce_ros/experiments/node_path.py): the clock starts at the first recorded f_d, the F/T
-is zeroed on its readings before the controller engaged, and f_hat is NaN where the controller had no fresh
-estimate. Bags without what that needs are refused, saying why."""
+is zeroed on its readings before the controller engaged, and f_hat is NaN where the controller
+had no fresh estimate. Bags without what that needs are refused, saying why."""
 import numpy as np
 import pytest
 
@@ -30,7 +30,7 @@ def controller_state(types, stamp_ns, f_d, f_hat, fresh, mode=None):
         mode=mode or ('closed_loop' if fresh else 'hold'), desired_force=vector(types, f_d),
         estimated_force=vector(types, f_hat), integral_error=vector(types, (0, 0, 0)),
         q=empty, qdot=empty, tau_cmd=empty, saturation_scale=1.0, estimate_fresh=fresh,
-        joints_fresh=True)
+        estimate_age=0.005 if fresh else float('inf'), joints_fresh=True)
 
 
 def write_bag(path, ft_from_ns, commands=True, safe_at_ns=None):

@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 
 import can
 import numpy as np
+from can.interfaces.socketcand import socketcand as _socketcand_module
 
 from tacforce_ros.devices.diagnostics import ArrivalStamp
 from tacforce_ros.devices.polling import LinkLost, PollingDriver
@@ -47,37 +48,21 @@ HAND_INFO = struct.Struct('<HHBbB')     # hw version, fw version, side, board te
 
 
 class SocketcandLogFilter(logging.Filter):
-    """Keeps python-can's socketcand client from flooding the log.
-
-    * "Got incomplete message => waiting for more data": one TCP read ending mid-frame, which the
-      client keeps and completes with the next read (no frame is lost:
-      test/devices/test_devices_socketcand_fragments.py); at 1333 frames/s it was hundreds of
-      lines a minute. All dropped.
-    * "Failed to connect to server: ...": the client retries connect() for 10 s without a pause
-      and logs every failure (~100 000 lines in 10 s with no server). The first of each
-      connection attempt (:meth:`begin_attempt`) passes, the rest are dropped.
-
-    Its other warnings (discarded data) pass; `suppressed` counts what was dropped.
-    """
+    """Keeps python-can's socketcand client from flooding the log with "Got incomplete message
+    => waiting for more data": one TCP read ending mid-frame, which the client keeps and
+    completes with the next read (no frame is lost:
+    test/devices/test_devices_socketcand_fragments.py); at 1333 frames/s it was hundreds of
+    lines a minute. Its other warnings (discarded data) pass; `suppressed` counts what was
+    dropped. (Its flood of connect failures cannot happen: open_bus connects once.)"""
 
     PARTIAL_READ = 'Got incomplete message => waiting for more data'
-    CONNECT_FAILED = 'Failed to connect to server'
 
     def __init__(self) -> None:
         super().__init__()
         self.suppressed = 0
-        self._connect_failure_shown = False
-
-    def begin_attempt(self) -> None:
-        """A new connection attempt: its first connect failure is shown again."""
-        self._connect_failure_shown = False
 
     def filter(self, record: logging.LogRecord) -> bool:
-        message = record.getMessage()
-        if message.startswith(self.CONNECT_FAILED) and not self._connect_failure_shown:
-            self._connect_failure_shown = True
-            return True
-        if message == self.PARTIAL_READ or message.startswith(self.CONNECT_FAILED):
+        if record.getMessage() == self.PARTIAL_READ:
             self.suppressed += 1
             return False
         return True
@@ -196,36 +181,41 @@ class JointSample:
 # Longest wait on the socketcand server for one socket operation (connect, its greeting, a
 # frame sent): a server that is gone or stopped answering must not hold the driver.
 SOCKETCAND_TIMEOUT_S = 0.5
-_DEFAULT_TIMEOUT = threading.Lock()     # socket.setdefaulttimeout is process-wide
+_CONNECTING = threading.Lock()     # one socketcand bus made at a time (see open_bus)
+
+
+def _connect_once(sock: socket.socket, host: str, port: int) -> None:
+    sock.settimeout(SOCKETCAND_TIMEOUT_S)       # the greeting's wait too
+    sock.connect((host, port))
 
 
 def open_bus(config: AllegroConfig) -> can.BusABC:
     """The python-can bus of `config`; for socketcand with every socket operation bounded.
 
-    python-can 4.6's socketcand client retries a refused connection for 10 s without a pause and
-    waits for the server's greeting, and sends, without a timeout: a driver asked to stop then
-    stayed 10 s, or for ever with a server that accepts and never answers. So the server is
-    asked first, the client's socket is made with SOCKETCAND_TIMEOUT_S as its timeout, and then
-    left blocking (the driver peeks at it without waiting) with SOCKETCAND_TIMEOUT_S as the
-    kernel's send timeout: a send the server does not take fails with BlockingIOError."""
+    python-can 4.6's socketcand client retries a refused connection for 10 s without a pause,
+    and waits for the server's greeting, and sends, without a timeout: a driver asked to stop
+    then stayed 10 s, or for ever with a server that accepts and never answers (bench_stop). So
+    its connect is made one attempt, on a socket with SOCKETCAND_TIMEOUT_S as its timeout, for
+    the making of the bus (python-can's connect_to_server, swapped while a lock is held, and put
+    back); then the socket is left blocking (the driver peeks at it without waiting, which a
+    socket timeout would turn into a wait) with SOCKETCAND_TIMEOUT_S as the kernel's send
+    timeout: a send the server does not take fails with BlockingIOError."""
     kwargs = dict(config.bus_kwargs)
     if config.interface != 'socketcand':
         return can.Bus(interface=config.interface, channel=config.channel, **kwargs)
-    address = (kwargs.get('host', '127.0.0.1'), kwargs.get('port', 29536))
-    try:
-        socket.create_connection(address, timeout=SOCKETCAND_TIMEOUT_S).close()
-    except OSError as error:
-        raise AllegroError(f'no socketcand server at {address[0]}:{address[1]}: {error}') from None
-    with _DEFAULT_TIMEOUT:
-        before = socket.getdefaulttimeout()
-        socket.setdefaulttimeout(SOCKETCAND_TIMEOUT_S)
+    where = f'{kwargs.get("host")}:{kwargs.get("port")}'
+    with _CONNECTING:
+        python_cans = _socketcand_module.connect_to_server
+        _socketcand_module.connect_to_server = _connect_once
         try:
             bus = can.Bus(interface='socketcand', channel=config.channel, **kwargs)
         except TimeoutError as error:
-            raise AllegroError(f'the socketcand server at {address[0]}:{address[1]} did not '
-                               f'answer within {SOCKETCAND_TIMEOUT_S} s') from error
+            raise AllegroError(f'the socketcand server at {where} did not answer within '
+                               f'{SOCKETCAND_TIMEOUT_S} s') from error
+        except OSError as error:
+            raise AllegroError(f'no socketcand server at {where}: {error}') from None
         finally:
-            socket.setdefaulttimeout(before)
+            _socketcand_module.connect_to_server = python_cans
     sock = _socketcand_socket(bus)
     sock.settimeout(None)
     seconds = int(SOCKETCAND_TIMEOUT_S)
@@ -269,7 +259,6 @@ class AllegroV4Driver(PollingDriver[JointSample]):
             raise ValueError('torque_limits must be 16 positive values [Nm]')
         if config.interface == 'socketcand':
             logging.getLogger(SOCKETCAND_LOGGER).addFilter(SOCKETCAND_LOG)   # once: same object
-            SOCKETCAND_LOG.begin_attempt()
         self.bus = bus if bus is not None else open_bus(config)
         self._socket = _socketcand_socket(self.bus)
         # Frames go out from the polling thread (stream requests, safe stops) and the caller's

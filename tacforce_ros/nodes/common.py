@@ -38,7 +38,6 @@ import os
 import re
 import signal
 import sys
-import threading
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -90,6 +89,32 @@ def subscriber_qos(topic: str, depth: int | None = None) -> QoSProfile:
 
 class ParameterError(ValueError):
     """Parameter values a node refuses; the message names every offending parameter."""
+
+
+class StopFlag:
+    """Set by a node process's SIGINT/SIGTERM handler, read by the waits of its start-up.
+
+    A signal handler runs in the main thread between two bytecodes, possibly while that thread
+    holds a lock: a threading.Event's set() takes its lock, and would wait for ever on a thread
+    stopped inside that Event's own wait(). This sets a plain attribute, and wait() polls it."""
+
+    POLL_S = 0.02
+
+    def __init__(self) -> None:
+        self._set = False
+
+    def set(self) -> None:
+        self._set = True
+
+    def is_set(self) -> bool:
+        return self._set
+
+    def wait(self, timeout: float) -> bool:
+        """Sleep until set or `timeout` s have passed; whether it is set."""
+        deadline = time.monotonic() + timeout
+        while not self._set and (left := deadline - time.monotonic()) > 0:
+            time.sleep(min(self.POLL_S, left))
+        return self._set
 
 
 class StopRequested(Exception):
@@ -236,7 +261,7 @@ class TacforceNode(Node):
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(self.NODE_NAME, **kwargs)
         # Set by SIGINT/SIGTERM (run_nodes shares its own): waits at start-up give up on it.
-        self.stop_event = threading.Event()
+        self.stop_event = StopFlag()
         self.samples_before_clock = 0
         self._clock_seen = False
         self.same_stamp: dict[str, int] = {}
@@ -467,20 +492,27 @@ def run_nodes(parts: Sequence[tuple[type[TacforceNode], Sequence[str] | None]],
               executor: Callable[[], Executor] | None = None) -> int:
     """run_node for one or several nodes in this process, on one executor: each part is a node
     class and its own ROS arguments (None: the process's, `args`, which rclpy is initialised
-    with). Built in order; any node's error ends them all; leave_safe() in reverse order."""
-    stop = threading.Event()
-    building = threading.Event()
+    with). Built in order; any node's error ends them all; leave_safe() in reverse order.
+
+    SIGINT and SIGTERM are handled from before rclpy.init on, and stay so (the process ends
+    right after: nodes/entry.py). One that comes while the first node is being built ends the
+    process there: nothing is open yet that leave_safe would close (nodes open devices and
+    files in on_built), and a constructor has no waits that look at the stop. Later, it sets
+    the stop every wait of a start-up, and the spin loop, look at."""
+    stop = StopFlag()
+    building = [False]
 
     def on_signal(signum: int, _frame) -> None:
         stop.set()
-        if building.is_set():       # a node's constructor has no waits that look at `stop`
-            building.clear()
-            raise StopRequested(f'stopped by {signal.Signals(signum).name} while starting')
+        if building[0] and not nodes:
+            os.write(2, f'{parts[0][0].NODE_NAME}: stopped by {signal.Signals(signum).name} '
+                     'while starting\n'.encode())
+            os._exit(EXIT_OK)
 
-    # Before rclpy.init: a signal from here on is a stop, never a KeyboardInterrupt.
-    previous = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
-    _init_without_rclpy_signal_handlers(args)
     nodes: list[TacforceNode] = []
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, on_signal)
+    _init_without_rclpy_signal_handlers(args)
     spinner = None
     logger = rclpy.logging.get_logger(parts[0][0].NODE_NAME)
     code = EXIT_OK
@@ -491,12 +523,12 @@ def run_nodes(parts: Sequence[tuple[type[TacforceNode], Sequence[str] | None]],
                 try:
                     if stop.is_set():
                         raise StopRequested('stopped while starting')
-                    building.set()
+                    building[0] = True
                     try:
                         node = (node_cls() if node_args is None else
                                 node_cls(cli_args=list(node_args), use_global_arguments=False))
                     finally:
-                        building.clear()
+                        building[0] = False
                     nodes.append(node)
                     node.stop_event = stop
                     node.on_built()
@@ -535,6 +567,4 @@ def run_nodes(parts: Sequence[tuple[type[TacforceNode], Sequence[str] | None]],
             for node in nodes:
                 node.destroy_node()
             rclpy.try_shutdown()
-            for sig, handler in previous.items():
-                signal.signal(sig, handler)
     return code

@@ -7,18 +7,21 @@ closed-loop session, load 4-6): loading rclpy, numpy and pinocchio took 1-4 s, a
 raised KeyboardInterrupt inside some import (a traceback, exit -2). After a node had left its
 device safe, destroyed its node and shut rclpy down (a few ms), the interpreter's finalization
 (the garbage collector over the whole heap, module teardown, the DDS library's destructors) took
-0.2-6 s more, and in a fresh clone's suite an allegro_driver that had logged its link counters at
-close had not ended 10 s later. By then nothing is left to do: the device is safe, bags are
-closed, the node has left the ROS graph (ManagedDriver.destroy_node), the logs are flushed; so the
-process ends with os._exit, in 0.01-0.06 s under the same load.
+0.2-6 s more. An allegro_driver in a fresh clone's suite that had logged its link counters at
+close, the step before those, had not ended 10 s later: whether that finalization was slow or
+stuck, nothing is left to do by then. The device is safe, bags are closed, the node has left the
+ROS graph (ManagedDriver.destroy_node); so, once the log streams are flushed, the process ends
+with os._exit, in 0.01-0.06 s under the same load.
 """
 from __future__ import annotations
 
+import ctypes
+import functools
 import importlib
 import os
 import signal
 import sys
-from collections.abc import Callable
+import traceback
 
 
 def _stopped_while_loading(signum: int, _frame) -> None:
@@ -35,31 +38,39 @@ def run(module: str) -> None:
         signal.signal(signum, _stopped_while_loading)
     main = importlib.import_module(f'tacforce_ros.nodes.{module}').main
     try:
-        main()
+        main()          # its run_nodes takes SIGINT and SIGTERM over first thing
         code = 0
     except SystemExit as end:
         if end.code is None or isinstance(end.code, int):
             code = end.code or 0
         else:                       # sys.exit('message'): printed, exit code 1
-            from tacforce_ros.nodes.common import EXIT_FAILURE    # loaded by main() already
             print(end.code, file=sys.stderr)
-            code = EXIT_FAILURE
-    sys.stdout.flush()
-    sys.stderr.flush()
+            code = 1
+    except BaseException:           # noqa: BLE001 - reported as Python would, then ended alike
+        traceback.print_exc()
+        code = 1
+    _flush()
     os._exit(code)
 
 
-def _entry(module: str) -> Callable[[], None]:
-    return lambda: run(module)
+def _flush() -> None:
+    """Python's and C's buffered output (rcutils logs through C stdio) before os._exit."""
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError):       # a closed pipe, a closed stream
+            pass
+    ctypes.CDLL(None).fflush(None)
 
 
-xela_driver = _entry('xela_driver')
-ft_bridge = _entry('ft_bridge')
-allegro_driver = _entry('allegro_driver')
-force_controller = _entry('force_controller')
-estimator = _entry('estimator')
-sync_recorder = _entry('sync_recorder')
-coverage_view = _entry('coverage_view')
-command_player = _entry('command_player')
-sim_world = _entry('sim_world')
-tacforce_container = _entry('tacforce_container')
+# One entry per node executable, each running the node module of its name.
+xela_driver = functools.partial(run, 'xela_driver')
+ft_bridge = functools.partial(run, 'ft_bridge')
+allegro_driver = functools.partial(run, 'allegro_driver')
+force_controller = functools.partial(run, 'force_controller')
+estimator = functools.partial(run, 'estimator')
+sync_recorder = functools.partial(run, 'sync_recorder')
+coverage_view = functools.partial(run, 'coverage_view')
+command_player = functools.partial(run, 'command_player')
+sim_world = functools.partial(run, 'sim_world')
+tacforce_container = functools.partial(run, 'tacforce_container')

@@ -177,9 +177,11 @@ class ManagedDriver(TacforceNode, LifecycleNode):
     def destroy_node(self) -> None:
         super().destroy_node()
         # rclpy's LifecycleNode leaves its state machine, which holds the node, to the garbage
-        # collector; the process ends without one (run_nodes), so it is destroyed here and the
-        # node leaves the ROS graph now, not when its DDS lease runs out (20 s).
-        self._state_machine.destroy_when_not_in_use()
+        # collector; the process ends without one (nodes/entry.py), so it is destroyed here and
+        # the node leaves the ROS graph now, not when its DDS lease runs out (20 s).
+        machine = getattr(self, '_state_machine', None)
+        if machine is not None:
+            machine.destroy_when_not_in_use()
 
     def leave_safe(self) -> None:
         if self.configured and self.trigger_shutdown() != SUCCESS:

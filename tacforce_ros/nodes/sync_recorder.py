@@ -119,6 +119,10 @@ class SyncRecorder(TacforceNode):
         self.create_timer(self.params['flush_seconds'], self._flush,
                           clock=Clock(clock_type=ClockType.STEADY_TIME))
         self._autostart_timer = None
+
+    def on_built(self) -> None:
+        # Recording opens a bag: not before the node is built (a stop while it is built ends
+        # the process there, run_nodes).
         if self.params['autostart']:
             if self.now_ns() > 0:
                 self._autostart()

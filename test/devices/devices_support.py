@@ -26,10 +26,13 @@ class Relay:
     """A TCP relay on loopback between clients and `target`: what a client sends goes to its own
     connection to the target, and back. freeze() stops it forwarding either way with every
     socket kept open: a link, or a device, that hangs. `buffer` (bytes) shrinks the relay's
-    socket buffers so that a client that keeps sending to a frozen relay fills them soon."""
+    socket buffers so that a client that keeps sending to a frozen relay fills them soon.
+    `piece` (bytes) passes what the target sends on in pieces that size, each its own TCP
+    segment (`pause` s apart), so that the client's reads end mid-message."""
 
-    def __init__(self, target: tuple[str, int], buffer: int | None = None) -> None:
-        self.target, self.buffer = target, buffer
+    def __init__(self, target: tuple[str, int], buffer: int | None = None,
+                 piece: int | None = None, pause: float = 0.0003) -> None:
+        self.target, self.buffer, self.piece, self.pause = target, buffer, piece, pause
         self.listener = socket.create_server(('127.0.0.1', 0))
         self.listener.settimeout(0.05)
         self.address = self.listener.getsockname()
@@ -47,16 +50,18 @@ class Relay:
                 continue
             server = socket.create_connection(self.target)
             for sock in (client, server):
+                sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
                 if self.buffer is not None:
                     sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, self.buffer)
                     sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, self.buffer)
                 self._sockets.append(sock)
-            for source, sink in ((client, server), (server, client)):
-                thread = threading.Thread(target=self._pump, args=(source, sink), daemon=True)
+            for source, sink, piece in ((client, server, None), (server, client, self.piece)):
+                thread = threading.Thread(target=self._pump, args=(source, sink, piece),
+                                          daemon=True)
                 self._threads.append(thread)
                 thread.start()
 
-    def _pump(self, source: socket.socket, sink: socket.socket) -> None:
+    def _pump(self, source: socket.socket, sink: socket.socket, piece: int | None) -> None:
         while not self._stop.is_set():
             if self.frozen.is_set():
                 time.sleep(0.01)
@@ -69,7 +74,10 @@ class Relay:
                 if not data:
                     sink.shutdown(socket.SHUT_WR)
                     return
-                sink.sendall(data)
+                for start in range(0, len(data), piece or len(data)):
+                    sink.sendall(data[start:start + (piece or len(data))])
+                    if piece:
+                        time.sleep(self.pause)
             except OSError:
                 return
 

@@ -3,12 +3,9 @@ buffers the partial frame ("Got incomplete message => waiting for more data", lo
 WARNING), so the driver silences exactly that message. Shown with a relay on 127.0.0.1 that
 passes the emulated hand's bytes on in odd-sized pieces, and poses that number their cycle."""
 import itertools
-import socket
-import threading
-import time
 
 import numpy as np
-from devices_support import wait_until
+from devices_support import Relay, wait_until
 
 from tacforce_ros.devices import allegro
 from tacforce_ros.devices.allegro import RAD_PER_COUNT, AllegroConfig, AllegroV4Driver
@@ -18,67 +15,12 @@ PIECE = 29          # bytes; a socketcand frame line is ~40, so most reads end m
 PAUSE_S = 0.0003    # between pieces: each one leaves as its own TCP segment
 
 
-class ChoppingRelay:
-    """Relays each client to `target`; the target's bytes go on in PIECE-byte pieces, the
-    client's unchanged."""
-
-    def __init__(self, target: tuple[str, int]) -> None:
-        self.target = target
-        self.listener = socket.create_server(('127.0.0.1', 0))
-        self.listener.settimeout(0.1)
-        self.address = self.listener.getsockname()
-        self.stop = threading.Event()
-        self.threads = [threading.Thread(target=self._accept, daemon=True)]
-        self.threads[0].start()
-
-    def _accept(self) -> None:
-        while not self.stop.is_set():
-            try:
-                client, _ = self.listener.accept()
-            except (TimeoutError, socket.timeout):
-                continue
-            except OSError:
-                return
-            upstream = socket.create_connection(self.target)
-            for sock in (client, upstream):
-                sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-                sock.settimeout(0.1)
-            pumps = [threading.Thread(target=self._pump, args=(upstream, client, PIECE),
-                                      daemon=True),
-                     threading.Thread(target=self._pump, args=(client, upstream, None),
-                                      daemon=True)]
-            self.threads += pumps
-            for thread in pumps:
-                thread.start()
-
-    def _pump(self, source: socket.socket, sink: socket.socket, piece: int | None) -> None:
-        while not self.stop.is_set():
-            try:
-                data = source.recv(4096)
-            except (TimeoutError, socket.timeout):
-                continue
-            except OSError:
-                return
-            if not data:
-                return
-            for start in range(0, len(data), piece or len(data)):
-                sink.sendall(data[start:start + (piece or len(data))])
-                if piece:
-                    time.sleep(PAUSE_S)
-
-    def close(self) -> None:
-        self.stop.set()
-        self.listener.close()
-        for thread in self.threads:
-            thread.join(timeout=2.0)
-
-
 def test_frames_split_across_reads_are_delivered_complete_and_in_order():
     cycle = itertools.count()
     # Each FINGER_POSE cycle reports all 16 joints at `cycle` encoder counts.
     with AllegroEmulator(lambda: np.full(16, next(cycle) * RAD_PER_COUNT),
                          lambda tau: None) as hand:
-        relay = ChoppingRelay(hand.address)
+        relay = Relay(hand.address, piece=PIECE, pause=PAUSE_S)
         suppressed_before = allegro.SOCKETCAND_LOG.suppressed
         try:
             host, port = relay.address

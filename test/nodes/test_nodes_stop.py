@@ -57,12 +57,16 @@ def test_a_driver_waiting_for_a_hand_that_never_answers_ends_when_asked(signum):
     with socket.create_server(('127.0.0.1', 0)) as mute:
         mute.settimeout(READY_S)
         driver = allegro_driver(mute.getsockname()[1])
+        held = []
         try:
-            mute.accept()[0].close()            # the driver is in its handshake
-            mute.accept()[0].close()            # and tries again
+            held.append(mute.accept()[0])       # kept open and silent: no greeting comes
+            assert driver.wait_for('did not answer within', READY_S), driver.text()
+            held.append(mute.accept()[0])       # it tries again, and waits again
             code = ends(driver.proc, signum)
         finally:
             output = driver.stop()
+            for sock in held:
+                sock.close()
     assert code == 0, output
     assert 'stopped while waiting for the hand' in output, output
 
@@ -116,11 +120,9 @@ def test_an_ended_lifecycle_driver_leaves_the_ros_graph():
         try:
             assert spin_until(probe, listed, READY_S), driver.text()
             assert ends(driver.proc, signal.SIGINT) == 0, driver.text()
-            ended = time.monotonic()
-            assert spin_until(probe, lambda: not listed(), 10.0), driver.stop()
+            assert spin_until(probe, lambda: not listed(), 10.0), 'still listed after 10 s'
         finally:
             driver.stop()
-        assert time.monotonic() - ended < 10.0
 
 
 def test_every_node_executable_starts_through_the_entry_module():
@@ -133,7 +135,7 @@ def test_every_node_executable_starts_through_the_entry_module():
     assert scripts and all(value == f'tacforce_ros.nodes.entry:{name}'
                            for name, value in scripts.items()), scripts
     for name in scripts:
-        assert callable(getattr(entry, name))
+        assert getattr(entry, name).args == (name,)         # runs the module of its name
         assert callable(import_module(f'tacforce_ros.nodes.{name}').main)
 
 
@@ -154,9 +156,8 @@ def test_bench_stop_writes_every_stop_and_its_table(tmp_path):
     assert [(s['subject'], s['device']) for s in stops] == [('ft_bridge', 'streaming')] * 3
     assert [s['moment'] for s in stops] == ['starting', 'unconfigured', 'inactive']
     assert [s['signal'] for s in stops] == ['SIGINT', 'SIGTERM', 'SIGINT']
-    for stop in stops:
-        assert stop['killed'] or stop['stop_s'] is not None
-    summary = result['summary']['ft_bridge']
-    assert summary['stops'] == 3
-    assert summary['killed'] == sum(s['killed'] for s in stops)
-    assert '| ft_bridge | 3 |' in (tmp_path / 'bench_stop.md').read_text()
+    for stop in stops:          # each ended on its signal, none had to be killed
+        assert not stop['killed'] and stop['stop_s'] is not None, stop
+        assert stop['exit_code'] in (0, -signal.SIGINT, -signal.SIGTERM), stop
+    assert result['summary']['ft_bridge']['stops'] == 3
+    assert '| ft_bridge | 3 | 3 of 3 | 0 |' in (tmp_path / 'bench_stop.md').read_text()

@@ -5,11 +5,14 @@ the same graph).
 The node list, parameter files and overrides come from tacforce_ros.nodes.session_plan, the
 same source the `session` tool reads, and so do the checks of every argument: a bad argument
 ends the launch before any process starts, naming the argument (launch prints "Caught exception
-in launch", exit code 1). A node that exits with an error while the session runs ends the launch
-with exit code 1, naming the node; a shutdown (Ctrl-C, the end of the scene) exits 0.
+in launch", exit code 1). A node that exits with an error while the session runs, or does not
+stop cleanly when it is shut down, ends the launch with exit code 1, naming the node; a clean
+shutdown (Ctrl-C, the end of the scene) exits 0.
 robot_state_publisher publishes the package URDF on /tf for RViz; our nodes compute frames from
 the URDF in-process and do not need /tf.
 """
+import signal
+
 from launch import LaunchDescription
 from launch.actions import (DeclareLaunchArgument, LogInfo, OpaqueFunction, RegisterEventHandler,
                             Shutdown)
@@ -171,11 +174,18 @@ class NodeFailed(RuntimeError):
     """A node of the session exited with an error: launch ends with exit code 1."""
 
 
+# Exit codes of a node stopped by the shutdown: 0, or the stop signal itself when it came while
+# Python was still starting; 255 is launch's word for a child whose end it did not see.
+STOPPED = (0, -signal.SIGINT, -signal.SIGTERM, 255)
+
+
 def _fail_on_error(namespace: str, name: str):
     def handler(event, context):
         # launch sets no exit code for Shutdown; an exception in a handler it reports and ends
-        # on with exit code 1. Exit codes met while shutting down are the stop's, not failures.
-        if event.returncode not in (0, None) and not context.is_shutdown:
+        # on with exit code 1. While shutting down, a node that could not stop cleanly (its
+        # device not left safe: exit code 1; killed by launch's escalation) fails it too.
+        stopped = STOPPED if context.is_shutdown else (0,)
+        if event.returncode is not None and event.returncode not in stopped:
             raise NodeFailed(f'{namespace}/{name} exited with code {event.returncode}; its log '
                              'is above')
         return None

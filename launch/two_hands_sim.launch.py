@@ -1,6 +1,6 @@
 """ros2 launch tacforce_ros two_hands_sim.launch.py [out:=bags] [array:=index_tip]
-[plate:=spherical] [sequence:=] [real_time_factor:=1.0] [lockstep:=true] [sim_duration:=0.0] [seed:=-1]
-[compose:=false] [autostart:=true]
+[plate:=spherical] [sequence:=] [real_time_factor:=1.0] [lockstep:=true] [sim_duration:=0.0]
+[seed:=-1] [compose:=false] [autostart:=true]
 
 Two simulated hands in one ROS graph, each a closed-loop session as closed_loop.launch.py starts
 it, in its own namespace with its own simulator, device ports and /clock: the left hand (its

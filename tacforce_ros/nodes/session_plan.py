@@ -156,8 +156,8 @@ def launch_number(name: str, text: str, kind: type = float) -> float | int:
 # What only one mode, or only simulation, reads: refused where it would be ignored.
 ONLY_FOR_MODE = {'model_config': 'closed_loop', 'sequence': 'closed_loop',
                  'campaign': 'calibration'}
-SIM_ONLY = ('real_time_factor', 'lockstep', 'sim_duration', 'seed', 'xela_port', 'netft_port',
-            'can_port')
+SIM_ONLY = ('scene', 'real_time_factor', 'lockstep', 'sim_duration', 'seed', 'xela_port',
+            'netft_port', 'can_port')
 # The launch files' names of SessionArgs fields that differ from them.
 ARGUMENT_NAMES = {'model_config': 'model'}
 PLATE_NAME = re.compile(r'[a-z][a-z0-9_]*')

@@ -1,7 +1,7 @@
 """The launch files under the real `ros2 launch`, where it is installed (a full ROS 2 install; it
-is not on PyPI, so this project's own machines skip these): a bad argument ends the launch before any
-process starts, naming the argument, exit code 1; a node that fails while the session runs ends
-it with exit code 1, naming the node. `ROS2_LAUNCH` may name another command that runs
+is not on PyPI, so this project's own machines skip these): a bad argument ends the launch
+before any process starts, naming the argument, exit code 1; a node that fails while the session
+runs ends it with exit code 1, naming the node. `ROS2_LAUNCH` may name another command that runs
 `ros2 launch` (e.g. a script that puts an upstream launch checkout on PYTHONPATH)."""
 import os
 import shlex
@@ -17,11 +17,21 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from graph_support import free_ports, ros_env, unique_domain_id  # noqa: E402
 
 pytestmark = pytest.mark.ros
-COMMAND = (shlex.split(os.environ['ROS2_LAUNCH']) if os.environ.get('ROS2_LAUNCH')
-           else ['ros2', 'launch'] if shutil.which('ros2') else None)
+def _launch_command() -> list[str] | None:
+    """The command that runs `ros2 launch` with this package found, or None."""
+    if os.environ.get('ROS2_LAUNCH'):
+        return shlex.split(os.environ['ROS2_LAUNCH'])
+    if shutil.which('ros2') is None:
+        return None
+    found = subprocess.run(['ros2', 'pkg', 'prefix', 'tacforce_ros'], capture_output=True,
+                           timeout=60)
+    return ['ros2', 'launch'] if found.returncode == 0 else None
+
+
+COMMAND = _launch_command()
 if COMMAND is None:
-    pytest.skip('`ros2 launch` is not installed (set ROS2_LAUNCH to a command that runs it)',
-                allow_module_level=True)
+    pytest.skip('`ros2 launch` with tacforce_ros is not installed (ROS2_LAUNCH may name a '
+                'command that runs it)', allow_module_level=True)
 DOMAIN = unique_domain_id(offset=93)
 STARTED = 'process started with pid'
 

@@ -16,8 +16,8 @@ TOOLS = {
     'bench_sim': 'bench_sim',       # simulator speed per scene and per effect
     'bench_ros': 'bench_ros',       # tactile->wrench latency, input rate, controller jitter
     'bench_graph': 'bench_graph',   # node graph vs direct path: agreement, watchdog trips, rates
-    'bench_messages': 'bench_messages',
-    'bench_stop': 'bench_stop',     # every node and `session` stopped at random moments  # what the estimator's serialized fast path saves
+    'bench_messages': 'bench_messages',  # what the estimator's serialized fast path saves
+    'bench_stop': 'bench_stop',     # every node and `session` stopped at random moments
     'bench_train': 'bench_train',   # cross-validation folds trained one at a time vs together
     'skin_sensitivity': 'skin_sensitivity',  # Table I on the magnetic skin, per estimate +/-
     'sim_record': 'sim_record',     # simulated calibration sessions -> rosbag2 (mcap)

@@ -14,17 +14,18 @@ REPOSITORY = Path(__file__).resolve().parent.parent
 
 
 def commit() -> str:
-    """The checkout's commit, with '+changes' when tracked files differ from it; 'unknown'
-    outside a git checkout (an installed copy)."""
-    def git(*args: str) -> str:
-        return subprocess.run(['git', '-C', str(REPOSITORY), *args], capture_output=True,
-                              text=True, timeout=10, check=True).stdout.strip()
+    """`git describe --always --dirty` of the checkout (a commit, '-dirty' when tracked files
+    differ from it); outside a git checkout, the installed package's version."""
     try:
-        head = git('rev-parse', '--short', 'HEAD')
-        dirty = git('status', '--porcelain', '--untracked-files=no')
+        return subprocess.run(['git', 'describe', '--always', '--dirty'], cwd=REPOSITORY,
+                              capture_output=True, text=True, timeout=10,
+                              check=True).stdout.strip()
     except (OSError, subprocess.SubprocessError):
-        return 'unknown'
-    return head + ('+changes' if dirty else '')
+        from importlib.metadata import PackageNotFoundError, version
+        try:
+            return version('tacforce_ros')
+        except PackageNotFoundError:
+            return 'unknown'
 
 
 def cpu_model() -> str:

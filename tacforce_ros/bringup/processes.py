@@ -1,6 +1,7 @@
 """A session's node processes: started together as launch starts them, stopped as launch stops
-them (SIGINT, a grace period, then SIGKILL), with their CPU time. Shared by the `session` tool,
-the benchmarks and the tests that run node graphs."""
+them (SIGINT, a grace period, then SIGKILL), with their CPU time; and a command that starts
+processes of its own (`session`) run to its end by a tool that is itself stopped meanwhile.
+Shared by the `session` tool, the benchmarks, the main job and the tests that run node graphs."""
 from __future__ import annotations
 
 import os
@@ -73,3 +74,30 @@ def stop_nodes(procs: list[tuple[str, subprocess.Popen]], grace: float) -> dict[
             proc.kill()
             proc.wait(timeout=5.0)
     return {name: proc.returncode for name, proc in procs}
+
+
+def interrupt_on_sigterm() -> None:
+    """SIGTERM raises KeyboardInterrupt, as SIGINT does: a tool's `finally` blocks then stop what
+    it started (otherwise SIGTERM ends it at once and leaves its children running)."""
+    signal.signal(signal.SIGTERM, signal.default_int_handler)
+
+
+def run_to_end(command: list[str], timeout: float, grace: float = 10.0,
+               **popen) -> subprocess.CompletedProcess:
+    """subprocess.run(capture_output=True, text=True) for a command that starts processes of
+    its own: run in a process session of its own, and stopped as a user stops it (SIGINT, up to
+    `grace` s, then SIGKILL) when `timeout` passes (subprocess.TimeoutExpired, as run raises) or
+    the caller is interrupted; subprocess.run would SIGKILL it and leave its children running."""
+    proc = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True, **popen)
+    try:
+        out, err = proc.communicate(timeout=timeout)
+    except BaseException:
+        proc.send_signal(signal.SIGINT)
+        try:
+            proc.communicate(timeout=grace)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.communicate()
+        raise
+    return subprocess.CompletedProcess(command, proc.returncode, out, err)

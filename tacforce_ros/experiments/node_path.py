@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from tacforce_ros.bringup.processes import run_to_end
 from tacforce_ros.control.force_controller import MODE_HOLD, MODE_SAFE
 from tacforce_ros.estimation.metrics import error_stats
 from tacforce_ros.estimation.model_set import load_model_set
@@ -111,8 +112,7 @@ def run_session(mode: str, scene: str, plate: str, out: Path, sim_duration: floa
     # A domain of our own, so DDS traffic of other processes on this host stays out.
     env['ROS_DOMAIN_ID'] = str(env.get('TACFORCE_REPRODUCE_DOMAIN', 40 + os.getpid() % 50))
     try:
-        done = subprocess.run(command, env=env, capture_output=True, text=True,
-                              timeout=wall_limit + 90.0)
+        done = run_to_end(command, timeout=wall_limit + 90.0, env=env)
     except subprocess.TimeoutExpired as exc:
         raise NodePathUnavailable(f'session {mode} did not stop within {wall_limit + 90:g} s') \
             from exc

@@ -21,6 +21,7 @@ import numpy as np
 import yaml
 from tqdm import tqdm
 
+from tacforce_ros.bringup.processes import run_to_end
 from tacforce_ros.control.command_sequence import ForceSequence
 from tacforce_ros.control.force_controller import ForceControllerConfig
 from tacforce_ros.estimation.causal_filter import BatchLowPass
@@ -493,9 +494,8 @@ def node_latency_stage(ctx: Context) -> dict:
     ctx.log('stage node latency: bench_ros ' + ' '.join(arguments))
     started = time.perf_counter()
     try:
-        done = subprocess.run([sys.executable, '-m', BENCH_ROS, *arguments,
-                               '--out', str(target)], capture_output=True, text=True,
-                              timeout=NODE_LATENCY_SECONDS + 300.0)
+        done = run_to_end([sys.executable, '-m', BENCH_ROS, *arguments, '--out', str(target)],
+                          timeout=NODE_LATENCY_SECONDS + 300.0)
     except subprocess.TimeoutExpired:
         return {'measured': False, 'reason': 'bench_ros did not finish within '
                 f'{NODE_LATENCY_SECONDS + 300.0:g} s'}

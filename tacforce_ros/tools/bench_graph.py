@@ -28,6 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from tacforce_ros import bagio, results, topics
+from tacforce_ros.bringup.processes import interrupt_on_sigterm
 from tacforce_ros.control.command_sequence import ForceSequence
 from tacforce_ros.control.force_controller import MODE_HOLD, MODE_SAFE
 from tacforce_ros.estimation.model_set import (ModelConfigError, default_model_config,
@@ -148,10 +149,11 @@ def crash_metrics(t: np.ndarray, modes: list[str], fresh: np.ndarray, age: np.nd
     reported as `other_stale_spells`, not judged here); its last estimate is the one the spell's
     first tick was aging (stamped t - age there; where that age is not finite, an invalid
     estimate, the last fresh tick's). Reported: how long after that estimate the controller
-    reached its hold, the least normal force on the plate, the most shear per normal force (the friction
-    cone: above the simulator's friction coefficient the tip slides) and the tangential tip
-    travel from the last fresh tick until the estimate returned, and how long after it returned
-    the tracking error |f_d - f_hat|, averaged over TRACK_WINDOW_S, was back under TRACK_N."""
+    reached its hold, the least normal force on the plate, the most shear per normal force (the
+    friction cone: above the simulator's friction coefficient the tip slides) and the tangential
+    tip travel from the last fresh tick until the estimate returned, and how long after it
+    returned the tracking error |f_d - f_hat|, averaged over TRACK_WINDOW_S, was back under
+    TRACK_N."""
     engaged = next((k for k, mode in enumerate(modes) if mode not in (MODE_HOLD, MODE_SAFE)),
                    None)
     spells = [] if engaged is None else stale_spells(np.asarray(fresh[engaged:], bool), engaged)
@@ -165,6 +167,13 @@ def crash_metrics(t: np.ndarray, modes: list[str], fresh: np.ndarray, age: np.nd
               if a != first_stale]
     judged = first_stale if np.isfinite(age[first_stale]) else first_stale - 1
     t_last = t[judged] - age[judged]
+    # The drill holds one command over the outage and the recovery; a kill that landed where
+    # the command changes (the run went slower than the drill allows for) measures that step.
+    span = (t >= t_last) & (t <= t[back] + RECOVERY_S)
+    if np.ptp(f_d[span], axis=0).max() > 1e-9:
+        return {'failed': f'the outage ({t_last:.2f}-{t[back]:.2f} s of the sequence) and its '
+                f'recovery did not fall inside one held command: the run went slower than '
+                f'the drill\'s timing allows'}
     hold = next((k for k in range(first_stale, back + 1) if modes[k] == MODE_HOLD), None)
     outage = slice(first_stale - 1, back + 1)
     normal = -f_tilde[outage, 2]
@@ -476,6 +485,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument('--out', type=output_folder, default='out/bench_graph',
                         help='folder for bench_graph.json, bench_graph.md and the sessions')
     args = parser.parse_args(argv)
+    interrupt_on_sigterm()      # its finally blocks stop the processes it started
     if min(args.runs, args.calibration_seconds, args.fault_runs, args.driver_kill_runs) < 0:
         parser.error('--runs, --calibration-seconds, --fault-runs and --driver-kill-runs must '
                      'be >= 0')

@@ -39,7 +39,8 @@ from tacforce_ros.nodes.common import use_realtime_scheduling
 from tacforce_ros.nodes.latency_probe import Probe, bench_controller, bench_estimator
 from tacforce_ros.nodes.session_plan import NodeLaunch, params_file
 from tacforce_ros.paths import output_file
-from tacforce_ros.bringup.processes import first_exited, start_nodes, stop_nodes
+from tacforce_ros.bringup.processes import (first_exited, interrupt_on_sigterm, start_nodes,
+                                           stop_nodes)
 
 LATENCY_TARGET_P99_MS = 2.0
 RATE_TARGET_HZ = 1000.0
@@ -204,6 +205,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument('--ports', type=int, nargs=3, default=[25101, 25102, 25103],
                         help='emulator ports on 127.0.0.1 for the controller test')
     args = parser.parse_args(argv)
+    interrupt_on_sigterm()      # its finally blocks stop the processes it started
     if args.seconds <= 0 or args.latency_seconds <= 0 or any(r <= 0 for r in args.rates):
         parser.error('--seconds, --latency-seconds and --rates must be positive')
     if not 0 <= args.realtime_priority <= 98:

@@ -49,7 +49,7 @@ import numpy as np
 from lifecycle_msgs.msg import Transition
 
 from tacforce_ros import results
-from tacforce_ros.bringup.processes import executable, start_nodes
+from tacforce_ros.bringup.processes import executable, interrupt_on_sigterm, start_nodes
 from tacforce_ros.nodes.graph_probe import GraphProbe
 from tacforce_ros.nodes.session_plan import NodeLaunch, SessionArgs, composed, plan
 from tacforce_ros.paths import output_folder
@@ -184,7 +184,10 @@ class Background:
         answer (MuteDevice); to one that reads topics, the drivers around it are deactivated, so
         its inputs stop while /clock runs. gone: no simulator (the drivers around end on their
         lost links)."""
-        if 'sim_world' not in self.names:
+        if 'sim_world' not in self.names:       # the subject is the simulator: its clients run
+            for name in self.names:
+                if not self._running(name):
+                    self._start(name)
             return
         if self.mute is not None and state != 'silent':
             self.mute.close()
@@ -277,6 +280,20 @@ def one_stop(k: int, subject: str, condition: Condition, signum: int, launch: No
     with open(log, 'w') as out:
         proc = subprocess.Popen(command, stdout=out, stderr=subprocess.STDOUT, env=env,
                                 start_new_session=True)
+    try:
+        return _stop_at_random(subject, condition, signum, proc, log, args, graph, rng)
+    finally:
+        if proc.poll() is None:         # the benchmark itself was interrupted
+            proc.send_signal(signal.SIGINT)
+            try:
+                proc.wait(timeout=args.kill_after)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
+
+
+def _stop_at_random(subject: str, condition: Condition, signum: int, proc: subprocess.Popen,
+                    log: Path, args, graph: GraphProbe, rng: random.Random) -> dict:
     started = time.monotonic()
     reached = ''
     if condition.moment == 'starting':
@@ -414,6 +431,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument('--session-ports', type=int, nargs=3, default=[25211, 25212, 25213],
                         help='emulator ports of the sessions `session` starts')
     args = parser.parse_args(argv)
+    interrupt_on_sigterm()      # its finally blocks stop the processes it started
     if args.stops < 1 or args.limit <= 0 or args.kill_after <= args.limit:
         parser.error('--stops must be >= 1 and 0 < --limit < --kill-after')
     os.environ['ROS_DOMAIN_ID'] = str(args.domain)

@@ -17,14 +17,18 @@ depends on it.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
 import json
+import multiprocessing
 import os
 import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
+from tacforce_ros import results
+from tacforce_ros.bringup.processes import interrupt_on_sigterm
 from tacforce_ros.experiments import pipeline, report
 from tacforce_ros.experiments.cache import StageCache
 from tacforce_ros.experiments.node_path import AGREEMENT_N, AGREEMENT_REASON
@@ -51,11 +55,6 @@ NODE_TOLERANCE_REASON = (
     f"e~ and {AGREEMENT_N['closed_loop_e_track']} N on e_track. {AGREEMENT_REASON}")
 
 
-def code_version() -> str:
-    from tacforce_ros.tools.train import code_version as git_version
-    return git_version()
-
-
 def figures(out: Path, cv: dict, table_i: dict, end_to_end: dict, traces: dict,
             whole_hand: dict) -> list[str]:
     from tacforce_ros.experiments import plots
@@ -75,12 +74,27 @@ def figures(out: Path, cv: dict, table_i: dict, end_to_end: dict, traces: dict,
     return names
 
 
+@contextlib.contextmanager
+def workers(jobs: int):
+    """The stages' worker processes; stopped at once if the job is (SIGINT, or SIGTERM taken as
+    one), where leaving the `with` would wait for each one's current stage."""
+    pool = ProcessPoolExecutor(max_workers=jobs, initializer=pipeline.init_worker)
+    try:
+        yield pool
+    except BaseException:
+        pool.shutdown(wait=False, cancel_futures=True)
+        for child in multiprocessing.active_children():
+            child.terminate()
+        raise
+    pool.shutdown()
+
+
 def run(settings: pipeline.Settings, out: Path, jobs: int) -> dict:
     from tacforce_ros.experiments.closed_loop import trace_metrics
     started = time.perf_counter()
     load_before = os.getloadavg()
     cache = StageCache(out / 'cache')
-    with ProcessPoolExecutor(max_workers=jobs, initializer=pipeline.init_worker) as pool:
+    with workers(jobs) as pool:
         ctx = pipeline.Context(settings=settings, out=out, cache=cache, pool=pool,
                                log=lambda line: print(line, file=sys.stderr, flush=True))
         layout = pipeline.calibration_stage(ctx)
@@ -116,7 +130,7 @@ def run(settings: pipeline.Settings, out: Path, jobs: int) -> dict:
         'figures': figures(out, cv, table_i, end_to_end, traces, whole_hand),
     }
     # What differs between two runs of the same inputs lives under 'run' only.
-    doc['run'] = {'date': time.strftime('%Y-%m-%dT%H:%M:%S%z'), 'code_version': code_version(),
+    doc['run'] = {'date': time.strftime('%Y-%m-%dT%H:%M:%S%z'), 'code_version': results.commit(),
                   'wall_seconds': time.perf_counter() - started, 'stage_seconds': ctx.timings,
                   'cache': {'hits': cache.hits, 'misses': cache.misses},
                   'machine': {'cpus': os.cpu_count(), 'jobs': jobs, 'load_before': load_before,
@@ -144,6 +158,7 @@ def main(argv: list[str] | None = None) -> int:
                              'magnetic, computed from the taxel\'s physics (docs/SKIN_PHYSICS.md; '
                              'the report then judges issue 15\'s targets)')
     args = parser.parse_args(argv)
+    interrupt_on_sigterm()      # its finally blocks stop the processes it started
     if args.jobs < 1:
         parser.error('--jobs must be >= 1')
     settings = pipeline.Settings.quick() if args.quick else pipeline.Settings()

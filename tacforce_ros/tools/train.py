@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import subprocess
 import sys
 import time
 from collections import defaultdict
@@ -24,6 +23,7 @@ from pathlib import Path
 
 from tqdm import tqdm
 
+from tacforce_ros import results
 from tacforce_ros.estimation.cross_validation import cross_validate
 from tacforce_ros.estimation.dataset import CalibrationDataset, DatasetError, concatenate
 from tacforce_ros.estimation.m1_rotation_linear import NORMAL_INPUT_NOTE, normal_input_per_newton
@@ -36,21 +36,6 @@ from tacforce_ros.estimation.training import fit_bundle, for_deployment
 from tacforce_ros.hand.description import (ARRAY_KIND_TITLES, DEFAULT_SIDE, SIDES,
                                            HandDescription, hand_config, load_hand, side_of)
 from tacforce_ros.paths import output_folder
-
-
-def code_version() -> str:
-    """git describe of the source tree, else the package version."""
-    root = Path(__file__).resolve().parents[2]
-    try:
-        out = subprocess.run(['git', 'describe', '--always', '--dirty'], cwd=root,
-                             capture_output=True, text=True, timeout=5, check=True)
-        return out.stdout.strip()
-    except (OSError, subprocess.SubprocessError):
-        from importlib.metadata import PackageNotFoundError, version
-        try:
-            return version('tacforce_ros')
-        except PackageNotFoundError:
-            return 'unknown'
 
 
 def model_hyper(kind: str, seed: int, lambda_cv: bool, lam: float, device: str) -> dict:
@@ -222,7 +207,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f'train: no data for arrays {unknown}; found {sorted(by_array)}', file=sys.stderr)
         return 2
 
-    version, date = code_version(), time.strftime('%Y-%m-%dT%H:%M:%S%z')
+    version, date = results.commit(), time.strftime('%Y-%m-%dT%H:%M:%S%z')
     report = {'code_version': version, 'date': date, 'seed': args.seed, 'hand_side': hand.side,
               'inputs': [str(p) for p in args.inputs], 'dropped_messages': dropped, 'models': [],
               'normal_input_per_newton': {}}

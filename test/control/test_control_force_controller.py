@@ -249,12 +249,19 @@ def test_the_hold_comes_within_timeout_ramp_and_one_tick_of_the_last_estimate(
     assert hold_at - t_last <= estimate_timeout + ramp_time + max(intervals) + 1e-9
 
 
-def test_the_shipped_watchdog_holds_within_100_ms_of_the_last_estimate():
-    """The shipped timeout and ramp leave one control tick (up to 12 ms under simulated time)
-    inside the 100 ms the fault drill asks of the hold."""
+def test_the_shipped_watchdog_holds_within_what_the_fault_drill_asks():
+    """The shipped timeout and ramp leave one control tick (its period, plus one step of the
+    closed-loop scene's simulated clock) inside the hold the fault drill asks for."""
+    import yaml
+
     from tacforce_ros.nodes.session_plan import params_file
+    from tacforce_ros.sim.scene import load_scene
+    from tacforce_ros.tools.bench_graph import HOLD_WITHIN_S, LOOP_SCENE
     shipped = ForceControllerConfig.from_yaml(params_file('force_controller'))
-    assert shipped.estimate_timeout + shipped.ramp_time + 0.012 <= 0.1
+    node = yaml.safe_load(params_file('force_controller').read_text())
+    rate = node['/**/force_controller']['ros__parameters']['control_rate_hz']
+    tick = 1.0 / rate + 1.0 / load_scene(LOOP_SCENE).physics_rate
+    assert shipped.estimate_timeout + shipped.ramp_time + tick <= HOLD_WITHIN_S
 
 
 finite = st.floats(-1.0, 1.0)

@@ -118,6 +118,15 @@ def test_the_hold_is_timed_from_the_last_estimate_the_controller_had():
     assert result['hold_after_s'] == pytest.approx(0.108) and not result['passed']
 
 
+def test_an_outage_that_missed_the_held_command_is_not_judged():
+    """The command steps 0.5 s after the estimate returned: the recovery would be that step's
+    response, so the run is reported as one whose kill landed wrong, not judged."""
+    t, modes, fresh, age, f_d, f_hat, f_tilde, tip = outage_ticks()
+    f_d[550:] = [0.0, 0.0, -2.0]
+    assert 'did not fall inside one held command' in crash_metrics(
+        t, modes, fresh, age, f_d, f_hat, f_tilde, tip)['failed']
+
+
 def test_the_drill_outage_is_judged_and_a_short_stale_blip_before_it_is_reported():
     """An estimate stale for 30 ms just after engaging (session 15's failed fault run judged
     that blip instead of the kill's outage): the longest spell is the drill's."""

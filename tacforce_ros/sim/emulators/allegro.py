@@ -3,7 +3,9 @@
 It answers as the firmware does: HAND_INFO/SERIAL requests (RTR on a real bus; zero-length data
 frames here, since socketcand carries no RTR), SET_PERIOD starts or stops the FINGER_POSE
 stream, SYSTEM_ON/OFF switch the servos, SET_TORQUE frames are clamped to the firmware limits and
-passed to ``torque_sink`` while the servos are on.
+passed to ``torque_sink`` while the servos are on. When torque frames stop coming (a driver
+killed, a client gone) the last torque stays applied: what the V4 firmware does then is not
+documented (docs/PROTOCOLS.md), and keeping it is the worst case for the hand's surroundings.
 """
 from __future__ import annotations
 

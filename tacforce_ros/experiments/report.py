@@ -23,8 +23,8 @@ SKIN_TITLES = {'empirical': 'empirical (sim/taxel_response.py: foundation-spring
                             'weights, tanh response)',
                'magnetic': 'magnetic, computed from the taxel\'s physics (docs/SKIN_PHYSICS.md; '
                            'the scene files in scenes/)'}
-# The loop's must-show, the same as issue 15's loop targets: e~ with M3-lambda >= 70 % below open
-# loop, e_track below 0.1 N.
+# The loop's must-show, the same as the magnetic skin's loop targets (experiments/skin_targets.py):
+# e~ with M3-lambda >= 70 % below open loop, e_track below 0.1 N.
 REDUCTION_TARGET_PERCENT = 100.0 * LOOP_REDUCTION
 E_TRACK_TARGET_N = LOOP_TRACK
 
@@ -110,8 +110,8 @@ def must_show(rows: list[dict]) -> dict:
 
 
 def skin_targets(table_i: dict, rows: list[dict], seed: int) -> list[dict]:
-    """Issue 15's targets (experiments/skin_targets.py) on this run's Table I and spherical-plate
-    closed loop: [{'target', 'values': [value], 'met': 0 or 1}]."""
+    """The magnetic skin's targets (experiments/skin_targets.py) on this run's Table I and
+    spherical-plate closed loop: [{'target', 'values': [value], 'met': 0 or 1}]."""
     by = {(r['object'], r['controller']): r['sim'] for r in rows}
     open_loop = by.get(('spherical', 'open_loop'))
     loop = {} if open_loop is None else {'open_loop': open_loop['e_tilde']}

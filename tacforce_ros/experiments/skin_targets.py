@@ -1,4 +1,4 @@
-"""Issue 15's targets: the paper's findings as a simulated skin must show them.
+"""The magnetic skin's targets: the paper's findings as a simulated skin must show them.
 
 Judged on Table I rows (held-out e_hat per array and model) and the closed loop on the
 spherical plate, by `skin_sensitivity` over seeds and by the main job on its magnetic-skin run.
@@ -16,7 +16,7 @@ LOOP_REDUCTION, LOOP_TRACK = 0.70, 0.1   # closed loop: e~ cut by 70 %, e_track 
 
 
 def targets(result: dict) -> list[dict]:
-    """Issue 15's targets on the values rows: [{'target', 'values' (one per seed, None where the
+    """The targets on the values rows: [{'target', 'values' (one per seed, None where the
     row lacks what it needs), 'met'}], for the targets the run's arrays and models allow."""
     rows = [row for row in result['variants'] if row['name'] == 'values' and row['e_hat']]
     models = set(result['models'])

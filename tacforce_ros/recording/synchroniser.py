@@ -1,6 +1,6 @@
 """Approximate-time pairing of several message streams, pure Python (no rclpy).
 
-message_filters' ApproximateTimeSynchronizer is not installable here (ROS2_ON_THIS_MACHINE.md);
+message_filters' ApproximateTimeSynchronizer is not installable from PyPI;
 this keeps its user-facing semantics: one bounded queue per input (`queue_size`), and a set is
 emitted as soon as one message per input lies within `slop` seconds of each other (max stamp -
 min stamp <= slop), preferring, for each other input, the message closest in time to the one

@@ -51,7 +51,7 @@ STREAMS = (topics.TOPIC_TACTILE, topics.TOPIC_WRENCH, topics.TOPIC_JOINTS, topic
 _ACHIEVED = re.compile(r'([0-9.]+)x real time')
 _STOPPED = re.compile(r'stopped after ([0-9.]+) s')
 TACTILE_PERIOD_NS = 10_000_000      # uSkin frames at 100 Hz (the scenes' tactile_rate)
-# The fault run (issue 13): the estimator killed 45 wall seconds into the session, 18 to 41 s
+# The fault run: the estimator killed 45 wall seconds into the session, 18 to 41 s
 # into the sequence at 0.45x to 1x real time, and restarted 3 s later, while FAULT_SEQUENCE holds
 # one force from 16 to 75 s (a command step during the outage would make the recovery that step's
 # response). Its must-show: the controller in its hold within HOLD_WITHIN_S of the
@@ -337,10 +337,10 @@ def calibration_run(args, hand, kinematics, out: Path) -> dict:
 
 
 def summary(runs: list[dict]) -> dict:
-    """How many runs agree with the direct path within issue 13's tolerances and had no `safe`
-    tick; mean session wall time and CPU seconds (the nodes, the simulator)."""
+    """How many runs agree with the direct path within the node graph's agreement tolerances and
+    had no `safe` tick; mean session wall time and CPU seconds (the nodes, the simulator)."""
     done = [r for r in runs if 'failed' not in r]
-    tolerance = {'e_tilde': 0.03, 'e_track': 0.02}     # issue 13's must-show
+    tolerance = {'e_tilde': 0.03, 'e_track': 0.02}     # the node graph's must-show
     return {
         'runs': len(runs), 'e_tilde_tolerance': tolerance['e_tilde'],
         'e_track_tolerance': tolerance['e_track'],

@@ -6,11 +6,11 @@ in place of the empirical response: once at the parameters' values, then with ea
 that has no source (magnetic_skin.ESTIMATES, plus the chip noise) at --factors times its value
 (Poisson's ratio kept below 0.5); a variant whose magnets cannot sit in their layer is reported
 as infeasible. Each row also gives every model's e_hat over M3-lambda's, the ratios the
-simulated skin is judged by (issue 15). At the values, the paper's closed loop runs too (open
+simulated skin is judged by (skin_targets). At the values, the paper's closed loop runs too (open
 loop, and closed with each --closed-loop model fitted on the fingertip's sessions). The values
 run once per --seeds entry (a seed draws the operator's sessions, the noise and the training;
 the hand, where each magnet sits, is the scenes' sensor_seed), the variants at the first seed;
-a table says, per issue-15 target, in how many seeds it is met.
+a table says, per target, in how many seeds it is met.
 
 --set NAME=VALUE (repeatable) changes a magnetic_skin parameter in every run, variants included
 (a variant of it scales the value set): a lab's measured value of an estimate, or a what-if

@@ -240,7 +240,7 @@ def test_short_open_loop_run_presses_the_plate(hand, kinematics):
 
 
 def test_an_estimator_outage_keeps_the_press_and_tracking_returns(hand, kinematics):
-    """Issue 13's fault run in-process: no estimate for 2 s while a force with shear is held.
+    """bench_graph's fault run in-process: no estimate for 2 s while a force with shear is held.
     The contact hold keeps the press (the law with its last force command), the tip does not
     slide (shear inside the friction cone), and the law tracks again once estimates return."""
     from tacforce_ros.estimation.model_set import default_model_config, load_model_set

@@ -145,7 +145,7 @@ def test_the_closed_loop_filter_comparison_is_reported(runs):
 def test_report_holds_every_stage_and_labels_it_simulation(runs):
     _, doc, md, _ = runs
     assert 'SIMULATION' in md.splitlines()[0]
-    # The default skin is the empirical one, whose run judges no issue-15 targets.
+    # The default skin is the empirical one, whose run judges none of the magnetic skin's targets.
     assert doc['settings']['skin'] == 'empirical' and doc['skin_targets'] is None
     assert '* skin: empirical' in md and "Issue 15's targets" not in md
     assert set(doc['table_I']) == {'index_tip', 'index_middle'}

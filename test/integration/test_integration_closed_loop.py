@@ -1,4 +1,4 @@
-"""The closed loop through the real node graph over DDS (issue 6 must-show): sim_world with the
+"""The closed loop through the real node graph over DDS (its must-show): sim_world with the
 project's closed-loop scene on the spherical plate, its device emulators, xela_driver,
 ft_bridge, estimator (the default model of config/models/), allegro_driver, force_controller
 (config/params/force_controller.yaml), command_player and sync_recorder, as `session closed_loop`

@@ -1,4 +1,4 @@
-"""One input sequence through both wirings of the closed-loop core (issue 12): the force_controller
+"""One input sequence through both wirings of the closed-loop core: the force_controller
 node as a real process (joints, estimates and commands as messages, the test as the /clock
 source) and control.finger_session.FingerSession called in-process. Every tick the node
 publishes reports the inputs it acted on (joints, estimate and its freshness, f_d); fed the same,

@@ -38,7 +38,7 @@ if ! stamp_ok requirements "$REQ_HASH"; then
     "$VENV/bin/python" -c 'import rclpy, numpy, pinocchio, mujoco, rosbags, can, websockets' \
         || { echo '[setup] installing the Python libraries failed' >&2; exit 1; }
     # The wheels' exported CMake files name the wheel build machine's Python and numpy include
-    # folders; point them at this venv's (ROS2_ON_THIS_MACHINE.md: verified fix-up).
+    # folders; point them at this venv's (the wheels are built elsewhere).
     PY_INCLUDE=$("$VENV/bin/python" -c 'import sysconfig; print(sysconfig.get_paths()["include"])')
     NP_INCLUDE=$("$VENV/bin/python" -c 'import numpy; print(numpy.get_include())')
     { grep -rl '/opt/python/cp311-cp311' "$VENV"/share/*/cmake/ 2>/dev/null || true; } | xargs -r sed -i \

@@ -129,7 +129,7 @@ def skin_targets(table_i: dict, rows: list[dict], seed: int) -> list[dict]:
 def skin_targets_section(checks: list[dict] | None) -> list[str]:
     if checks is None:
         return []
-    return (["## Issue 15's targets on this run's magnetic skin", '',
+    return (["## The magnetic skin's targets on this run", '',
              'The paper\'s findings as a skin computed from the taxel\'s physics must show them '
              '(docs/SKIN_PHYSICS.md; `skin_sensitivity` judges them over several seeds).', '',
              '| target | sim | met |', '|---|---|---|']

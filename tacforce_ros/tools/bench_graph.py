@@ -483,7 +483,9 @@ def main(argv: list[str] | None = None) -> None:
                         help='the simulated skin of every session (default empirical; magnetic '
                         'needs a --model trained on it, e.g. `reproduce --skin magnetic`\'s)')
     parser.add_argument('--out', type=output_folder, default='out/bench_graph',
-                        help='folder for bench_graph.json, bench_graph.md and the sessions')
+                        help='folder for bench_graph.json and bench_graph.md')
+    parser.add_argument('--sessions', type=output_folder, default='out/bench_graph',
+                        help='folder for the sessions (scenes, logs, bags)')
     args = parser.parse_args(argv)
     interrupt_on_sigterm()      # its finally blocks stop the processes it started
     if min(args.runs, args.calibration_seconds, args.fault_runs, args.driver_kill_runs) < 0:
@@ -503,7 +505,7 @@ def main(argv: list[str] | None = None) -> None:
     except ModelConfigError as exc:
         parser.error(str(exc))
     sequence = ForceSequence.load(args.sequence)
-    args.loop_scene = skin_scene(args.out / 'scenes', LOOP_SCENE, args.skin)
+    args.loop_scene = skin_scene(args.sessions / 'scenes', LOOP_SCENE, args.skin)
     command = 'bench_graph ' + ' '.join(sys.argv[1:] if argv is None else argv)
     result: dict = {'provenance': results.provenance(), 'command': command,
                     'lockstep': args.lockstep, 'sequence': args.sequence, 'skin': args.skin,
@@ -511,7 +513,8 @@ def main(argv: list[str] | None = None) -> None:
     for k in range(args.runs):
         for compose in (False, True) if args.compose else (False,):
             try:
-                run = closed_loop_run(k, args, hand, kinematics, sequence, args.out, compose)
+                run = closed_loop_run(k, args, hand, kinematics, sequence, args.sessions,
+                                      compose)
             except (node_path.NodePathUnavailable, OSError, ValueError) as exc:
                 run = {'run': k, 'seed': load_scene(LOOP_SCENE).seed + k, 'composed': compose,
                        'failed': str(exc)}
@@ -522,13 +525,13 @@ def main(argv: list[str] | None = None) -> None:
                 flush=True)
     if args.calibration_seconds > 0:
         try:
-            result['calibration'] = calibration_run(args, hand, kinematics, args.out)
+            result['calibration'] = calibration_run(args, hand, kinematics, args.sessions)
         except (node_path.NodePathUnavailable, OSError, ValueError) as exc:
             result['calibration'] = {'failed': str(exc)}
     result['fault_runs'] = []
     for k in range(args.fault_runs):
         try:
-            fault = crash_run(k, args, kinematics, args.out)
+            fault = crash_run(k, args, kinematics, args.sessions)
         except (node_path.NodePathUnavailable, OSError, ValueError) as exc:
             fault = {'run': k, 'seed': load_scene(LOOP_SCENE).seed + k, 'failed': str(exc)}
         result['fault_runs'].append(fault)
@@ -537,7 +540,7 @@ def main(argv: list[str] | None = None) -> None:
     result['driver_kill_runs'] = []
     for k in range(args.driver_kill_runs):
         try:
-            kill = driver_kill_run(k, args, args.out)
+            kill = driver_kill_run(k, args, args.sessions)
         except (node_path.NodePathUnavailable, OSError, ValueError) as exc:
             kill = {'run': k, 'seed': load_scene(LOOP_SCENE).seed + k, 'failed': str(exc)}
         result['driver_kill_runs'].append(kill)

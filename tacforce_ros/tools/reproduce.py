@@ -156,7 +156,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--skin', choices=pipeline.SKINS, default='empirical',
                         help='the simulated skin of every scene: empirical (default), or '
                              'magnetic, computed from the taxel\'s physics (docs/SKIN_PHYSICS.md; '
-                             'the report then judges issue 15\'s targets)')
+                             'the report then judges the magnetic skin\'s targets)')
     args = parser.parse_args(argv)
     interrupt_on_sigterm()      # its finally blocks stop the processes it started
     if args.jobs < 1:

@@ -249,7 +249,7 @@ def table(result: dict) -> str:
     if checks:
         seeds = [row['seed'] for row in result['variants'] if row['name'] == 'values'
                  and row['e_hat']]
-        lines += ['', "## Issue 15's targets at the values", '',
+        lines += ['', "## The magnetic skin's targets at the values", '',
                   '| target | ' + ' | '.join(f'seed {s}' for s in seeds) + ' | met |',
                   '|' + '---|' * (len(seeds) + 2)]
         lines += ['| ' + ' | '.join([c['target']] + ['' if v is None else f'{v:.2f}'

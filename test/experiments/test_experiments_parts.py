@@ -168,7 +168,7 @@ def test_a_magnetic_skin_run_simulates_each_scene_on_the_magnetic_skin(tmp_path,
         pipeline.scene_for(context('velvet'), name)
 
 
-def test_a_magnetic_skin_report_judges_issue_15_s_targets_on_its_own_tables():
+def test_a_magnetic_skin_report_judges_the_skins_targets_on_its_own_tables():
     def table_i(errors):
         return {array: {label: {'sim': {'e_hat': e}} for label, e in zip(
             ('M1', 'M2', 'M3', 'M3-lambda', 'M3-lambda-cv', 'M4', 'M5'), row)}

@@ -147,7 +147,7 @@ def test_report_holds_every_stage_and_labels_it_simulation(runs):
     assert 'SIMULATION' in md.splitlines()[0]
     # The default skin is the empirical one, whose run judges none of the magnetic skin's targets.
     assert doc['settings']['skin'] == 'empirical' and doc['skin_targets'] is None
-    assert '* skin: empirical' in md and "Issue 15's targets" not in md
+    assert '* skin: empirical' in md and "The magnetic skin's targets" not in md
     assert set(doc['table_I']) == {'index_tip', 'index_middle'}
     assert all(len(rows) == len(doc['settings']['models']) for rows in doc['table_I'].values())
     objects, controllers = doc['settings']['objects'], doc['controllers']

@@ -404,7 +404,9 @@ def _driver_kill_text(d: dict) -> str:
             f'({d["outage_s"]:.2f} s); normal force {d["normal_force_before_n"]:.2f} N before, '
             f'{during[0]:.2f}-{during[1]:.2f} N while the driver was down (the hand kept the '
             f'last torque), {after[0]:.2f}-{after[1]:.2f} N in the 2 s after it was back; '
-            f'tracking under {TRACK_N:g} N {_n(d["tracking_back_after_s"], 2)} s after that')
+            + (f'tracking under {TRACK_N:g} N {d["tracking_back_after_s"]:.2f} s after that'
+               if d['tracking_back_after_s'] is not None else
+               f'tracking not back under {TRACK_N:g} N before the sequence ended'))
 
 
 def table(result: dict) -> str:

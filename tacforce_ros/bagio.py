@@ -35,6 +35,7 @@ from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from ruamel.yaml import YAML
 from ruamel.yaml.error import YAMLError
 
+from tacforce_ros import message_build as build
 from tacforce_ros.paths import share_dir
 from tacforce_ros.topics import (PUBLISHER_DEPTH, TOPIC_JOINTS, TOPIC_SAMPLE, TOPIC_SESSION,
                                  TOPIC_SIM_CONTACT, TOPIC_TACTILE, TOPIC_WRENCH, qos_kind)
@@ -103,59 +104,41 @@ def typestore():
 
 # --- message builders (rosbags dataclasses) -------------------------------------------------
 
-def _stamp(stamp_ns: int):
-    sec, nanosec = divmod(int(stamp_ns), 1_000_000_000)
-    return typestore().types['builtin_interfaces/msg/Time'](sec=sec, nanosec=nanosec)
+@lru_cache(maxsize=1)
+def kit() -> build.Kit:
+    """The message builders' constructors for rosbags' dataclasses (message_build.py)."""
+    types = typestore().types
+    return build.Kit(Time=types['builtin_interfaces/msg/Time'], Header=types['std_msgs/msg/Header'],
+                     Vector3=types['geometry_msgs/msg/Vector3'],
+                     Wrench=types['geometry_msgs/msg/Wrench'],
+                     WrenchStamped=types['geometry_msgs/msg/WrenchStamped'],
+                     TactileArray=types['tacforce_msgs/msg/TactileArray'],
+                     TactileHand=types['tacforce_msgs/msg/TactileHand'],
+                     JointState=types['sensor_msgs/msg/JointState'],
+                     uint16=lambda v: np.ascontiguousarray(v, dtype=np.uint16),
+                     float32=lambda v: np.ascontiguousarray(v, dtype=np.float32),
+                     float64=lambda v: np.ascontiguousarray(v, dtype=np.float64))
 
 
 def header(stamp_ns: int, frame_id: str):
-    return typestore().types['std_msgs/msg/Header'](stamp=_stamp(stamp_ns), frame_id=frame_id)
-
-
-def tactile_array(stamp_ns: int, name: str, frame_id: str, counts: np.ndarray,
-                  temperatures: np.ndarray | None):
-    """counts (n, 3) uint16 for one array; temperatures (n,) kelvin or None."""
-    counts = np.asarray(counts, dtype=np.uint16)
-    temps = (np.zeros(0, np.float32) if temperatures is None
-             else np.asarray(temperatures, dtype=np.float32))
-    return typestore().types['tacforce_msgs/msg/TactileArray'](
-        header=header(stamp_ns, frame_id), name=name,
-        x=np.ascontiguousarray(counts[:, 0]), y=np.ascontiguousarray(counts[:, 1]),
-        z=np.ascontiguousarray(counts[:, 2]), temperature=temps)
+    return build.header(kit(), stamp_ns, frame_id)
 
 
 def tactile_hand(stamp_ns: int, hand, counts: np.ndarray, temperatures: np.ndarray | None,
                  server_time: float, server_sequence: int):
     """Whole-hand frame from XELA's flat (368, 3) counts, split by the hand description."""
-    per_array = hand.split(np.asarray(counts))
-    per_temp = (hand.split(np.asarray(temperatures)[:, None]) if temperatures is not None
-                else [None] * len(hand.arrays))
-    arrays = [tactile_array(stamp_ns, a.name, a.frame_id, c,
-                            None if t is None else t[:, 0])
-              for a, c, t in zip(hand.arrays, per_array, per_temp)]
-    return typestore().types['tacforce_msgs/msg/TactileHand'](
-        header=header(stamp_ns, hand.base_frame), server_time=float(server_time),
-        server_sequence=int(server_sequence) & 0xFFFFFFFF, arrays=arrays)
+    return build.tactile_hand(kit(), stamp_ns, hand, counts, temperatures, server_time,
+                              server_sequence)
 
 
 def wrench_stamped(stamp_ns: int, frame_id: str, wrench: Sequence[float]):
-    types = typestore().types
-    vec = types['geometry_msgs/msg/Vector3']
-    w = [float(v) for v in wrench]
-    return types['geometry_msgs/msg/WrenchStamped'](
-        header=header(stamp_ns, frame_id),
-        wrench=types['geometry_msgs/msg/Wrench'](force=vec(x=w[0], y=w[1], z=w[2]),
-                                                 torque=vec(x=w[3], y=w[4], z=w[5])))
+    """wrench: force then torque, six values."""
+    return build.wrench_stamped(kit(), stamp_ns, frame_id, wrench[:3], wrench[3:6])
 
 
 def joint_state(stamp_ns: int, names: Sequence[str], position: np.ndarray,
                 velocity: np.ndarray | None = None, effort: np.ndarray | None = None):
-    empty = np.zeros(0, np.float64)
-    return typestore().types['sensor_msgs/msg/JointState'](
-        header=header(stamp_ns, ''), name=list(names),
-        position=np.asarray(position, np.float64),
-        velocity=empty if velocity is None else np.asarray(velocity, np.float64),
-        effort=empty if effort is None else np.asarray(effort, np.float64))
+    return build.joint_state(kit(), stamp_ns, names, position, velocity, effort)
 
 
 def calibration_sample(stamp_ns: int, tactile, wrench, joints):

@@ -23,6 +23,7 @@ from can.interfaces.socketcand import socketcand as _socketcand_module
 
 from tacforce_ros.devices.diagnostics import ArrivalStamp
 from tacforce_ros.devices.polling import LinkLost, PollingDriver
+from tacforce_ros.rig import TORQUE_LIMITS
 
 N_FINGERS = 4
 N_JOINTS = 16
@@ -38,9 +39,6 @@ CMD_SERIAL = 0x88
 RAD_PER_COUNT = 333.3 / 65536.0 * math.pi / 180.0
 PWM_PER_NM_V4 = 1200.0
 PWM_PER_NM_8V = 800.0
-# Firmware per-joint torque clamps [Nm], joints 0-3 of index, middle, ring, then thumb.
-FIRMWARE_TORQUE_LIMITS = np.array([0.3125, 0.5625, 0.375, 0.2375] * 3
-                                  + [0.4375, 0.3375, 0.225, 0.225], dtype=np.float64)
 
 POSE = struct.Struct('<4h')
 PERIOD = struct.Struct('<3H')
@@ -151,7 +149,7 @@ class AllegroConfig:
     device_id: int = 0
     position_period_ms: int = 3
     pwm_per_nm: float = PWM_PER_NM_V4
-    torque_limits: tuple[float, ...] = tuple(FIRMWARE_TORQUE_LIMITS)
+    torque_limits: tuple[float, ...] = tuple(TORQUE_LIMITS)
     rtr_requests: bool = True
     reply_timeout: float = 1.0
     stale_after: float = 0.02

@@ -162,3 +162,28 @@ def write_synthetic_model_set(folder: str | Path, hand: HandDescription,
                             x_offset=rest, provenance=provenance)
         models[array.name] = save_model(folder / f'{array.name}_M3.npz', bundle).name
     return write_model_config(folder / 'models.yaml', models)
+
+
+class TareWindow:
+    """Untouched tactile frames gathered for a tare, as the estimator node's ~/tare and the
+    in-process closed loop both take them: add() each frame, take() the stack (T, n, 3) float64
+    to ModelSet.set_tare. The node tares once `size` frames are in; the closed loop at the end
+    of its settling hold on those it has."""
+
+    def __init__(self, size: int) -> None:
+        if size < 1:
+            raise ValueError(f'a tare needs at least one frame, not {size}')
+        self.size = size
+        self._frames: list[np.ndarray] = []
+
+    def add(self, counts: np.ndarray) -> bool:
+        """One frame (n_taxels, 3); True once the window holds `size` frames."""
+        self._frames.append(np.asarray(counts, dtype=np.float64))
+        return len(self._frames) >= self.size
+
+    def take(self) -> np.ndarray:
+        """The frames gathered, emptying the window; ValueError when there are none."""
+        if not self._frames:
+            raise ValueError('no frames to tare on')
+        frames, self._frames = np.stack(self._frames), []
+        return frames

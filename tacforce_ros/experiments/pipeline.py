@@ -21,9 +21,9 @@ import numpy as np
 import yaml
 from tqdm import tqdm
 
-from tacforce_ros.bringup.processes import run_to_end
+from tacforce_ros.bringup.processes import executable, run_to_end
 from tacforce_ros.control.command_sequence import ForceSequence
-from tacforce_ros.control.force_controller import ForceControllerConfig
+from tacforce_ros.control.force_controller import ForceControllerConfig, shipped_params_file
 from tacforce_ros.estimation.causal_filter import BatchLowPass
 from tacforce_ros.estimation.cross_validation import cross_validate
 from tacforce_ros.estimation.dataset import CalibrationDataset, concatenate
@@ -35,23 +35,23 @@ from tacforce_ros.estimation.registry import paper_configurations
 from tacforce_ros.estimation.runtime import RuntimeEstimator
 from tacforce_ros.estimation.synthetic import synthetic_hand_estimator
 from tacforce_ros.estimation.training import fit_bundles, for_deployment
+from tacforce_ros.rig import HELD_OUT_PLATE, RATE_HZ, TRAINING_PLATES
 from tacforce_ros.experiments import node_path
-from tacforce_ros.experiments import paper_reference as paper
 from tacforce_ros.experiments.cache import (StageCache, atomic_write, digest, file_digest,
-                                            node_modules, scene_digest, source_digest)
+                                            node_modules, scene_digest, source_digest,
+                                            tool_modules)
 from tacforce_ros.experiments.calibration_data import simulate_calibration
 from tacforce_ros.experiments.closed_loop import ClosedLoopTrace, run_closed_loop
 from tacforce_ros.hand.description import load_hand
 from tacforce_ros.hand.kinematics import HandKinematics
-from tacforce_ros.nodes.session_plan import shipped_parameters
+from tacforce_ros.bringup.session_plan import shipped_parameters
 from tacforce_ros.paths import config_dir
 from tacforce_ros.sim import load_scene
 from tacforce_ros.sim.effects.magnetic_skin import magnetic_skin_overlay
 from tacforce_ros.sim.scene import calibration_scene_name, session_seed
 from tacforce_ros.timing import time_interleaved
 
-PLATES = paper.TRAINING_PLATES
-HELD_OUT_PLATE = paper.HELD_OUT_PLATE
+PLATES = TRAINING_PLATES
 ARRAYS = ('index_tip', 'index_middle')                       # curved fingertip, flat phalanx
 OBJECTS = ('spherical', 'foam_brick', 'softball', 'abrasive_sponge', 'bleach_cleanser')
 CONTROLLERS = ('open_loop', 'M3-lambda', 'M4')               # Table III rows
@@ -64,7 +64,6 @@ def controllers_for(obj: str) -> tuple[str, ...]:
 ONLINE_MODELS = ('M3-lambda', 'M4')                          # Table II rows
 # The estimator's input low-pass settings compared end to end (None: off, the node's default).
 FILTER_CUTOFFS_HZ = (None, 20.0, 10.0, 5.0)
-BENCH_ROS = 'tacforce_ros.tools.bench_ros'    # run as a command: it starts the estimator node
 NODE_LATENCY_SECONDS = 10.0      # bench_ros's latency test, frames at 100 Hz
 
 
@@ -81,7 +80,7 @@ class Settings:
     objects: tuple[str, ...] = OBJECTS
     repeats: int = 5                     # paper: 5 runs per object and controller
     sequence: str = 'paper_70s'
-    control_rate: float = 100.0          # paper: control and estimation at 100 Hz
+    control_rate: float = RATE_HZ        # paper: control and estimation at the frame rate
     seed: int = 0
     # Static-segment force threshold for offsets [N], around the F/T's own no-contact reading
     # (estimation/preprocessing.py static_mask), so its un-zeroed bias does not matter.
@@ -217,13 +216,9 @@ def job_closed_loop(scene: str, seed: int, controller: str, model_config: str | 
 
 # ---------------------------------------------------------------------------------- inputs
 
-def controller_params_file() -> Path:
-    return config_dir() / 'params' / 'force_controller.yaml'
-
-
 def controller_config(controller: str):
     """The project's controller parameters; open loop is the same with K_i = 0 (paper)."""
-    config = ForceControllerConfig.from_yaml(controller_params_file())
+    config = ForceControllerConfig.from_yaml(shipped_params_file())
     return dataclasses.replace(config, k_i=(0.0, 0.0, 0.0)) if controller == 'open_loop' \
         else config
 
@@ -483,7 +478,7 @@ def node_latency_stage(ctx: Context) -> dict:
         return {'measured': False,
                 'reason': 'the node path is switched off for this run (--quick or --no-node-path)'}
     key = digest({'seconds': NODE_LATENCY_SECONDS,
-                  'code': source_digest(BENCH_ROS, *node_modules())})
+                  'code': source_digest(*tool_modules('bench_ros'), *node_modules())})
     cached = ctx.cache.load_json('node_latency', key)
     if cached is not None:
         return cached
@@ -494,7 +489,7 @@ def node_latency_stage(ctx: Context) -> dict:
     ctx.log('stage node latency: bench_ros ' + ' '.join(arguments))
     started = time.perf_counter()
     try:
-        done = run_to_end([sys.executable, '-m', BENCH_ROS, *arguments, '--out', str(target)],
+        done = run_to_end([str(executable('bench_ros')), *arguments, '--out', str(target)],
                           timeout=NODE_LATENCY_SECONDS + 300.0)
     except subprocess.TimeoutExpired:
         return {'measured': False, 'reason': 'bench_ros did not finish within '
@@ -584,7 +579,7 @@ def closed_loop_unit(ctx: Context, obj: str, controller: str, repeat: int, model
     s = ctx.settings
     scene = scene_for(ctx, f'closed_loop_{obj}')
     code = source_digest(run_closed_loop, load_model_set, ForceSequence, load_hand, HandKinematics)
-    inputs = file_digest(controller_params_file(), config_dir() / 'commands' / f'{s.sequence}.yaml',
+    inputs = file_digest(shipped_params_file(), config_dir() / 'commands' / f'{s.sequence}.yaml',
                          config_dir() / 'params' / 'estimator.yaml')
     model_config = None if controller == 'open_loop' else \
         model_config_file(ctx, controller, models)
@@ -664,7 +659,7 @@ def node_path_stage(ctx: Context, models: dict) -> dict:
     model = models['index_tip']['M3-lambda']
     key = digest({'scenes': [scene_digest(calibration_scene), scene_digest(loop_scene)],
                   'model': Path(model).stem,
-                  'code': source_digest(node_path.run_session, node_path.SESSION_MODULE,
+                  'code': source_digest(node_path.run_session, *tool_modules('session'),
                                         node_path.closed_loop_against_direct,
                                         node_path.bag_check, run_closed_loop,
                                         *node_modules()),

@@ -53,6 +53,7 @@ from tacforce_ros.nodes.common import (GRAVITY, HAND_CONFIG, REALTIME_PRIORITY, 
 from tacforce_ros.nodes.link_status import STATUS_PARAMETERS
 from tacforce_ros.nodes.managed_driver import AUTOSTART, ManagedDriver
 from tacforce_ros.nodes.messages import stamp
+from tacforce_ros.rig import RATE_HZ
 from tacforce_ros.topics import TOPIC_JOINTS, TOPIC_TORQUE_COMMAND, relative
 
 # Wall-time period of the check that ends the node on a lost link (and, under force control, on
@@ -100,7 +101,7 @@ class AllegroDriver(ManagedDriver):
         HAND_CONFIG,
         ParamSpec('control', 'torque', 'torque: joint torques from the torque_command topic; '
                   'off: joint states only, no torque ever sent', choices=('torque', 'off')),
-        ParamSpec('control_rate_hz', 100.0, 'rate of the driver\'s own loop (holds, command '
+        ParamSpec('control_rate_hz', RATE_HZ, 'rate of the driver\'s own loop (holds, command '
                   'timeouts) on the node clock (Hz)', range=(1.0, MAX_JOINT_RATE_HZ)),
         ParamSpec('command_timeout', 0.05, 'a joint without a torque command for this long '
                   'gets zero torque (s, node clock)', range=(0.001, 10.0)),

@@ -51,7 +51,8 @@ except ImportError:     # Humble
     from rclpy.qos_event import PublisherEventCallbacks
 
 from tacforce_ros.estimation.causal_filter import FilterDesignError
-from tacforce_ros.estimation.model_set import ModelConfigError, default_model_config, load_model_set
+from tacforce_ros.estimation.model_set import (ModelConfigError, TareWindow, default_model_config,
+                                               load_model_set)
 from tacforce_ros.estimation.preprocessing import SAMPLE_RATE_HZ
 from tacforce_ros.nodes.common import (FRAME_PREFIX, HAND_CONFIG, REALTIME_PRIORITY, RELIABLE_QOS,
                                        ParamSpec, ParameterError, TacforceNode, events_executor,
@@ -149,7 +150,7 @@ class Estimator(TacforceNode):
         # estimates are published only once the start-up tare is done.
         tare_loaded = self._load_tare_file()
         tare_at_start = p['tare_at_start'] and not tare_loaded
-        self._tare_buffer: list[np.ndarray] | None = [] if tare_at_start else None
+        self._tare_window = TareWindow(p['tare_frames']) if tare_at_start else None
         self._tared = not tare_at_start
         self.rejected = 0
         self.get_logger().info(
@@ -178,7 +179,7 @@ class Estimator(TacforceNode):
             self.get_logger().warn(f'tactile frame refused ({self.rejected} so far): {exc}',
                                    throttle_duration_sec=5.0)
             return
-        if self._tare_buffer is not None:
+        if self._tare_window is not None:
             self._collect_tare(counts)
         if not self._tared:
             return
@@ -223,7 +224,7 @@ class Estimator(TacforceNode):
 
     def _on_tare(self, request: Trigger.Request, response: Trigger.Response
                  ) -> Trigger.Response:
-        self._tare_buffer = []
+        self._tare_window = TareWindow(self.params['tare_frames'])
         response.success = True
         response.message = (f'taring {len(self.names)} arrays from the next '
                             f'{self.params["tare_frames"]} frames; keep them untouched')
@@ -231,10 +232,9 @@ class Estimator(TacforceNode):
         return response
 
     def _collect_tare(self, counts: np.ndarray) -> None:
-        self._tare_buffer.append(counts)
-        if len(self._tare_buffer) < self.params['tare_frames']:
+        if not self._tare_window.add(counts):
             return
-        frames, self._tare_buffer = np.stack(self._tare_buffer), None
+        frames, self._tare_window = self._tare_window.take(), None
         try:
             self.models.set_tare(frames)
         except ValueError as exc:

@@ -38,6 +38,7 @@ from tacforce_ros.nodes.common import (FRAME_PREFIX, GRAVITY, HAND_CONFIG, REALT
                                        kinematics_parameter, publisher_qos, run_node,
                                        subscriber_qos)
 from tacforce_ros.nodes.messages import stamp, stamp_ns, vector3
+from tacforce_ros.rig import RATE_HZ
 from tacforce_ros.topics import (TOPIC_CONTROLLER_STATE, TOPIC_DESIRED, TOPIC_ESTIMATES,
                                  TOPIC_JOINTS, TOPIC_TORQUE_COMMAND, relative)
 
@@ -61,7 +62,7 @@ class ForceControllerNode(TacforceNode):
     NODE_NAME = 'force_controller'
     PARAMETERS = (
         HAND_CONFIG, FRAME_PREFIX,
-        ParamSpec('control_rate_hz', 100.0, 'controller loop rate (Hz, node clock), up to the '
+        ParamSpec('control_rate_hz', RATE_HZ, 'controller loop rate (Hz, node clock), up to the '
                   '333 Hz joint stream', range=(1.0, MAX_JOINT_RATE_HZ)),
         ParamSpec('estimate_array', 'index_tip', 'array whose estimate closes the loop'),
         GRAVITY,

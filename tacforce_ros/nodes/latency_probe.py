@@ -1,4 +1,4 @@
-"""The probe of bench_ros (tools/bench_ros.py): a node that feeds the estimator node frames and
+"""The probe of bench_ros (benchmarks/bench_ros.py): a node that feeds the estimator node frames and
 times what comes back, and watches the controller's tick stamps. How and why it measures as it
 does is in that tool's description."""
 from __future__ import annotations

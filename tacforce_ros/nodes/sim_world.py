@@ -62,7 +62,7 @@ from tacforce_ros.nodes.common import (FRAME_PREFIX, HAND_CONFIG, RELIABLE_QOS, 
                                        publisher_qos, run_node, subscriber_qos)
 from tacforce_ros.nodes.messages import stamp, wrench_stamped
 from tacforce_ros.nodes.serialized import header_stamp_ns
-from tacforce_ros.nodes.session_plan import SCENE_DONE_MARKER
+from tacforce_ros.bringup.session_plan import SCENE_DONE_MARKER
 from tacforce_ros.sim import SceneError, make_simulator
 from tacforce_ros.sim.emulators.allegro import V4_HAND_INFO, AllegroEmulator
 from tacforce_ros.sim.emulators.base import Pacer

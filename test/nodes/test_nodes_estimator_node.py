@@ -15,7 +15,7 @@ from tacforce_ros.hand.description import load_hand
 from tacforce_ros.nodes.common import EXIT_OK, publisher_qos
 from tacforce_ros.nodes.messages import stamp_ns, tactile_hand
 from tacforce_ros.estimation.model_set import load_model_set, write_synthetic_model_set
-from tacforce_ros.nodes.session_plan import params_file
+from tacforce_ros.bringup.session_plan import params_file
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from ros_processes import (call_service, executable, rclpy_node, spin_until, start,  # noqa: E402

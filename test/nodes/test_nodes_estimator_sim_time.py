@@ -16,7 +16,7 @@ from tacforce_ros.hand.description import load_hand
 from tacforce_ros.nodes.common import EXIT_OK, events_executor, publisher_qos
 from tacforce_ros.nodes.messages import stamp_ns, tactile_hand
 from tacforce_ros.estimation.model_set import write_synthetic_model_set
-from tacforce_ros.nodes.session_plan import params_file
+from tacforce_ros.bringup.session_plan import params_file
 from tacforce_ros.nodes.sim_world import CLOCK_QOS
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))

@@ -59,12 +59,12 @@ def figures(out: Path, cv: dict, table_i: dict, end_to_end: dict, traces: dict,
             whole_hand: dict) -> list[str]:
     from tacforce_ros.experiments import plots
     from tacforce_ros.hand.description import load_hand
+    from tacforce_ros.hand.figure import hand_errors
     names = [plots.accuracy_vs_time(table_i, end_to_end, out / 'accuracy_vs_time.png').name,
              plots.per_plate_errors(cv, out / 'per_plate_errors.png').name,
-             plots.hand_errors(load_hand(), {a: row['cv']['e_hat_mean']
-                                             for a, row in whole_hand.items()},
-                               f'SIMULATION, {pipeline.WHOLE_HAND_MODEL}: held-out e_hat [N]',
-                               out / 'whole_hand.png').name]
+             hand_errors(load_hand(), {a: row['cv']['e_hat_mean'] for a, row in whole_hand.items()},
+                         f'SIMULATION, {pipeline.WHOLE_HAND_MODEL}: held-out e_hat [N]',
+                         out / 'whole_hand.png').name]
     by_object: dict[str, dict] = {}
     for (obj, controller), paths in traces.items():
         by_object.setdefault(obj, {})[controller] = [pipeline.load_trace(p) for p in paths]

@@ -35,7 +35,7 @@ from pathlib import Path
 
 from tacforce_ros.estimation.model_set import write_synthetic_model_set
 from tacforce_ros.hand.description import load_hand
-from tacforce_ros.nodes.common import use_realtime_scheduling
+from tacforce_ros.nodes.realtime import use_realtime_scheduling
 from tacforce_ros.nodes.latency_probe import Probe, bench_controller, bench_estimator
 from tacforce_ros.bringup.session_plan import NodeLaunch, params_file
 from tacforce_ros.paths import output_file

@@ -46,10 +46,12 @@ from sensor_msgs.msg import JointState
 from tacforce_ros.devices.allegro import (MAX_JOINT_RATE_HZ, N_JOINTS, AllegroConfig, AllegroError,
                                           AllegroV4Driver, JointSample)
 from tacforce_ros.devices.polling import LinkLost
-from tacforce_ros.nodes.common import (GRAVITY, HAND_CONFIG, REALTIME_PRIORITY, ParamSpec,
-                                       ParameterError, StopRequested, hand_parameter,
-                                       kinematics_parameter, publisher_qos, run_node,
-                                       subscriber_qos)
+from tacforce_ros.nodes.node_base import StopRequested
+from tacforce_ros.nodes.parameters import (GRAVITY, HAND_CONFIG, ParamSpec, ParameterError,
+                                           hand_parameter, kinematics_parameter)
+from tacforce_ros.nodes.qos import publisher_qos, subscriber_qos
+from tacforce_ros.nodes.realtime import REALTIME_PRIORITY
+from tacforce_ros.nodes.runner import run_node
 from tacforce_ros.nodes.link_status import STATUS_PARAMETERS
 from tacforce_ros.nodes.managed_driver import AUTOSTART, ManagedDriver
 from tacforce_ros.nodes.messages import stamp

@@ -15,8 +15,10 @@ from geometry_msgs.msg import Vector3Stamped
 from std_srvs.srv import Trigger
 
 from tacforce_ros.control.command_sequence import ForceSequence, SequenceError
-from tacforce_ros.nodes.common import (FRAME_PREFIX, ParameterError, ParamSpec, TacforceNode,
-                                       publisher_qos, run_node)
+from tacforce_ros.nodes.node_base import TacforceNode
+from tacforce_ros.nodes.parameters import FRAME_PREFIX, ParamSpec, ParameterError
+from tacforce_ros.nodes.qos import publisher_qos
+from tacforce_ros.nodes.runner import run_node
 from tacforce_ros.rig import RATE_HZ
 from tacforce_ros.topics import TOPIC_DESIRED, relative
 

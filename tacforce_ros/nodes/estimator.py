@@ -54,9 +54,12 @@ from tacforce_ros.estimation.causal_filter import FilterDesignError
 from tacforce_ros.estimation.model_set import (ModelConfigError, TareWindow, default_model_config,
                                                load_model_set)
 from tacforce_ros.estimation.preprocessing import SAMPLE_RATE_HZ
-from tacforce_ros.nodes.common import (FRAME_PREFIX, HAND_CONFIG, REALTIME_PRIORITY, RELIABLE_QOS,
-                                       ParamSpec, ParameterError, TacforceNode, events_executor,
-                                       hand_parameter, publisher_qos, run_node, subscriber_qos)
+from tacforce_ros.nodes.node_base import TacforceNode
+from tacforce_ros.nodes.parameters import (FRAME_PREFIX, HAND_CONFIG, ParamSpec, ParameterError,
+                                           hand_parameter)
+from tacforce_ros.nodes.qos import RELIABLE_QOS, publisher_qos, subscriber_qos
+from tacforce_ros.nodes.realtime import REALTIME_PRIORITY
+from tacforce_ros.nodes.runner import events_executor, run_node
 from tacforce_ros.nodes.messages import stamp
 from tacforce_ros.nodes.serialized import (SerializedMessages, TactileHandDecoder,
                                            serialized_estimates, serialized_wrenches)

@@ -15,7 +15,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from rclpy.serialization import serialize_message
 from tacforce_msgs.msg import ControllerState, ForceEstimateArray, TactileHand
 
-from tacforce_ros.nodes.common import publisher_qos
+from tacforce_ros.nodes.qos import publisher_qos
 from tacforce_ros.nodes.messages import tactile_hand
 from tacforce_ros.topics import (TOPIC_CONTROLLER_STATE, TOPIC_ESTIMATES, TOPIC_TACTILE,
                                  array_wrench_topic)

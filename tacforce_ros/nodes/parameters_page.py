@@ -9,7 +9,8 @@ import importlib
 import sys
 from pathlib import Path
 
-from tacforce_ros.nodes.common import ParamSpec, TacforceNode
+from tacforce_ros.nodes.node_base import TacforceNode
+from tacforce_ros.nodes.parameters import ParamSpec
 
 # Nodes in the order a session starts them (tacforce_container composes these, with no own).
 NODE_MODULES = ('sim_world', 'xela_driver', 'ft_bridge', 'allegro_driver', 'estimator',

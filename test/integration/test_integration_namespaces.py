@@ -15,7 +15,7 @@ from geometry_msgs.msg import WrenchStamped
 from tacforce_msgs.msg import TactileHand
 
 from tacforce_ros.hand.description import hand_config, load_hand
-from tacforce_ros.nodes.common import subscriber_qos
+from tacforce_ros.nodes.qos import subscriber_qos
 from tacforce_ros.topics import (TOPIC_DIAGNOSTICS, TOPIC_ESTIMATES, TOPIC_TACTILE, TOPIC_WRENCH,
                                  array_wrench_topic)
 

@@ -41,7 +41,7 @@ def test_the_real_time_part_starts_the_estimator_on_the_normal_scheduler(tmp_pat
 
     import pytest
 
-    from tacforce_ros.nodes.common import use_realtime_scheduling
+    from tacforce_ros.nodes.realtime import use_realtime_scheduling
     from tacforce_ros.benchmarks import bench_ros
     try:
         use_realtime_scheduling(50)

@@ -13,7 +13,8 @@ from rosgraph_msgs.msg import Clock
 from tacforce_msgs.msg import ForceEstimateArray, TactileHand
 
 from tacforce_ros.hand.description import load_hand
-from tacforce_ros.nodes.common import EXIT_OK, events_executor, publisher_qos
+from tacforce_ros.nodes.qos import publisher_qos
+from tacforce_ros.nodes.runner import EXIT_OK, events_executor
 from tacforce_ros.nodes.messages import stamp_ns, tactile_hand
 from tacforce_ros.estimation.model_set import write_synthetic_model_set
 from tacforce_ros.bringup.session_plan import params_file

@@ -21,7 +21,8 @@ from tacforce_msgs.srv import StartRecording
 from tacforce_ros import bagio, topics
 from tacforce_ros.hand.description import load_hand
 from tacforce_ros.nodes import sync_recorder
-from tacforce_ros.nodes.common import EXIT_OK, publisher_qos, subscriber_qos
+from tacforce_ros.nodes.qos import publisher_qos, subscriber_qos
+from tacforce_ros.nodes.runner import EXIT_OK
 from tacforce_ros.paths import config_dir
 from tacforce_ros.recording.bag_repair import repair_bag
 

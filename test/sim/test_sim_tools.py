@@ -37,7 +37,7 @@ def test_bag_metadata_names_the_distribution_and_each_topic_s_offered_qos(tmp_pa
     QoS its publishers offer (the recorder's own session metadata has none)."""
     import yaml
 
-    from tacforce_ros.nodes.common import publisher_qos
+    from tacforce_ros.nodes.qos import publisher_qos
     assert sim_record.main(['--out', str(tmp_path), '--arrays', 'index_tip', '--plates', 'flat',
                             '--sessions', '1', '--seconds', '0.5']) == 0
     (bag,) = tmp_path.iterdir()

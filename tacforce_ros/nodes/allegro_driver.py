@@ -43,8 +43,9 @@ import numpy as np
 from rclpy.clock import Clock, ClockType
 from sensor_msgs.msg import JointState
 
-from tacforce_ros.devices.allegro import (MAX_JOINT_RATE_HZ, N_JOINTS, AllegroConfig, AllegroError,
-                                          AllegroV4Driver, JointSample)
+from tacforce_ros.devices.allegro import (MAX_JOINT_RATE_HZ, AllegroConfig, AllegroV4Driver,
+                                          JointSample)
+from tacforce_ros.devices.allegro_codec import N_JOINTS, AllegroError
 from tacforce_ros.devices.polling import LinkLost
 from tacforce_ros.nodes.node_base import StopRequested
 from tacforce_ros.nodes.parameters import (GRAVITY, HAND_CONFIG, ParamSpec, ParameterError,

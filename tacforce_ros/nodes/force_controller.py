@@ -32,7 +32,8 @@ from tacforce_msgs.msg import ControllerState, ForceEstimateArray
 
 from tacforce_ros.control.finger_session import FingerSession
 from tacforce_ros.control.force_controller import ControllerConfigError, ForceControllerConfig
-from tacforce_ros.devices.allegro import MAX_JOINT_RATE_HZ, N_JOINTS
+from tacforce_ros.devices.allegro import MAX_JOINT_RATE_HZ
+from tacforce_ros.devices.allegro_codec import N_JOINTS
 from tacforce_ros.nodes.node_base import TacforceNode
 from tacforce_ros.nodes.parameters import (FRAME_PREFIX, GRAVITY, HAND_CONFIG, ParamSpec,
                                            ParameterError, hand_parameter, kinematics_parameter)

@@ -13,12 +13,13 @@ from hypothesis import given
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
-from tacforce_ros.devices.allegro import (CMD_FINGER_POSE, CMD_HAND_INFO, CMD_SERIAL,
-                                          CMD_SET_PERIOD, CMD_SET_TORQUE, CMD_SYSTEM_OFF,
-                                          CMD_SYSTEM_ON, PWM_PER_NM_8V,
-                                          RAD_PER_COUNT, AllegroConfig, AllegroError,
-                                          AllegroV4Driver, HandInfo, decode_int16x4,
-                                          encode_period, encode_torque, torque_to_pwm, wire_id)
+from tacforce_ros.devices.allegro import AllegroConfig, AllegroV4Driver
+from tacforce_ros.devices.allegro_codec import (CMD_FINGER_POSE, CMD_HAND_INFO, CMD_SERIAL,
+                                                CMD_SET_PERIOD, CMD_SET_TORQUE, CMD_SYSTEM_OFF,
+                                                CMD_SYSTEM_ON, PWM_PER_NM_8V, RAD_PER_COUNT,
+                                                AllegroError, HandInfo, decode_int16x4,
+                                                encode_period, encode_torque, torque_to_pwm,
+                                                wire_id)
 from tacforce_ros.rig import TORQUE_LIMITS
 from tacforce_ros.sim.emulators.allegro import AllegroEmulator
 

@@ -17,12 +17,12 @@ from collections.abc import Callable
 import can
 import numpy as np
 
-from tacforce_ros.devices.allegro import (CMD_FINGER_POSE, CMD_HAND_INFO, CMD_SERIAL,
-                                          CMD_SET_PERIOD, CMD_SET_TORQUE, CMD_SYSTEM_OFF,
-                                          CMD_SYSTEM_ON, N_FINGERS,
-                                          N_JOINTS, PERIOD, PWM_PER_NM_V4, RAD_PER_COUNT,
-                                          HandInfo, decode_int16x4, encode_torque, split_wire_id,
-                                          wire_id)
+from tacforce_ros.devices.allegro_codec import (CMD_FINGER_POSE, CMD_HAND_INFO, CMD_SERIAL,
+                                                CMD_SET_PERIOD, CMD_SET_TORQUE, CMD_SYSTEM_OFF,
+                                                CMD_SYSTEM_ON, N_FINGERS, N_JOINTS, PERIOD,
+                                                PWM_PER_NM_V4, RAD_PER_COUNT, HandInfo,
+                                                decode_int16x4, encode_torque, split_wire_id,
+                                                wire_id)
 from tacforce_ros.rig import TORQUE_LIMITS
 from tacforce_ros.sim.emulators.base import LOOPBACK, Pacer
 from tacforce_ros.sim.emulators.socketcand import SocketcandServer

@@ -35,7 +35,7 @@ from tacforce_ros.control.force_controller import MODE_HOLD, MODE_SAFE
 from tacforce_ros.estimation.model_set import (ModelConfigError, default_model_config,
                                                load_model_set, model_files)
 from tacforce_ros.experiments import node_path
-from tacforce_ros.experiments.pipeline import (SKINS, Settings, controller_config, skin_scene,
+from tacforce_ros.experiments.settings import (SKINS, Settings, controller_config, skin_scene,
                                                tare_frames)
 from tacforce_ros.hand.description import load_hand
 from tacforce_ros.hand.kinematics import TIP_LINKS, HandKinematics

@@ -81,7 +81,7 @@ def loop_factors(scene_name: str, hand, seconds: float, repeats: int) -> dict:
     from tacforce_ros.control.command_sequence import ForceSequence
     from tacforce_ros.estimation.model_set import default_model_config, load_model_set
     from tacforce_ros.experiments.closed_loop import SETTLE_SECONDS, run_closed_loop
-    from tacforce_ros.experiments.pipeline import controller_config, tare_frames
+    from tacforce_ros.experiments.settings import controller_config, tare_frames
     from tacforce_ros.hand.kinematics import HandKinematics
 
     kinematics = HandKinematics.for_hand(hand)

@@ -168,7 +168,7 @@ def closed_loop(hand, kinematics, scene, labels: list[str], configs: dict, X, F,
     from tacforce_ros.estimation.model_set import load_model_set, write_model_config
     from tacforce_ros.estimation.training import fit_bundle
     from tacforce_ros.experiments.closed_loop import run_closed_loop, trace_metrics
-    from tacforce_ros.experiments.pipeline import controller_config
+    from tacforce_ros.experiments.settings import controller_config
 
     sequence = ForceSequence.load('paper_70s')
     open_loop = trace_metrics([run_closed_loop(hand, kinematics, scene, seed,

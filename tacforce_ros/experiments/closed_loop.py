@@ -115,6 +115,8 @@ def run_closed_loop(hand: HandDescription, kinematics: HandKinematics,
         raise ValueError(f'settle_seconds {settle_seconds} s holds fewer than the '
                          f'{tare_frames} frames the tare needs at {control_rate:g} Hz')
     tare = TareWindow(tare_frames)
+    if models is not None:      # as the estimator node checks them (its default parameters)
+        models.check_taxels()
     wrenches: list[np.ndarray] = []
     transitions: list[Transition] = []
     ft_zero = np.zeros(3)

@@ -40,7 +40,9 @@ import sys
 from pathlib import Path
 
 import numpy as np
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import Point, WrenchStamped
+from rclpy.clock import Clock, ClockType
 from std_srvs.srv import Trigger
 from tacforce_msgs.msg import ForceEstimateArray, TactileHand
 from visualization_msgs.msg import Marker, MarkerArray
@@ -54,6 +56,7 @@ from tacforce_ros.estimation.causal_filter import FilterDesignError
 from tacforce_ros.estimation.model_set import (ModelConfigError, TareWindow, default_model_config,
                                                load_model_set)
 from tacforce_ros.estimation.preprocessing import SAMPLE_RATE_HZ
+from tacforce_ros.estimation.taxel_health import FROZEN_FRAMES, OUT_OF_RANGE, TAXEL_STATUS
 from tacforce_ros.nodes.node_base import TacforceNode
 from tacforce_ros.nodes.parameters import (FRAME_PREFIX, HAND_CONFIG, ParamSpec, ParameterError,
                                            hand_parameter)
@@ -63,8 +66,8 @@ from tacforce_ros.nodes.runner import events_executor, run_node
 from tacforce_ros.nodes.messages import stamp
 from tacforce_ros.nodes.serialized import (SerializedMessages, TactileHandDecoder,
                                            serialized_estimates, serialized_wrenches)
-from tacforce_ros.topics import (TOPIC_ESTIMATES, TOPIC_MARKERS, TOPIC_TACTILE,
-                                 array_wrench_topic, relative)
+from tacforce_ros.topics import (TOPIC_DIAGNOSTICS, TOPIC_ESTIMATES, TOPIC_MARKERS,
+                                 TOPIC_TACTILE, array_wrench_topic, relative)
 
 STATUS_STALE = 'stale'
 # Frames the best-effort subscription keeps: a scheduling stall of a busy machine delays frames
@@ -100,6 +103,14 @@ class Estimator(TacforceNode):
         ParamSpec('lowpass_order', 2, 'Butterworth order of that low-pass', range=(1, 8)),
         ParamSpec('frame_rate_hz', SAMPLE_RATE_HZ, 'tactile frame rate the low-pass is designed '
                   'for (Hz)', range=(1.0, 10000.0)),
+        ParamSpec('frozen_frames', FROZEN_FRAMES, 'a taxel whose three channels stay unchanged '
+                  'this many frames in a row is frozen and its array\'s estimate invalid; 0 = not '
+                  'looked for', range=(0, 100000)),
+        ParamSpec('out_of_range', OUT_OF_RANGE, 'an array whose standardised input |z| exceeds '
+                  'this is far outside its calibration and its estimate invalid; 0 = never',
+                  range=(0.0, 1e9)),
+        ParamSpec('diagnostics_period', 1.0, 'taxel health on /diagnostics every this many wall '
+                  'seconds; 0 = never', range=(0.0, 3600.0)),
         REALTIME_PRIORITY,
     )
 
@@ -117,7 +128,17 @@ class Estimator(TacforceNode):
                                               p['lowpass_order'])
         except FilterDesignError as exc:
             raise ParameterError(f'lowpass_hz: {exc}') from None
+        if p['frozen_frames'] == 1:
+            raise ParameterError('frozen_frames: 1 would flag every taxel; 0 (off) or 2 and more')
+        self.models.check_taxels(p['frozen_frames'] or None, p['out_of_range'] or np.inf)
         self.names = tuple(a.name for a in self.models.arrays)
+        self._faults: dict[str, str] = {}      # array -> its latest taxel fault, this period
+        self._faulty_frames = 0
+        if p['diagnostics_period'] > 0:
+            self.diagnostics_publisher = self.create_publisher(
+                DiagnosticArray, TOPIC_DIAGNOSTICS, publisher_qos(TOPIC_DIAGNOSTICS))
+            self.create_timer(p['diagnostics_period'], self._report_taxels,
+                              clock=Clock(clock_type=ClockType.STEADY_TIME))
         self.frames = tuple(self.frame(a.frame_id) for a in self.models.arrays)
         # rclpy's default QoS-event handlers (incompatible QoS or type: a log line) would add two
         # waitables per publisher, 38 of the 42 an executor polls per frame; subscribers of these
@@ -190,6 +211,8 @@ class Estimator(TacforceNode):
         self.wrenches.set_stamp(stamp_ns)
         self.wrenches.set('force', estimate.force)
         valid = estimate.valid
+        if np.count_nonzero(valid) < valid.size:
+            self._note_faults(estimate.status)
         for k, publisher in enumerate(self.wrench_publishers):
             if valid[k]:
                 publisher.publish(self.wrenches.message(k))
@@ -214,6 +237,38 @@ class Estimator(TacforceNode):
         layout.set('valid', valid)
         layout.set('ood_score', ood_score)
         return layout.message(0)
+
+    # --- taxel health ----------------------------------------------------------------------
+
+    def _note_faults(self, status: tuple[str, ...]) -> None:
+        noted = False
+        for name, why in zip(self.names, status):
+            if why.startswith(TAXEL_STATUS):
+                if name not in self._faults:
+                    self.get_logger().warning(f'{name}: {why}; its estimate is invalid',
+                                              throttle_duration_sec=5.0)
+                self._faults[name] = why
+                noted = True
+        self._faulty_frames += noted
+
+    def _report_taxels(self) -> None:
+        """/diagnostics: WARN naming each array whose estimate a taxel fault made invalid in
+        the period, OK otherwise."""
+        faults, frames = self._faults, self._faulty_frames
+        self._faults, self._faulty_frames = {}, 0
+        if faults:
+            level = DiagnosticStatus.WARN
+            message = '; '.join(f'{n}: {w}' for n, w in faults.items())
+        else:
+            level, message = DiagnosticStatus.OK, 'no faulty taxel'
+        status = DiagnosticStatus(
+            level=level, name=f'{self.get_fully_qualified_name()}: taxels', message=message,
+            hardware_id=self.hand.base_frame,
+            values=[KeyValue(key=n, value=w) for n, w in faults.items()]
+            + [KeyValue(key='faulty_frames', value=str(frames))])
+        array = DiagnosticArray(status=[status])
+        array.header.stamp = self.get_clock().now().to_msg()
+        self.diagnostics_publisher.publish(array)
 
     # --- staleness -------------------------------------------------------------------------
 

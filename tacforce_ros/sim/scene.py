@@ -242,7 +242,7 @@ def _effects(raw: dict, where: str) -> dict[str, dict[str, Any]]:
             raise SceneError(f'{where}: field "effects.{name}" must be a mapping of parameters')
         try:
             EFFECTS[name](**params)
-        except TypeError as exc:
+        except (TypeError, ValueError) as exc:
             raise SceneError(f'{where}: field "effects.{name}": {exc}') from exc
         result[name] = dict(params)
     return result

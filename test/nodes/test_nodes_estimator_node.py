@@ -45,7 +45,8 @@ def test_estimates_follow_the_model_set_with_the_node_tare(models, tmp_path):
     rest = HAND.merge([b.x_offset for b in reference.estimator.bundles]) + 30.0   # drifted
     proc = start([executable('estimator'), '--ros-args', '--params-file',
                   params_file('estimator'), '-p', f'model_config:={models}',
-                  '-p', f'tare_frames:={TARE_FRAMES}', '-p', 'marker_rate_hz:=0.0'], DOMAIN)
+                  '-p', f'tare_frames:={TARE_FRAMES}', '-p', 'marker_rate_hz:=0.0',
+                  '-p', 'frozen_frames:=0', '-p', 'out_of_range:=0.0'], DOMAIN)
     output = ''
     try:
         with rclpy_node('estimator_node_test', DOMAIN) as node:
@@ -141,6 +142,7 @@ def test_low_pass_estimates_are_the_core_filter_on_the_frames_received(models):
     proc = start([executable('estimator'), '--ros-args', '--params-file',
                   params_file('estimator'), '-p', f'model_config:={models}',
                   '-p', f'tare_frames:={TARE_FRAMES}', '-p', 'marker_rate_hz:=0.0',
+                  '-p', 'frozen_frames:=0', '-p', 'out_of_range:=0.0',
                   '-p', 'lowpass_hz:=10.0'], DOMAIN)
     try:
         with rclpy_node('estimator_lowpass_test', DOMAIN) as node:

@@ -36,7 +36,8 @@ def test_stale_watchdog_follows_the_simulated_clock(tmp_path):
     proc = start([executable('estimator'), '--ros-args', '--params-file',
                   params_file('estimator'), '-p', f'model_config:={models}',
                   '-p', 'use_sim_time:=true', '-p', 'tare_at_start:=false',
-                  '-p', f'stale_timeout:={STALE_TIMEOUT_S}', '-p', 'marker_rate_hz:=0.0'], DOMAIN)
+                  '-p', f'stale_timeout:={STALE_TIMEOUT_S}', '-p', 'marker_rate_hz:=0.0',
+                  '-p', 'frozen_frames:=0', '-p', 'out_of_range:=0.0'], DOMAIN)
     try:
         with rclpy_node('estimator_sim_time_test', DOMAIN) as node:
             received: list[ForceEstimateArray] = []

@@ -20,7 +20,7 @@ from ruamel.yaml import YAML
 
 from tacforce_ros.bagio.layout import (CUSTOM_DATA_PREFIX, ROS_DISTRO, TOPIC_TYPES, BagError,
                                       offered_qos, session_message, typestore)
-from tacforce_ros.topics import (TOPIC_SESSION)
+from tacforce_ros.topics import TOPIC_SESSION
 
 # mcap's default chunk size (rosbag2's MCAP plugin uses 768 KiB); a chunk also ends at every flush.
 CHUNK_BYTES = 1 << 20

@@ -11,7 +11,7 @@ from tacforce_ros.estimation.cross_validation import cross_validate
 from tacforce_ros.estimation.dataset import concatenate
 from tacforce_ros.estimation.training import fit_bundles, for_deployment
 from tacforce_ros.rig import HELD_OUT_PLATE
-from tacforce_ros.experiments.cache import (digest, scene_digest, source_digest)
+from tacforce_ros.experiments.cache import digest, scene_digest, source_digest
 from tacforce_ros.experiments.calibration_data import simulate_calibration
 from tacforce_ros.hand.description import load_hand
 from tacforce_ros.hand.kinematics import HandKinematics
@@ -20,6 +20,7 @@ from tacforce_ros.experiments.settings import (ARRAYS, PLATES, WHOLE_HAND_MODEL,
                                              hand_digest, model_hyper, scene_for)
 from tacforce_ros.experiments.workers import (job_benchmark, job_calibration, job_cross_validation,
                                             job_training_set, run_units, worker_hand)
+
 
 def calibration_unit(ctx: Context, array: str, plate: str, session: int, seconds: float,
                      zero_phase_tactile: bool = True) -> tuple[str, tuple | None]:

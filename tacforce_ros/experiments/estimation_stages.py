@@ -30,6 +30,7 @@ from tacforce_ros.experiments.settings import (ARRAYS, FILTER_CUTOFFS_HZ, NODE_L
                                              model_hyper)
 from tacforce_ros.experiments.workers import run_units, worker_hand
 
+
 def timing_stage(ctx: Context, models: dict) -> dict:
     """Inference cost per array and model: one prediction, the compiled batch of one, and a
     full-hand tick (18 arrays of the kind), timed round-robin by the bench tool's timer so every

@@ -29,6 +29,7 @@ from tacforce_ros.experiments.settings import (Context, controller_config, contr
                                              hand_digest, scene_for, tare_frames)
 from tacforce_ros.experiments.workers import job_closed_loop, run_units, worker_hand
 
+
 def closed_loop_seed(obj: str, repeat: int, base: int) -> int:
     """Repeat k of every controller on one object shares its seed (a paired comparison)."""
     return session_seed(base, 'closed_loop', obj, repeat)

@@ -15,7 +15,7 @@ import yaml
 from tacforce_ros.control.force_controller import ForceControllerConfig, shipped_params_file
 from tacforce_ros.estimation.registry import paper_configurations
 from tacforce_ros.rig import HELD_OUT_PLATE, RATE_HZ, TRAINING_PLATES
-from tacforce_ros.experiments.cache import (StageCache, atomic_write, file_digest)
+from tacforce_ros.experiments.cache import StageCache, atomic_write, file_digest
 from tacforce_ros.bringup.session_plan import shipped_parameters
 from tacforce_ros.paths import config_dir
 from tacforce_ros.sim.effects.magnetic_skin import magnetic_skin_overlay
@@ -30,6 +30,8 @@ def controllers_for(obj: str) -> tuple[str, ...]:
     """Paper Sec. IV-C: the open loop ran on the spherical plate only; the objects with the
     closed-loop controllers alone."""
     return CONTROLLERS if obj == HELD_OUT_PLATE else CONTROLLERS[1:]
+
+
 ONLINE_MODELS = ('M3-lambda', 'M4')                          # Table II rows
 # The estimator's input low-pass settings compared end to end (None: off, the node's default).
 FILTER_CUTOFFS_HZ = (None, 20.0, 10.0, 5.0)

@@ -20,7 +20,7 @@ from tacforce_ros.estimation.model_io import save_model
 from tacforce_ros.estimation.model_set import load_model_set
 from tacforce_ros.estimation.preprocessing import SAMPLE_RATE_HZ
 from tacforce_ros.estimation.training import for_deployment
-from tacforce_ros.experiments.cache import (atomic_write)
+from tacforce_ros.experiments.cache import atomic_write
 from tacforce_ros.experiments.calibration_data import simulate_calibration
 from tacforce_ros.experiments.closed_loop import ClosedLoopTrace, run_closed_loop
 from tacforce_ros.hand.description import load_hand

@@ -64,6 +64,7 @@ from tacforce_ros.topics import TOPIC_JOINTS, TOPIC_TORQUE_COMMAND, relative
 LINK_CHECK_PERIOD_S = 0.05
 CONNECT_RETRY_S = 0.2          # wall s between attempts to reach the hand at start-up
 
+
 class JointVelocity:
     """Joint velocity from positions: finite differences on the caller's clock, low-passed
     (first order, `cutoff_hz`) because position counts and arrival stamps are both coarse (and

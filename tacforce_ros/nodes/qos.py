@@ -24,6 +24,7 @@ RELIABLE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=PUBLISHER_DEPTH
                           reliability=ReliabilityPolicy.RELIABLE,
                           durability=DurabilityPolicy.VOLATILE)
 
+
 def publisher_qos(topic: str) -> QoSProfile:
     return SENSOR_PUBLISHER_QOS if qos_kind(topic) == SENSOR else RELIABLE_QOS
 

@@ -267,6 +267,7 @@ def test_sigterm_closes_the_bag_completely(ros_node, streams, tmp_path):
     assert recorded.count(topics.TOPIC_TACTILE) >= 0.8 * len(sent)
     assert 'closed' in output
 
+
 def test_closed_loop_streams_are_recorded_when_published(ros_node, streams, tmp_path):
     """f_d, the controller state and the simulator's ground truth go into the bag as sent,
     with the scene and seed in the metadata; the recorder listens to f_d only once it records

@@ -1,6 +1,6 @@
 """One builder per message the package writes, for both message libraries it writes them with:
 rclpy's generated classes (the nodes, nodes/messages.py) and rosbags' dataclasses (bags written
-without ROS, bagio.py). A Kit holds one library's constructors and how it takes a numeric
+without ROS, bagio/layout.py). A Kit holds one library's constructors and how it takes a numeric
 sequence; the builders decide the fields. No rclpy here."""
 from __future__ import annotations
 

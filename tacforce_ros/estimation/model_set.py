@@ -227,7 +227,7 @@ class TareWindow:
 
     def add(self, counts: np.ndarray) -> bool:
         """One frame (n_taxels, 3); True once the window holds `size` frames."""
-        self._frames.append(np.asarray(counts, dtype=np.float64))
+        self._frames.append(np.array(counts, dtype=np.float64))     # a copy: buffers get reused
         return len(self._frames) >= self.size
 
     def take(self) -> np.ndarray:

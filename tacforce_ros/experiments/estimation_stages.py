@@ -107,8 +107,12 @@ def node_latency_stage(ctx: Context) -> dict:
     if not s.node_path:
         return {'measured': False,
                 'reason': 'the node path is switched off for this run (--quick or --no-node-path)'}
+    try:        # run as a command, as a user would: it starts the estimator node
+        bench_ros, modules = executable('bench_ros'), tool_modules('bench_ros')
+    except (FileNotFoundError, ValueError) as exc:
+        return {'measured': False, 'reason': f'bench_ros is not installed: {exc}'}
     key = digest({'seconds': NODE_LATENCY_SECONDS,
-                  'code': source_digest(*tool_modules('bench_ros'), *node_modules())})
+                  'code': source_digest(*modules, *node_modules())})
     cached = ctx.cache.load_json('node_latency', key)
     if cached is not None:
         return cached
@@ -119,7 +123,7 @@ def node_latency_stage(ctx: Context) -> dict:
     ctx.log('stage node latency: bench_ros ' + ' '.join(arguments))
     started = time.perf_counter()
     try:
-        done = run_to_end([str(executable('bench_ros')), *arguments, '--out', str(target)],
+        done = run_to_end([str(bench_ros), *arguments, '--out', str(target)],
                           timeout=NODE_LATENCY_SECONDS + 300.0)
     except subprocess.TimeoutExpired:
         return {'measured': False, 'reason': 'bench_ros did not finish within '

@@ -109,13 +109,17 @@ def node_path_stage(ctx: Context, models: dict) -> dict:
     s = ctx.settings
     if not s.node_path:
         return {'ran': False, 'reason': 'switched off for this run (--quick or --no-node-path)'}
+    try:
+        session_modules = tool_modules('session')
+    except ValueError as exc:
+        return {'ran': False, 'reason': f'session is not installed: {exc}'}
     hand, kinematics = worker_hand()
     calibration_scene = scene_for(ctx, calibration_scene_name('index_tip', HELD_OUT_PLATE))
     loop_scene = scene_for(ctx, 'closed_loop_spherical')
     model = models['index_tip']['M3-lambda']
     key = digest({'scenes': [scene_digest(calibration_scene), scene_digest(loop_scene)],
                   'model': Path(model).stem,
-                  'code': source_digest(node_path.run_session, *tool_modules('session'),
+                  'code': source_digest(node_path.run_session, *session_modules,
                                         node_path.closed_loop_against_direct,
                                         node_path.bag_check, run_closed_loop,
                                         *node_modules()),

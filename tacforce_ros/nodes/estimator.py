@@ -37,6 +37,7 @@ from __future__ import annotations
 
 import gc
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -75,6 +76,7 @@ STATUS_STALE = 'stale'
 # with the sensor-data depth 5, none in 3 runs with 20); each frame keeps its own stamp, and a
 # backlog clears at ~0.3 ms a frame.
 FRAME_QUEUE_DEPTH = 20
+FAULT_LOG_PERIOD_S = 1.0    # at most one line a second per array about its taxels
 
 
 
@@ -134,6 +136,8 @@ class Estimator(TacforceNode):
         self.names = tuple(a.name for a in self.models.arrays)
         self._faults: dict[str, str] = {}      # array -> its latest taxel fault, this period
         self._faulty_frames = 0
+        self._faulty_now: dict[str, str] = {}  # array -> its fault in the last frame (the log)
+        self._fault_logged: dict[str, float] = {}  # array -> monotonic s of its last line
         if p['diagnostics_period'] > 0:
             self.diagnostics_publisher = self.create_publisher(
                 DiagnosticArray, TOPIC_DIAGNOSTICS, publisher_qos(TOPIC_DIAGNOSTICS))
@@ -211,7 +215,7 @@ class Estimator(TacforceNode):
         self.wrenches.set_stamp(stamp_ns)
         self.wrenches.set('force', estimate.force)
         valid = estimate.valid
-        if np.count_nonzero(valid) < valid.size:
+        if np.count_nonzero(valid) < valid.size or self._faulty_now:
             self._note_faults(estimate.status)
         for k, publisher in enumerate(self.wrench_publishers):
             if valid[k]:
@@ -241,15 +245,26 @@ class Estimator(TacforceNode):
     # --- taxel health ----------------------------------------------------------------------
 
     def _note_faults(self, status: tuple[str, ...]) -> None:
-        noted = False
-        for name, why in zip(self.names, status):
-            if why.startswith(TAXEL_STATUS):
-                if name not in self._faults:
-                    self.get_logger().warning(f'{name}: {why}; its estimate is invalid',
-                                              throttle_duration_sec=5.0)
-                self._faults[name] = why
-                noted = True
-        self._faulty_frames += noted
+        """Logs each array's taxel fault when it begins or changes, and when it ends; keeps
+        the period's faults for /diagnostics."""
+        now = {name: why for name, why in zip(self.names, status) if why.startswith(TAXEL_STATUS)}
+        wall = time.monotonic()
+
+        def may_log(name: str) -> bool:     # a taxel flickering at a rail: a line a second
+            if wall - self._fault_logged.get(name, -np.inf) < FAULT_LOG_PERIOD_S:
+                return False
+            self._fault_logged[name] = wall
+            return True
+
+        for name, why in now.items():
+            if self._faulty_now.get(name) != why and may_log(name):
+                self.get_logger().warning(f'{name}: {why}; its estimate is invalid')
+        for name in self._faulty_now.keys() - now.keys():
+            if may_log(name):
+                self.get_logger().info(f'{name}: taxels healthy again')
+        self._faulty_now = now
+        self._faults.update(now)
+        self._faulty_frames += bool(now)
 
     def _report_taxels(self) -> None:
         """/diagnostics: WARN naming each array whose estimate a taxel fault made invalid in

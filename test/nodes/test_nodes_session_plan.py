@@ -102,7 +102,7 @@ def test_a_closed_loop_array_without_a_model_is_refused(tmp_path):
 
 
 def test_a_side_without_a_description_is_refused(monkeypatch, tmp_path):
-    from tacforce_ros.nodes import session_plan
+    from tacforce_ros.bringup import session_plan
     monkeypatch.setattr(session_plan, 'hand_config', lambda side: tmp_path / f'{side}.yaml')
     with pytest.raises(PlanError, match='no hand description'):
         plan(SessionArgs(mode='calibration', hand_side='left'))

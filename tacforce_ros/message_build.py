@@ -28,8 +28,13 @@ class Kit:
     float64: Array
 
 
+INT32 = (-2**31, 2**31 - 1)     # builtin_interfaces/Time.sec: a stamp beyond 2038 does not fit
+
+
 def stamp(kit: Kit, ns: int):
     sec, nanosec = divmod(int(ns), 1_000_000_000)
+    if not INT32[0] <= sec <= INT32[1]:     # the wire would wrap it silently
+        raise ValueError(f'stamp {ns} ns: {sec} s does not fit builtin_interfaces/Time (int32)')
     return kit.Time(sec=sec, nanosec=nanosec)
 
 

@@ -74,7 +74,7 @@ def models_file(tmp_path_factory):
 def test_the_array_of_a_faulty_taxel_is_invalid_and_named_and_the_others_unchanged(
         models_file, kind):
     checked, plain = load_model_set(models_file, HAND), load_model_set(models_file, HAND)
-    checked.check_taxels()
+    checked.check_taxels(out_of_range=20.0)     # the synthetic models' spreads are a few counts
     rng = np.random.default_rng(1)
     rest = HAND.merge([b.x_offset for b in plain.estimator.bundles])
     array = HAND.array('index_middle')

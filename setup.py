@@ -1,4 +1,5 @@
-"""ament_python package tacforce_ros; executables go to lib/tacforce_ros (setup.cfg) for ros2 run/launch."""
+"""ament_python package tacforce_ros; executables go to lib/tacforce_ros (setup.cfg), where
+ros2 run and ros2 launch look for them."""
 from pathlib import Path
 
 from setuptools import find_packages, setup
@@ -9,22 +10,25 @@ HERE = Path(__file__).parent
 # Installed executables: ROS nodes first, then offline tools (all take --help).
 NODES = ['xela_driver', 'ft_bridge', 'allegro_driver', 'force_controller', 'estimator',
          'sync_recorder', 'coverage_view', 'command_player', 'sim_world', 'tacforce_container']
+# Offline tools of the runtime (tacforce_ros/tools/): executable -> module.
 TOOLS = {
-    'train': 'train',               # bags/datasets -> model files + report
-    'bench': 'bench',               # accuracy vs inference time of M1-M5, M3-lambda
-    'bench_devices': 'bench_devices',   # driver latency and sustained rates over loopback
-    'bench_sim': 'bench_sim',       # simulator speed per scene and per effect
-    'bench_ros': 'bench_ros',       # tactile->wrench latency, input rate, controller jitter
-    'bench_graph': 'bench_graph',   # node graph vs direct path: agreement, watchdog trips, rates
-    'bench_messages': 'bench_messages',  # what the estimator's serialized fast path saves
-    'bench_stop': 'bench_stop',     # every node and `session` stopped at random moments
-    'bench_train': 'bench_train',   # cross-validation folds trained one at a time vs together
-    'skin_sensitivity': 'skin_sensitivity',  # Table I on the magnetic skin, per estimate +/-
-    'sim_record': 'sim_record',     # simulated calibration sessions -> rosbag2 (mcap)
-    'campaign': 'campaign',         # whole-hand calibration campaign: plan, verdicts, resume
-    'bag_repair': 'bag_repair',     # bags cut off by a crash -> whole bags (complete chunks kept)
-    'session': 'session',           # start a calibration or closed-loop session without ros2 launch
-    'reproduce': 'reproduce',       # the main job: the paper's experiments in simulation + report
+    'train': 'tools.train',                 # bags/datasets -> model files + report
+    'sim_record': 'tools.sim_record',       # simulated calibration sessions -> rosbag2 (mcap)
+    'campaign': 'tools.campaign',           # whole-hand campaign: plan, verdicts, resume
+    'bag_repair': 'tools.bag_repair',       # bags cut off by a crash -> whole bags
+    'session': 'tools.session',             # a session's processes without ros2 launch
+    # The main job and its study (tacforce_ros/experiments/): the runtime never imports them.
+    'reproduce': 'experiments.reproduce',   # the paper's experiments in simulation + report
+    'skin_sensitivity': 'experiments.skin_sensitivity',  # Table I per skin estimate +/-
+    # Benchmarks (tacforce_ros/benchmarks/): the runtime never imports them.
+    'bench': 'benchmarks.bench',            # accuracy vs inference time of M1-M5, M3-lambda
+    'bench_devices': 'benchmarks.bench_devices',    # driver latency and rates over loopback
+    'bench_sim': 'benchmarks.bench_sim',    # simulator speed per scene and per effect
+    'bench_ros': 'benchmarks.bench_ros',    # tactile->wrench latency, rates, jitter
+    'bench_graph': 'benchmarks.bench_graph',    # node graph vs direct path, fault runs
+    'bench_messages': 'benchmarks.bench_messages',  # the serialized fast path's saving
+    'bench_stop': 'benchmarks.bench_stop',  # every node and `session` stopped at random moments
+    'bench_train': 'benchmarks.bench_train',    # CV folds one at a time vs together
 }
 
 
@@ -55,6 +59,6 @@ setup(
     entry_points={
         # Nodes start through nodes/entry.py: a prompt stop while loading, a prompt end after.
         'console_scripts': [f'{n} = {PACKAGE}.nodes.entry:{n}' for n in NODES]
-        + [f'{exe} = {PACKAGE}.tools.{mod}:main' for exe, mod in TOOLS.items()],
+        + [f'{exe} = {PACKAGE}.{mod}:main' for exe, mod in TOOLS.items()],
     },
 )

@@ -5,7 +5,7 @@
 
 campaign:=FOLDER records the next session the campaign has due (its array and plate, into FOLDER).
 
-The node graph is tacforce_ros.nodes.session_plan's, shared with `session calibration`."""
+The node graph is tacforce_ros.bringup.session_plan's, shared with `session calibration`."""
 import sys
 from pathlib import Path
 

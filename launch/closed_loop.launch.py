@@ -4,7 +4,7 @@
 [compose:=false] [namespace:=] [frame_prefix:=] [autostart:=true] [xela_port:=5000]
 [netft_port:=49152] [can_port:=29536]
 
-The node graph is tacforce_ros.nodes.session_plan's, shared with `session closed_loop`."""
+The node graph is tacforce_ros.bringup.session_plan's, shared with `session closed_loop`."""
 import sys
 from pathlib import Path
 

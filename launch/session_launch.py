@@ -2,7 +2,7 @@
 full ROS 2 install with the launch and launch_ros packages; on this machine `session <mode>` starts
 the same graph).
 
-The node list, parameter files and overrides come from tacforce_ros.nodes.session_plan, the
+The node list, parameter files and overrides come from tacforce_ros.bringup.session_plan, the
 same source the `session` tool reads, and so do the checks of every argument: a bad argument
 ends the launch before any process starts, naming the argument (launch prints "Caught exception
 in launch", exit code 1). A node that exits with an error while the session runs, or does not
@@ -21,7 +21,7 @@ from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
 from tacforce_ros.hand.description import hand_config, load_hand
-from tacforce_ros.nodes.session_plan import (CAN_PORT, NETFT_PORT, SCENE_DONE_MARKER, XELA_PORT,
+from tacforce_ros.bringup.session_plan import (CAN_PORT, NETFT_PORT, SCENE_DONE_MARKER, XELA_PORT,
                                              PlanError, SessionArgs, campaign_session, launch_bool,
                                              launch_number, plan, two_hands)
 

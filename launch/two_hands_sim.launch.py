@@ -8,7 +8,7 @@ description and models) in /left, the right in /right; /left/tactile/<array>/wre
 /right/tactile/<array>/wrench side by side, every frame id prefixed left/ or right/ (TF from each
 hand's robot_state_publisher too), bags in <out>/left and <out>/right. What is set per hand
 (hand_side, namespace, frame_prefix, the ports, model, scene) is refused as an argument.
-tacforce_ros.nodes.session_plan.two_hands makes the two sessions, which
+tacforce_ros.bringup.session_plan.two_hands makes the two sessions, which
 test/integration/test_integration_namespaces.py runs without launch."""
 import sys
 from pathlib import Path

@@ -25,7 +25,7 @@ TOPIC_TORQUE_COMMAND = '/allegro_driver/torque_command'
 TOPIC_DIAGNOSTICS = '/diagnostics'
 
 # Sensor streams are published reliable and subscribed best-effort (sensor-data QoS); commands,
-# calibration samples and controller states are reliable both ways (nodes/common.py builds the
+# calibration samples and controller states are reliable both ways (nodes/qos.py builds the
 # profiles).
 SENSOR, RELIABLE = 'sensor', 'reliable'
 TOPIC_QOS = {
@@ -43,7 +43,7 @@ TOPIC_QOS = {
 
 
 # What every publisher of the graph offers, whatever the topic's kind: keep-last, this deep,
-# reliable, volatile (nodes/common.py builds the rclpy profiles; bagio writes it into a bag's
+# reliable, volatile (nodes/qos.py builds the rclpy profiles; bagio writes it into a bag's
 # metadata as each recorded topic's offered QoS, as `ros2 bag record` does).
 PUBLISHER_DEPTH = 10
 

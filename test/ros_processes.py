@@ -7,10 +7,8 @@ import subprocess
 import sys
 import sysconfig
 import time
-from pathlib import Path
 
-VENV = Path(sys.prefix)
-EXECUTABLES = VENV / 'lib' / 'tacforce_ros'
+from tacforce_ros.bringup.processes import executable  # noqa: F401  (the tests' helper too)
 
 
 def ros_env(domain_id: int) -> dict[str, str]:
@@ -25,13 +23,6 @@ def ros_env(domain_id: int) -> dict[str, str]:
 def unique_domain_id(offset: int = 0) -> int:
     """A DDS domain for this test process (0..101 are valid for Fast DDS on one host)."""
     return 1 + (os.getpid() + offset) % 100
-
-
-def executable(name: str) -> Path:
-    path = EXECUTABLES / name
-    if not path.is_file():
-        raise FileNotFoundError(f'{path} is not installed; run ./run.sh setup')
-    return path
 
 
 def start(args: list[str], domain_id: int, **kwargs) -> subprocess.Popen:

@@ -11,7 +11,7 @@ import sys
 import time
 from pathlib import Path
 
-from tacforce_ros.nodes.session_plan import NodeLaunch
+from tacforce_ros.bringup.session_plan import NodeLaunch
 
 EXECUTABLES = Path(sys.prefix) / 'lib' / 'tacforce_ros'
 
@@ -55,6 +55,23 @@ def cpu_seconds(pid: int) -> float | None:
         return None
     # after the command name: state is field 3 of proc(5), utime and stime fields 14 and 15
     return (int(fields[11]) + int(fields[12])) / os.sysconf('SC_CLK_TCK')
+
+
+CPU_REPORT = 'session: CPU seconds per process:'
+
+
+def cpu_report(cpu: dict[str, float | None]) -> str:
+    """The line a session prints at its end: CPU seconds per process (gone ones left out)."""
+    return f'{CPU_REPORT} ' + ', '.join(f'{name}={seconds:.1f}' for name, seconds in cpu.items()
+                                        if seconds is not None)
+
+
+def read_cpu_report(line: str) -> dict[str, float] | None:
+    """The figures of a cpu_report() line; None for any other line."""
+    if not line.startswith(CPU_REPORT):
+        return None
+    return {name: float(value) for name, value in
+            (item.split('=') for item in line[len(CPU_REPORT):].strip().split(', ') if item)}
 
 
 def stop_nodes(procs: list[tuple[str, subprocess.Popen]], grace: float) -> dict[str, int]:

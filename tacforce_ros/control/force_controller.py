@@ -41,6 +41,7 @@ Around the law, in this order per tick:
 """
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any, Mapping, Protocol
@@ -49,18 +50,9 @@ import numpy as np
 import yaml
 
 from tacforce_ros.paths import config_dir
+from tacforce_ros.rig import FINGERS, finger_torque_limits
 
-FINGERS = ('index', 'middle', 'ring', 'thumb')
 SAME_LINKS_AS_INDEX = ('index', 'middle', 'ring')     # URDF: equal link lengths and inertias
-
-# Allegro V4 firmware per-joint torque clamps (Nm), PROTOCOLS.md section 2, from
-# simlabrobotics/allegro_hand_ros_v4 and Wonik's allegro_hand_ros2 v4_spec.hpp.
-FIRMWARE_TORQUE_LIMITS = {
-    'index': (0.3125, 0.5625, 0.375, 0.2375),
-    'middle': (0.3125, 0.5625, 0.375, 0.2375),
-    'ring': (0.3125, 0.5625, 0.375, 0.2375),
-    'thumb': (0.4375, 0.3375, 0.225, 0.225),
-}
 
 MODE_OPEN_LOOP = 'open_loop'
 MODE_CLOSED_LOOP = 'closed_loop'
@@ -82,6 +74,31 @@ def _param(default: Any, description: str) -> Any:
     return field(default=default, metadata={'help': description})
 
 
+def shipped_params_file() -> Path:
+    """config/params/force_controller.yaml: the one file where each gain and limit is set, with
+    its reason; the configuration's defaults are read from it."""
+    return config_dir() / 'params' / 'force_controller.yaml'
+
+
+@functools.lru_cache(maxsize=1)
+def _shipped_group() -> dict:
+    doc = yaml.safe_load(shipped_params_file().read_text()) or {}
+    for node_params in doc.values():
+        params = (node_params or {}).get('ros__parameters', {})
+        if 'force_controller' in params:
+            return dict(params['force_controller'])
+    raise ControllerConfigError(f'{shipped_params_file()}: no "force_controller" group')
+
+
+def _shipped(name: str) -> Any:
+    """One value of the shipped file's `force_controller` group (lists as tuples)."""
+    group = _shipped_group()
+    if name not in group:
+        raise ControllerConfigError(f'{shipped_params_file()}: no force_controller.{name}')
+    value = group[name]
+    return tuple(value) if isinstance(value, list) else value
+
+
 class ControllerConfigError(ValueError):
     """A controller configuration that cannot be used; the message names the field."""
 
@@ -95,31 +112,35 @@ def finger_params_file(finger: str) -> Path:
 class ForceControllerConfig:
     """Gains and limits of one finger's controller (SI units; vectors are per axis / per joint).
 
-    The defaults repeat config/params/force_controller.yaml (where each value is argued), the
-    file every path loads; a test keeps the two equal."""
+    The defaults are those of config/params/force_controller.yaml (where each value is argued),
+    but for estimate_frame: empty, the force frame itself."""
 
-    finger: str = _param('index', 'finger under force control (index, middle, ring, thumb)')
-    base_frame: str = _param('hand_root', 'hand base frame of the URDF')
-    force_frame: str = _param(
-        'ft_sensor', 'frame of f_d and of the integral ({F} = ft_sensor in the paper)')
+    finger: str = _param(_shipped('finger'),
+                         'finger under force control (index, middle, ring, thumb)')
+    base_frame: str = _param(_shipped('base_frame'), 'hand base frame of the URDF')
+    force_frame: str = _param(_shipped('force_frame'),
+                              'frame of f_d and of the integral ({F} = ft_sensor in the paper)')
     estimate_frame: str = _param(
         '', 'frame of the force estimate (the array frame); empty = force_frame')
-    k_i: tuple[float, ...] = _param(
-        (2.0, 2.0, 2.0), 'integral gains per axis (1/s); all zero = open loop')
-    k_p: tuple[float, ...] = _param(
-        (0.25, 0.5, 0.12, 0.03), 'joint stiffness per finger joint (N m/rad)')
-    k_d: tuple[float, ...] = _param(
-        (0.012, 0.025, 0.006, 0.0015), 'joint damping per finger joint (N m s/rad)')
+    k_i: tuple[float, ...] = _param(_shipped('k_i'),
+                                    'integral gains per axis (1/s); all zero = open loop')
+    k_p: tuple[float, ...] = _param(_shipped('k_p'), 'joint stiffness per finger joint (N m/rad)')
+    k_d: tuple[float, ...] = _param(_shipped('k_d'),
+                                    'joint damping per finger joint (N m s/rad)')
     q_d: tuple[float, ...] = _param(
-        (0.0, 0.8, 0.8, 0.8), 'finger joint target (rad), chosen so the fingertip stays in contact')
-    torque_cap: float = _param(0.35, 'largest joint torque (N m), within the firmware clamps')
+        _shipped('q_d'), 'finger joint target (rad), chosen so the fingertip stays in contact')
+    torque_cap: float = _param(_shipped('torque_cap'),
+                               'largest joint torque (N m), within the firmware clamps')
     integral_rate_limit: float = _param(
-        1.0, '|f_d - f_hat| per axis clipped to this before integrating (N)')
-    integral_limit: float = _param(2.0, 'integral clamp per axis (N s)')
-    estimate_timeout: float = _param(0.05, 'force estimates older than this are stale (s)')
-    joints_timeout: float = _param(0.02, 'joint states older than this are stale (s)')
-    ramp_time: float = _param(0.035, 'time to ramp to the hold (or zero torque) once a stream '
-                              'is stale (s)')
+        _shipped('integral_rate_limit'),
+        '|f_d - f_hat| per axis clipped to this before integrating (N)')
+    integral_limit: float = _param(_shipped('integral_limit'), 'integral clamp per axis (N s)')
+    estimate_timeout: float = _param(_shipped('estimate_timeout'),
+                                     'force estimates older than this are stale (s)')
+    joints_timeout: float = _param(_shipped('joints_timeout'),
+                                   'joint states older than this are stale (s)')
+    ramp_time: float = _param(_shipped('ramp_time'), 'time to ramp to the hold (or zero torque) '
+                              'once a stream is stale (s)')
 
     def __post_init__(self) -> None:
         if self.finger not in FINGERS:
@@ -142,7 +163,7 @@ class ForceControllerConfig:
     @property
     def joint_torque_limits(self) -> np.ndarray:
         """Per-joint limit actually applied: the controller cap within the firmware clamps."""
-        return np.minimum(self.torque_cap, np.asarray(FIRMWARE_TORQUE_LIMITS[self.finger]))
+        return np.minimum(self.torque_cap, finger_torque_limits(self.finger))
 
     def pressing_with(self, fingertip: Any, rig_frame: str) -> ForceControllerConfig:
         """This configuration on the finger that carries `fingertip` (a hand description's

@@ -1,134 +1,34 @@
-"""Allegro Hand V4 over CAN (python-can, any interface): frame codec and a torque driver.
+"""Allegro Hand V4 torque driver over CAN (python-can, any interface): start-up and
+identification, the joint stream, torques, and a safe stop. Its frames are in allegro_codec.py,
+the socketcand link in socketcand_link.py.
 
-Wire facts (docs/PROTOCOLS.md section 2, from simlabrobotics/allegro_hand_ros_v4 and Wonik's
-ROS 2 SDK): standard ids ``(command << 2) | device``, little-endian payloads, positions in
-encoder counts of 333.3/65536 degrees, torques as int16 PWM = tau[Nm] * 1200 on V4 (800 on older
-8 V hands: ``pwm_per_nm``). HAND_INFO/SERIAL are requested with remote (RTR) frames on a real bus;
-transports that cannot carry RTR (python-can's socketcand client) need ``rtr_requests=False``,
-which sends zero-length data frames instead. The TEMPERATURE frame layout is uncertain.
+HAND_INFO/SERIAL are requested with remote (RTR) frames on a real bus; transports that cannot
+carry RTR (python-can's socketcand client) need ``rtr_requests=False``, which sends zero-length
+data frames instead. Torques as int16 PWM = tau[Nm] * ``pwm_per_nm`` (1200 on V4, 800 on older
+8 V hands).
 """
 from __future__ import annotations
 
 import logging
-import math
-import socket
-import struct
 import threading
 import time
 from dataclasses import dataclass, field
 
 import can
 import numpy as np
-from can.interfaces.socketcand import socketcand as _socketcand_module
 
+from tacforce_ros.devices.allegro_codec import (CMD_FINGER_POSE, CMD_HAND_INFO, CMD_SERIAL,
+                                                CMD_SET_PERIOD, CMD_SET_TORQUE, CMD_SYSTEM_OFF,
+                                                CMD_SYSTEM_ON, CMD_TEMPERATURE, HAND_INFO,
+                                                N_FINGERS, N_JOINTS, POSE, PWM_PER_NM_V4,
+                                                RAD_PER_COUNT, AllegroError, HandInfo,
+                                                decode_int16x4, encode_period, encode_torque,
+                                                split_wire_id, torque_to_pwm, wire_id)
 from tacforce_ros.devices.diagnostics import ArrivalStamp
 from tacforce_ros.devices.polling import LinkLost, PollingDriver
-
-N_FINGERS = 4
-N_JOINTS = 16
-CMD_SYSTEM_ON = 0x40
-CMD_SYSTEM_OFF = 0x41
-CMD_FINGER_POSE = 0x20          # + finger
-CMD_TEMPERATURE = 0x38          # + finger (payload layout uncertain)
-CMD_SET_TORQUE = 0x60           # + finger
-CMD_HAND_INFO = 0x80
-CMD_SET_PERIOD = 0x81
-CMD_SERIAL = 0x88
-
-RAD_PER_COUNT = 333.3 / 65536.0 * math.pi / 180.0
-PWM_PER_NM_V4 = 1200.0
-PWM_PER_NM_8V = 800.0
-# Firmware per-joint torque clamps [Nm], joints 0-3 of index, middle, ring, then thumb.
-FIRMWARE_TORQUE_LIMITS = np.array([0.3125, 0.5625, 0.375, 0.2375] * 3
-                                  + [0.4375, 0.3375, 0.225, 0.225], dtype=np.float64)
-
-POSE = struct.Struct('<4h')
-PERIOD = struct.Struct('<3H')
-HAND_INFO = struct.Struct('<HHBbB')     # hw version, fw version, side, board temp C, status
-
-
-class SocketcandLogFilter(logging.Filter):
-    """Keeps python-can's socketcand client from flooding the log with "Got incomplete message
-    => waiting for more data": one TCP read ending mid-frame, which the client keeps and
-    completes with the next read (no frame is lost:
-    test/devices/test_devices_socketcand_fragments.py); at 1333 frames/s it was hundreds of
-    lines a minute. Its other warnings (discarded data) pass; `suppressed` counts what was
-    dropped. (Its flood of connect failures cannot happen: open_bus connects once.)"""
-
-    PARTIAL_READ = 'Got incomplete message => waiting for more data'
-
-    def __init__(self) -> None:
-        super().__init__()
-        self.suppressed = 0
-
-    def filter(self, record: logging.LogRecord) -> bool:
-        if record.getMessage() == self.PARTIAL_READ:
-            self.suppressed += 1
-            return False
-        return True
-
-
-SOCKETCAND_LOG = SocketcandLogFilter()
-SOCKETCAND_LOGGER = 'can.interfaces.socketcand.socketcand'
-
-
-class AllegroError(RuntimeError):
-    """The hand did not answer, or the bus failed."""
-
-
-def wire_id(command: int, device: int = 0) -> int:
-    """11-bit CAN id of a command, e.g. SET_TORQUE of finger 1 -> 0x184."""
-    return (command << 2) | device
-
-
-def split_wire_id(arbitration_id: int) -> tuple[int, int]:
-    """(command, device) of a CAN id."""
-    return arbitration_id >> 2, arbitration_id & 0x3
-
-
-def torque_to_pwm(tau: np.ndarray, pwm_per_nm: float = PWM_PER_NM_V4) -> np.ndarray:
-    """Nm -> int16 PWM, rounded to nearest (0.35 Nm -> 420 on V4) and saturated to int16."""
-    pwm = np.rint(np.asarray(tau, dtype=np.float64) * pwm_per_nm)
-    return np.clip(pwm, -32768, 32767).astype(np.int16)
-
-
-def encode_torque(pwm4: np.ndarray) -> bytes:
-    return POSE.pack(*(int(v) for v in pwm4))
-
-
-def decode_int16x4(data: bytes) -> np.ndarray:
-    """The 4 int16 fields of a FINGER_POSE or SET_TORQUE payload."""
-    return np.array(POSE.unpack(bytes(data)), dtype=np.int16)
-
-
-def encode_period(position_ms: int, imu_ms: int = 0, temperature_ms: int = 0) -> bytes:
-    return PERIOD.pack(position_ms, imu_ms, temperature_ms)
-
-
-@dataclass(frozen=True)
-class HandInfo:
-    hardware_version: int
-    firmware_version: int
-    side: str                   # 'right' | 'left'
-    board_temperature_c: int
-    servo_on: bool
-    over_temperature: bool
-    internal_comm_fault: bool
-
-    @property
-    def is_v4(self) -> bool:
-        return self.hardware_version >> 8 == 4
-
-    def encode(self) -> bytes:
-        status = (self.servo_on | self.over_temperature << 1 | self.internal_comm_fault << 2)
-        return HAND_INFO.pack(self.hardware_version, self.firmware_version,
-                              0 if self.side == 'right' else 1, self.board_temperature_c, status)
-
-    @classmethod
-    def decode(cls, data: bytes) -> HandInfo:
-        hardware, firmware, side, temperature, status = HAND_INFO.unpack(bytes(data))
-        return cls(hardware, firmware, 'left' if side else 'right', temperature,
-                   bool(status & 1), bool(status & 2), bool(status & 4))
+from tacforce_ros.devices.socketcand_link import (SOCKETCAND_LOG, SOCKETCAND_LOGGER, open_bus,
+                                                 peer_closed, socketcand_socket)
+from tacforce_ros.rig import TORQUE_LIMITS
 
 
 @dataclass(frozen=True)
@@ -151,7 +51,7 @@ class AllegroConfig:
     device_id: int = 0
     position_period_ms: int = 3
     pwm_per_nm: float = PWM_PER_NM_V4
-    torque_limits: tuple[float, ...] = tuple(FIRMWARE_TORQUE_LIMITS)
+    torque_limits: tuple[float, ...] = tuple(TORQUE_LIMITS)
     rtr_requests: bool = True
     reply_timeout: float = 1.0
     stale_after: float = 0.02
@@ -178,70 +78,6 @@ class JointSample:
     stamp: ArrivalStamp
 
 
-# Longest wait on the socketcand server for one socket operation (connect, its greeting, a
-# frame sent): a server that is gone or stopped answering must not hold the driver.
-SOCKETCAND_TIMEOUT_S = 0.5
-_CONNECTING = threading.Lock()     # one socketcand bus made at a time (see open_bus)
-
-
-def _connect_once(sock: socket.socket, host: str, port: int) -> None:
-    sock.settimeout(SOCKETCAND_TIMEOUT_S)       # the greeting's wait too
-    sock.connect((host, port))
-
-
-def open_bus(config: AllegroConfig) -> can.BusABC:
-    """The python-can bus of `config`; for socketcand with every socket operation bounded.
-
-    python-can 4.6's socketcand client retries a refused connection for 10 s without a pause,
-    and waits for the server's greeting, and sends, without a timeout: a driver asked to stop
-    then stayed 10 s, or for ever with a server that accepts and never answers (bench_stop). So
-    its connect is made one attempt, on a socket with SOCKETCAND_TIMEOUT_S as its timeout, for
-    the making of the bus (python-can's connect_to_server, swapped while a lock is held, and put
-    back); then the socket is left blocking (the driver peeks at it without waiting, which a
-    socket timeout would turn into a wait) with SOCKETCAND_TIMEOUT_S as the kernel's send
-    timeout: a send the server does not take fails with BlockingIOError."""
-    kwargs = dict(config.bus_kwargs)
-    if config.interface != 'socketcand':
-        return can.Bus(interface=config.interface, channel=config.channel, **kwargs)
-    where = f'{kwargs.get("host")}:{kwargs.get("port")}'
-    with _CONNECTING:
-        python_cans = _socketcand_module.connect_to_server
-        _socketcand_module.connect_to_server = _connect_once
-        try:
-            bus = can.Bus(interface='socketcand', channel=config.channel, **kwargs)
-        except TimeoutError as error:
-            raise AllegroError(f'the socketcand server at {where} did not answer within '
-                               f'{SOCKETCAND_TIMEOUT_S} s') from error
-        except OSError as error:
-            raise AllegroError(f'no socketcand server at {where}: {error}') from None
-        finally:
-            _socketcand_module.connect_to_server = python_cans
-    sock = _socketcand_socket(bus)
-    sock.settimeout(None)
-    seconds = int(SOCKETCAND_TIMEOUT_S)
-    sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDTIMEO,
-                    struct.pack('ll', seconds, int((SOCKETCAND_TIMEOUT_S - seconds) * 1e6)))
-    return bus
-
-
-def _socketcand_socket(bus: can.BusABC) -> socket.socket | None:
-    """The TCP socket of python-can's socketcand client, None for other interfaces. That client
-    (python-can 4.6, pinned) reads a closed connection as "no data yet": recv() returns b'' and
-    it polls on until the timeout, at 100 % CPU and with no error, so the driver looks for the
-    end of the stream itself."""
-    return getattr(bus, '_SocketCanDaemonBus__socket', None)
-
-
-def _peer_closed(sock: socket.socket) -> bool:
-    """True when the peer closed or reset the TCP connection (reads nothing)."""
-    try:
-        return sock.recv(1, socket.MSG_PEEK | socket.MSG_DONTWAIT) == b''
-    except BlockingIOError:
-        return False            # open, nothing to read
-    except OSError:
-        return True             # reset, or the socket is closed
-
-
 class AllegroV4Driver(PollingDriver[JointSample]):
     """Torque driver: start-up in the constructor (``servos_on`` False: identified only, until
     :meth:`servos_on`), pose stream via poll()/start(), torques via
@@ -260,7 +96,7 @@ class AllegroV4Driver(PollingDriver[JointSample]):
         if config.interface == 'socketcand':
             logging.getLogger(SOCKETCAND_LOGGER).addFilter(SOCKETCAND_LOG)   # once: same object
         self.bus = bus if bus is not None else open_bus(config)
-        self._socket = _socketcand_socket(self.bus)
+        self._socket = socketcand_socket(self.bus)
         # Frames go out from the polling thread (stream requests, safe stops) and the caller's
         # (torques, servos on/off): one at a time, and the stream state with them.
         self._lock = threading.RLock()
@@ -364,7 +200,7 @@ class AllegroV4Driver(PollingDriver[JointSample]):
         samples = []
         try:
             message = self.bus.recv(timeout)
-            if message is None and self._socket is not None and _peer_closed(self._socket):
+            if message is None and self._socket is not None and peer_closed(self._socket):
                 raise LinkLost('link lost: the socketcand server closed the connection')
             while message is not None:
                 stamp = ArrivalStamp.now()

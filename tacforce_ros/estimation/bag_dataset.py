@@ -1,4 +1,5 @@
-"""Calibration bag (rosbag2, docs/CONTRACTS.md) -> CalibrationDataset: pipeline steps 1-3.
+"""Recorded streams -> CalibrationDataset: pipeline steps 1-3, for a calibration bag (rosbag2,
+docs/CONTRACTS.md) and for the simulator's streams in process alike (streams_dataset).
 
 Tactile frames of the pressed array, the F/T wrench and the joint states are low-passed on their
 own time bases, resampled onto the tactile stamps, and the force is projected into the array frame
@@ -96,21 +97,42 @@ def dataset_from_bag(path: str | Path, hand: HandDescription,
                           ('joint', streams.joints)):
         if len(samples) < 2:
             raise DatasetError(f'{path}: only {len(samples)} {name} messages for {array.name}')
-    t_tac, tactile = _increasing(streams.tactile_time, streams.tactile)
-    t_ft, force = _increasing(streams.wrench_time, streams.force)
-    t_q, joints = _increasing(streams.joint_time, streams.joints)
-    tactile = lowpass(tactile, fs=_rate(t_tac))
-    force = lowpass(force, fs=_rate(t_ft))
+    dataset = streams_dataset(hand, kinematics, array.name,
+                              _increasing(streams.tactile_time, streams.tactile),
+                              _increasing(streams.wrench_time, streams.force),
+                              _increasing(streams.joint_time, streams.joints),
+                              plate=str(meta.get('plate', '')),
+                              source=str(meta.get('source', 'lab')))
+    return dataset, streams.dropped
+
+
+Stream = tuple[np.ndarray, np.ndarray]      # (T,) increasing stamps [s], (T, ...) values
+
+
+def streams_dataset(hand: HandDescription, kinematics: HandKinematics, array_name: str,
+                    tactile: Stream, force: Stream, joints: Stream, plate: str, source: str,
+                    rates: tuple[float, float] | None = None,
+                    zero_phase_tactile: bool = True) -> CalibrationDataset:
+    """The one chain from one array's recorded streams to its training set: tactile (n, 3)
+    counts, F/T force (3,) in the sensor frame and joint positions (16,), each on its own
+    stamps. Each stream is low-passed at its own rate (`rates`: tactile and force in Hz, when
+    the recorder knows them; else measured from the stamps), the force and joints are resampled
+    onto the tactile stamps they span, and the force is projected into the array frame {S0}.
+    `zero_phase_tactile` False keeps the frames as the estimator receives them online."""
+    array = hand.array(array_name)
+    (t_tac, frames), (t_ft, wrench), (t_q, q) = tactile, force, joints
+    tactile_rate, force_rate = rates if rates is not None else (_rate(t_tac), _rate(t_ft))
+    frames = lowpass(frames, fs=tactile_rate) if zero_phase_tactile else frames
+    wrench = lowpass(wrench, fs=force_rate)
     start, stop = common_span(t_tac, t_ft, t_q)
     inside = (t_tac >= start) & (t_tac <= stop)
     base = t_tac[inside]
-    force = resample(base, t_ft, force)
-    joints = resample(base, t_q, joints)
-    rotations = np.stack([kinematics.rotation_between(q, hand.ft_frame, array.frame_id)
-                          for q in joints])
+    wrench = resample(base, t_ft, wrench)
+    q = resample(base, t_q, q)
+    rotations = np.stack([kinematics.rotation_between(row, hand.ft_frame, array.frame_id)
+                          for row in q])
     n = base.size
-    dataset = CalibrationDataset(
-        array=array.name, X=tactile[inside], F=project_force(force, rotations),
-        plates=np.full(n, str(meta.get('plate', ''))), sessions=np.zeros(n, dtype=np.int64),
-        time=base - base[0], source=str(meta.get('source', 'lab')), hand_side=hand.side)
-    return dataset, streams.dropped
+    return CalibrationDataset(array=array.name, X=frames[inside],
+                              F=project_force(wrench, rotations), plates=np.full(n, plate),
+                              sessions=np.zeros(n, dtype=np.int64), time=base - base[0],
+                              source=source, hand_side=hand.side)

@@ -1,4 +1,5 @@
-"""Leave-one-plate-out cross-validation (paper Sec. IV-A, V-A): train on 4 plates, test on the 5th."""
+"""Leave-one-plate-out cross-validation (paper Sec. IV-A, V-A): train on 4 plates, test on the
+5th."""
 from __future__ import annotations
 
 import time

@@ -36,6 +36,7 @@ if TYPE_CHECKING:
 
     from tacforce_ros.hand.description import TaxelArray
 
+
 def relu(x: np.ndarray) -> np.ndarray:
     """In-place ReLU on a freshly computed array."""
     return np.maximum(x, 0.0, out=x)

@@ -281,9 +281,9 @@ def stacked_cnn_gradient(torch: Any, params: dict, buffers: dict, x: torch.Tenso
     each step. The first layer, whose input needs no gradient, takes the kernel's rows of the
     image under each output row as a sample of its own (one matmul) with the small matrix all
     rows share (its full matrix is three-quarters zeros): 4% off a step against the full matrix
-    (with autograd's backward), and 6% off a gradient against one matmul per row (2443 -> 2300
-    us in training, the two alternating, 2026-11-26). Per step for 5 networks, torch's grouped convolution and
-    im2col with batched matmuls each took longer than the dense matrices. The BatchNorm, which
+    (with autograd's backward), and 6% off a gradient against one matmul per row. Per step for
+    5 networks, torch's grouped convolution and im2col with batched matmuls each took longer
+    than the dense matrices. The BatchNorm, which
     conv3 follows, is folded into conv3's matrix with the batch's statistics (BatchNormFold):
     the activations are never normalised, and its backward rides on conv3's.
     Why by hand, not autograd: 5 networks on index_tip, 80 000 samples each, one epoch per fit,
@@ -415,7 +415,10 @@ class BatchNormFold:
         column_sums = d_z.sum(dim=1)
         d_matrix = (y_d_z * self.cell_scale[:, :, None]
                     + self.cell_shift[:, :, None] * column_sums[:, None])
-        per_channel = (lambda v: v.view(k, self.cells, channels).sum(dim=1))
+
+        def per_channel(v):
+            return v.view(k, self.cells, channels).sum(dim=1)
+
         g_sum = per_channel(torch.bmm(column_sums[:, None], matrix.transpose(1, 2))[:, 0])
         g_y = per_channel((matrix * y_d_z).sum(dim=2))
         d_gamma = (g_y - self.mean * g_sum) * self.inverse_std

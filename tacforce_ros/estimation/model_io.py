@@ -70,7 +70,8 @@ def save_model(path: str | Path, bundle: ModelBundle) -> Path:
         'f_std': bundle.f_scaler.std, 'f_dead': bundle.f_scaler.dead,
         'x_offset': np.asarray(bundle.x_offset, dtype=np.float64),
     }
-    arrays.update({_STATE_PREFIX + k: np.asarray(v) for k, v in bundle.model.state_arrays().items()})
+    arrays.update({_STATE_PREFIX + k: np.asarray(v)
+                   for k, v in bundle.model.state_arrays().items()})
     header = {
         'format': FORMAT, 'array': array.name, 'hand_side': array.hand_side,
         'n_taxels': int(array.n_taxels),

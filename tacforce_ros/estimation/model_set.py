@@ -22,6 +22,8 @@ import yaml
 from tacforce_ros.estimation.model_io import ModelFileError, load_model, save_model
 from tacforce_ros.estimation.npz import read_npz
 from tacforce_ros.estimation.runtime import HandEstimate, RuntimeEstimator
+from tacforce_ros.estimation.taxel_health import (FROZEN_FRAMES, OUT_OF_RANGE, OUT_OF_RANGE_KIND,
+                                                  TaxelFault, TaxelHealth, fault_status)
 from tacforce_ros.hand.description import HandDescription
 from tacforce_ros.paths import config_dir
 
@@ -38,16 +40,63 @@ class ModelSet:
     taxels: np.ndarray             # flat indices (of the full frame) the sub-hand reads
     kinds: tuple[str, ...]
 
+    # Taxel health (estimation/taxel_health.py), off until check_taxels() (the estimator node
+    # and the in-process closed loop switch it on); out_of_range is the |z| beyond which an
+    # array's input is far outside its calibration (inf: never).
+    health: TaxelHealth | None = None
+    out_of_range: float = OUT_OF_RANGE
+
     def __post_init__(self) -> None:
         # Every array modelled: the sub-hand is the hand, and the per-tick gather is skipped.
         self._whole_hand = not self.skipped
+        sub_hand = self.estimator.hand
+        self._array_of_taxel = np.empty(sub_hand.n_taxels, dtype=np.intp)
+        self._index_in_array = np.empty(sub_hand.n_taxels, dtype=np.intp)
+        for k, array in enumerate(sub_hand.arrays):
+            self._array_of_taxel[array.flat_indices] = k
+            self._index_in_array[array.flat_indices] = np.arange(array.n_taxels)
+
+    def check_taxels(self, frozen_frames: int | None = FROZEN_FRAMES,
+                     out_of_range: float = OUT_OF_RANGE) -> None:
+        """Flag arrays with a clipped, frozen or far out-of-range taxel from now on (None
+        frames: frozen taxels not looked for; out_of_range inf: nor far ones)."""
+        self.health = TaxelHealth(self.estimator.hand.n_taxels, frozen_frames)
+        self.out_of_range = out_of_range
 
     def estimate(self, counts: np.ndarray) -> HandEstimate:
-        """Full-hand flat counts (n_taxels, 3) -> estimates of the modelled arrays."""
+        """Full-hand flat counts (n_taxels, 3) -> estimates of the modelled arrays; with the
+        taxel check on, an array with a faulty taxel is invalid, its status naming the taxel."""
         counts = np.asarray(counts)
         if self._whole_hand or counts.ndim != 2 or counts.shape[0] <= int(self.taxels[-1]):
-            return self.estimator.estimate(counts)     # its own message names a wrong shape
-        return self.estimator.estimate(counts[self.taxels])
+            sub = counts            # the estimator's own message names a wrong shape
+        else:
+            sub = counts[self.taxels]
+        estimate = self.estimator.estimate(sub)
+        if self.health is None or sub.shape != (self.health.n_taxels, 3):
+            return estimate
+        faults = self.health.check(sub)
+        far = estimate.ood_score > self.out_of_range        # inf (no finite input) is flagged
+        if faults or far.any():
+            return self._flag(estimate, faults, far)
+        return estimate
+
+    def _flag(self, estimate: HandEstimate, faults: list[TaxelFault],
+              far: np.ndarray) -> HandEstimate:
+        status, valid = list(estimate.status), estimate.valid.copy()
+        force = estimate.force.copy()
+        for fault in faults:
+            k = int(self._array_of_taxel[fault.taxel])
+            if valid[k]:            # the first fault of an array names it
+                status[k] = fault_status(fault, int(self._index_in_array[fault.taxel]))
+                valid[k] = False
+        for k in np.flatnonzero(far & valid):
+            # no figure in the status (the OOD score carries it): statuses stay few
+            status[k] = fault_status(TaxelFault(-1, OUT_OF_RANGE_KIND),
+                                     self.estimator.worst_taxel(int(k)))
+            valid[k] = False
+        force[~valid] = 0.0
+        return HandEstimate(force=force, valid=valid, status=tuple(status),
+                            ood_score=estimate.ood_score)
 
     def set_tare(self, frames: np.ndarray) -> None:
         """Tare every modelled array from full-hand no-contact frames (T, n_taxels, 3)."""
@@ -162,3 +211,28 @@ def write_synthetic_model_set(folder: str | Path, hand: HandDescription,
                             x_offset=rest, provenance=provenance)
         models[array.name] = save_model(folder / f'{array.name}_M3.npz', bundle).name
     return write_model_config(folder / 'models.yaml', models)
+
+
+class TareWindow:
+    """Untouched tactile frames gathered for a tare, as the estimator node's ~/tare and the
+    in-process closed loop both take them: add() each frame, take() the stack (T, n, 3) float64
+    to ModelSet.set_tare. The node tares once `size` frames are in; the closed loop at the end
+    of its settling hold on those it has."""
+
+    def __init__(self, size: int) -> None:
+        if size < 1:
+            raise ValueError(f'a tare needs at least one frame, not {size}')
+        self.size = size
+        self._frames: list[np.ndarray] = []
+
+    def add(self, counts: np.ndarray) -> bool:
+        """One frame (n_taxels, 3); True once the window holds `size` frames."""
+        self._frames.append(np.array(counts, dtype=np.float64))     # a copy: buffers get reused
+        return len(self._frames) >= self.size
+
+    def take(self) -> np.ndarray:
+        """The frames gathered, emptying the window; ValueError when there are none."""
+        if not self._frames:
+            raise ValueError('no frames to tare on')
+        frames, self._frames = np.stack(self._frames), []
+        return frames

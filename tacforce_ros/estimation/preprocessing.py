@@ -10,7 +10,9 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.signal import butter, sosfiltfilt
 
-SAMPLE_RATE_HZ = 100.0      # XELA uSkin's maximum frame rate, the recording rate of the paper
+from tacforce_ros.rig import RATE_HZ
+
+SAMPLE_RATE_HZ = RATE_HZ    # the tactile frames' rate, the recording rate of the paper
 CUTOFF_HZ = 10.0            # paper Sec. IV-A
 
 

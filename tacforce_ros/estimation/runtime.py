@@ -192,6 +192,12 @@ class RuntimeEstimator:
 
     # --- tick ------------------------------------------------------------------------------
 
+    def worst_taxel(self, k: int) -> int:
+        """The taxel (index within array `k`) with the largest standardised input |z| of the
+        last estimate(): the one its OOD score comes from."""
+        rows = self.hand.arrays[k].flat_indices
+        return int(np.abs(self._frame[rows]).max(axis=1).argmax())
+
     def estimate(self, counts: np.ndarray) -> HandEstimate:
         """Whole-hand flat counts (368, 3) -> per-array forces, validity and OOD scores."""
         counts = np.asarray(counts)

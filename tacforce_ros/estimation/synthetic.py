@@ -16,11 +16,11 @@ from tacforce_ros.estimation.dataset import CalibrationDataset
 from tacforce_ros.estimation.preprocessing import SAMPLE_RATE_HZ, lowpass
 from tacforce_ros.estimation.runtime import RuntimeEstimator
 from tacforce_ros.estimation.training import fit_bundle
+from tacforce_ros.rig import TRAINING_PLATES
 
 if TYPE_CHECKING:
     from tacforce_ros.hand.description import HandDescription, TaxelArray
 
-PLATES = ('button', 'flat', 'fillet', 'convex', 'edge')   # paper Fig. 2d, spherical held out
 # Contact spread [m] per plate, by position in the plate list (indenter sharpness stand-in).
 _SPREADS = (0.003, 0.009, 0.005, 0.006, 0.004)
 _SATURATION_N = 2.0                         # taxel response saturates around this local force
@@ -29,7 +29,7 @@ _NOISE_COUNTS = 3.0
 _FT_NOISE_N = 0.02
 
 
-def synthetic_dataset(array: TaxelArray, plates: Sequence[str] = PLATES,
+def synthetic_dataset(array: TaxelArray, plates: Sequence[str] = TRAINING_PLATES,
                       seconds: float = 60.0, seed: int = 0) -> CalibrationDataset:
     """One recording (session) of `seconds` per plate for `array`; deterministic for a seed."""
     rng = np.random.default_rng(seed)

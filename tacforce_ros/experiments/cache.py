@@ -100,6 +100,17 @@ def node_modules() -> list[str]:
                   if ep.module.startswith(f'{PACKAGE}.nodes.'))
 
 
+def tool_modules(*executables: str) -> list[str]:
+    """Modules behind this package's executables of these names (as installed), for the digest
+    of what a stage runs as a command."""
+    found = {ep.name: ep.module for ep in entry_points(group='console_scripts')
+             if ep.module.startswith(f'{PACKAGE}.')}
+    missing = [name for name in executables if name not in found]
+    if missing:
+        raise ValueError(f'{missing}: not executables of {PACKAGE} (run ./run.sh setup)')
+    return sorted(found[name] for name in executables)
+
+
 def atomic_write(path: str | Path, write: Callable[[Path], object]) -> Path:
     """write(tmp) fills a temporary file beside `path` (same suffix, so writers that append one
     do not), which is then renamed into place: readers never see a half-written file."""

@@ -11,8 +11,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from tacforce_ros.estimation.bag_dataset import streams_dataset
 from tacforce_ros.estimation.dataset import CalibrationDataset, DatasetError
-from tacforce_ros.estimation.preprocessing import common_span, lowpass, project_force, resample
 from tacforce_ros.sim import load_scene, make_simulator
 from tacforce_ros.sim.scene import Scene, calibration_scene_name, session_seed
 
@@ -51,24 +51,12 @@ def simulate_calibration(hand: HandDescription, kinematics: HandKinematics,
     for stream, samples in values.items():
         if len(samples) < 2:
             raise DatasetError(f'{scene.name} seed {seed}: only {len(samples)} {stream} samples')
-    t_tac, t_ft, t_q = (np.asarray(times[s]) for s in ('tactile', 'ft', 'joints'))
-    tactile = np.stack(values['tactile'])
-    if zero_phase_tactile:
-        tactile = lowpass(tactile, fs=scene.tactile_rate)
-    force = lowpass(np.stack(values['ft']), fs=scene.tactile_rate)
-    first, last = common_span(t_tac, t_ft, t_q)
-    inside = (t_tac >= first) & (t_tac <= last)
-    base = t_tac[inside]
-    force = resample(base, t_ft, force)
-    joints = resample(base, t_q, np.stack(values['joints']))
-    rotations = np.stack([kinematics.rotation_between(q, hand.ft_frame, array.frame_id)
-                          for q in joints])
-    n = base.size
-    return CalibrationDataset(array=array.name, X=tactile[inside],
-                              F=project_force(force, rotations),
-                              plates=np.full(n, scene.plate.name),
-                              sessions=np.zeros(n, dtype=np.int64), time=base - base[0],
-                              source='sim', hand_side=hand.side)
+    stream = {s: (np.asarray(times[s]), np.stack(values[s])) for s in times}
+    # A calibration scene steps physics at the tactile rate and samples the F/T every step.
+    return streams_dataset(hand, kinematics, array.name, stream['tactile'], stream['ft'],
+                           stream['joints'], plate=scene.plate.name, source='sim',
+                           rates=(scene.tactile_rate, scene.physics_rate),
+                           zero_phase_tactile=zero_phase_tactile)
 
 
 def simulate_session(hand: HandDescription, kinematics: HandKinematics, array: str, plate: str,

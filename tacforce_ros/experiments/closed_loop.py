@@ -25,6 +25,8 @@ import numpy as np
 
 from tacforce_ros.control.finger_session import FingerSession, Transition
 from tacforce_ros.estimation.metrics import error_stats
+from tacforce_ros.estimation.model_set import TareWindow
+from tacforce_ros.rig import RATE_HZ
 from tacforce_ros.sim import load_scene, make_simulator
 from tacforce_ros.sim.scene import Scene
 
@@ -72,7 +74,7 @@ class CommandLink:
 def run_closed_loop(hand: HandDescription, kinematics: HandKinematics,
                     scene: str | Path | Scene,
                     seed: int, config: ForceControllerConfig, sequence: ForceSequence,
-                    models: ModelSet | None, control_rate: float = 100.0,
+                    models: ModelSet | None, control_rate: float = RATE_HZ,
                     tare_frames: int = 50, settle_seconds: float = SETTLE_SECONDS,
                     estimator_outage: tuple[float, float] | None = None,
                     actuation_delay: float | None = None) -> ClosedLoopTrace:
@@ -112,7 +114,9 @@ def run_closed_loop(hand: HandDescription, kinematics: HandKinematics,
     if settle_ticks < tare_frames:
         raise ValueError(f'settle_seconds {settle_seconds} s holds fewer than the '
                          f'{tare_frames} frames the tare needs at {control_rate:g} Hz')
-    tare: list[np.ndarray] = []
+    tare = TareWindow(tare_frames)
+    if models is not None:      # as the estimator node checks them (its default parameters)
+        models.check_taxels()
     wrenches: list[np.ndarray] = []
     transitions: list[Transition] = []
     ft_zero = np.zeros(3)
@@ -139,11 +143,11 @@ def run_closed_loop(hand: HandDescription, kinematics: HandKinematics,
         if -tare_frames <= tick < 0:
             wrenches.append(sample.ft_wrench[:3])
             if models is not None and frame is not None:
-                tare.append(frame.astype(np.float64))
+                tare.add(frame)
         if tick == 0:
             ft_zero = np.mean(wrenches, axis=0)
             if models is not None:
-                models.set_tare(np.stack(tare))
+                models.set_tare(tare.take())
         if tick >= 0:
             down = estimator_outage is not None and (
                 estimator_outage[0] <= t < estimator_outage[1])

@@ -9,19 +9,19 @@ from __future__ import annotations
 import os
 import socket
 import subprocess
-import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
 
-from tacforce_ros.bringup.processes import run_to_end
+from tacforce_ros.bringup.processes import executable, run_to_end
 from tacforce_ros.control.force_controller import MODE_HOLD, MODE_SAFE
 from tacforce_ros.estimation.metrics import error_stats
 from tacforce_ros.estimation.model_set import load_model_set
+from tacforce_ros.rig import RATE_HZ
 from tacforce_ros.experiments.closed_loop import (METRIC_WINDOW, ClosedLoopTrace, run_closed_loop,
                                                   trace_metrics)
-from tacforce_ros.nodes.session_plan import SESSION_SCENE_ENDED
+from tacforce_ros.bringup.session_plan import SESSION_SCENE_ENDED
 
 if TYPE_CHECKING:
     from tacforce_ros.hand.description import HandDescription
@@ -44,7 +44,6 @@ AGREEMENT_REASON = (
     'magnetic skin the loop\'s resting contact, and its e~, follow the command\'s delay (direct: '
     '0.28 N at 0 ms, 0.19 N at 10 ms, 0.14 N at 20 ms); bench_graph --skin magnetic: e~ within '
     '0.006-0.077 N, at the edge of the tolerance.')
-SESSION_MODULE = 'tacforce_ros.tools.session'   # run as a command, as a user would
 CALIBRATION_SECONDS = 40.0     # simulated seconds of the node-graph calibration session
 # Simulated seconds a closed-loop scene runs before the sequence can start: the command player
 # waits until the controller and the recorder listen (discovery), while the finger holds.
@@ -88,12 +87,13 @@ def run_session(mode: str, scene: str, plate: str, out: Path, sim_duration: floa
     session's fault drill, node, at and down wall seconds; compose: the nodes in one process;
     sequence: the closed loop's force command sequence, None: the command player's default);
     return the bag folder it recorded. Its output is kept in `out`/session.log."""
-    session_exe = Path(sys.prefix) / 'lib' / 'tacforce_ros' / 'session'
-    if not session_exe.is_file():
-        raise NodePathUnavailable(f'{session_exe} is not installed (run ./run.sh setup)')
+    try:
+        session_exe = executable('session')
+    except FileNotFoundError as error:
+        raise NodePathUnavailable(str(error)) from None
     out.mkdir(parents=True, exist_ok=True)
     wall_limit = sim_duration / SLOWEST_REAL_TIME_FACTOR + START_MARGIN_S
-    command = [sys.executable, '-m', SESSION_MODULE, mode, '--scene', scene,
+    command = [str(session_exe), mode, '--scene', scene,   # as a user would run it
                '--array', 'index_tip', '--plate', plate, '--out', str(out),
                '--sim-duration', f'{sim_duration:g}', '--duration', f'{wall_limit:g}',
                '--lockstep' if lockstep else '--no-lockstep', '--ports', *map(str, _free_ports(3))]
@@ -131,7 +131,7 @@ def run_session(mode: str, scene: str, plate: str, out: Path, sim_duration: floa
 
 def closed_loop_against_direct(hand: HandDescription, kinematics: HandKinematics, scene: str,
                                plate: str, seed: int, model_config: Path, sequence, out: Path,
-                               controller, tare_frames: int, control_rate: float = 100.0,
+                               controller, tare_frames: int, control_rate: float = RATE_HZ,
                                lockstep: bool = True, compose: bool = False
                                ) -> tuple[dict, ClosedLoopTrace, ClosedLoopTrace, Path]:
     """The closed loop of `sequence` on `scene` directly (in-process) and through the node

@@ -3,11 +3,6 @@ report. Errors: e_r in %, e_hat / e_track / e_tilde in N, as mean and standard d
 """
 from __future__ import annotations
 
-# The push-plates (Fig. 2d): five for training and the leave-one-plate-out benchmark, the
-# spherical one held out for the online and closed-loop tests.
-TRAINING_PLATES = ('button', 'flat', 'fillet', 'convex', 'edge')
-HELD_OUT_PLATE = 'spherical'
-
 # Table I (tab:offline-results): 5-fold leave-one-plate-out benchmark; tau = "computation time
 # for a single prediction" [ms].
 TABLE_I = {

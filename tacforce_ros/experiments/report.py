@@ -328,8 +328,8 @@ def markdown(doc: dict) -> str:
     lines += ['## Table III — closed-loop force control', '',
               '(1) spherical plate, (2) foam brick, (3) softball, (4) abrasive sponge, '
               '(5) bleach cleanser. Mean ± std over the samples of all runs in t = 16..70 s. '
-              'Each run starts clear of the plate; the F/T sensor is zeroed and the estimator tared '
-              'there before the controller brings the fingertip into contact '
+              'Each run starts clear of the plate; the F/T sensor is zeroed and the estimator '
+              'tared there before the controller brings the fingertip into contact '
               '(experiments/closed_loop.py).', '',
               '| Exp. | e_r [%] sim | e_r [%] paper | e_hat [N] sim | e_hat [N] paper '
               '| e_track [N] sim | e_track [N] paper | e~ [N] sim | e~ [N] paper |',

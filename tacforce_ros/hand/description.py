@@ -14,11 +14,11 @@ import numpy as np
 import yaml
 
 from tacforce_ros.paths import config_dir
+from tacforce_ros.rig import FINGERS
 
 KINDS = ('fingertip', 'phalanx', 'palm')
 ARRAY_KIND_TITLES = {'fingertip': 'curved fingertips', 'phalanx': 'flat phalanx pads',
                      'palm': 'palm pads'}
-FINGERS = ('index', 'middle', 'ring', 'thumb')
 SIDES = ('right', 'left')
 DEFAULT_SIDE = 'right'     # the first hand described: a file that names no hand is of it
 # A prefix to the frame ids (robot_state_publisher's frame_prefix), and what it may be.
@@ -115,7 +115,8 @@ class HandDescription:
         try:
             return self._by_name[name]
         except KeyError:
-            raise KeyError(f'no taxel array named {name!r}; known: {sorted(self._by_name)}') from None
+            raise KeyError(f'no taxel array named {name!r}; known: {sorted(self._by_name)}') \
+                from None
 
     def split(self, flat: np.ndarray) -> list[np.ndarray]:
         """(..., 368, k) in XELA's flat order -> one (..., n_i, k) block per array, config order."""
@@ -262,7 +263,8 @@ def _array(raw: Any, layouts: dict[str, _Layout], where: str, side: str) -> Taxe
     finger = raw.get('finger', 'missing')
     if finger == 'missing':
         raise HandConfigError(f'{where}.finger: missing key (use null for the palm)')
-    if (finger is None) != (layout.kind == 'palm') or (finger is not None and finger not in FINGERS):
+    if (finger is None) != (layout.kind == 'palm') or (finger is not None
+                                                      and finger not in FINGERS):
         raise HandConfigError(f'{where}.finger: {finger!r} does not fit a {layout.kind} array '
                               f'(fingers: {FINGERS}, palm: null)')
     n_taxels = _require(raw, 'n_taxels', int, f'{where}.n_taxels')
@@ -304,7 +306,8 @@ def _check_cross_array(arrays: tuple[TaxelArray, ...]) -> None:
     for a in arrays:
         for idx in a.flat_indices.tolist():
             if not 0 <= idx < total:
-                raise HandConfigError(f'arrays ({a.name}).flat_indices: {idx} outside 0..{total - 1}')
+                raise HandConfigError(f'arrays ({a.name}).flat_indices: {idx} outside '
+                                      f'0..{total - 1}')
             if idx in owner:
                 raise HandConfigError(f'arrays ({a.name}).flat_indices: {idx} duplicates an index '
                                       f'of {owner[idx]}')

@@ -13,7 +13,7 @@ import pinocchio as pin
 
 from tacforce_ros.hand.description import HandConfigError, HandDescription
 
-FINGERS = ('index', 'middle', 'ring', 'thumb')
+from tacforce_ros.rig import FINGERS
 N_JOINTS = 16
 TIP_LINKS = {finger: f'link_{4 * i + 3}.0_tip' for i, finger in enumerate(FINGERS)}
 
@@ -87,7 +87,8 @@ class HandKinematics:
         return placement.rotation.copy(), placement.translation.copy()
 
     def rotation_between(self, q16: np.ndarray, from_frame: str, to_frame: str) -> np.ndarray:
-        """R mapping vectors in `from_frame` into `to_frame`, e.g. R^0_F = (q, 'ft_sensor', 'uskin_index_tip')."""
+        """R mapping vectors in `from_frame` into `to_frame`, e.g. R^0_F = (q, 'ft_sensor',
+        'uskin_index_tip')."""
         r_from = self._placement(q16, self._frame_id(from_frame)).rotation
         r_to = self.data.oMf[self._frame_id(to_frame)].rotation   # same kinematics pass
         return r_to.T @ r_from

@@ -43,22 +43,27 @@ import numpy as np
 from rclpy.clock import Clock, ClockType
 from sensor_msgs.msg import JointState
 
-from tacforce_ros.devices.allegro import (MAX_JOINT_RATE_HZ, N_JOINTS, AllegroConfig, AllegroError,
-                                          AllegroV4Driver, JointSample)
+from tacforce_ros.devices.allegro import (MAX_JOINT_RATE_HZ, AllegroConfig, AllegroV4Driver,
+                                          JointSample)
+from tacforce_ros.devices.allegro_codec import N_JOINTS, AllegroError
 from tacforce_ros.devices.polling import LinkLost
-from tacforce_ros.nodes.common import (GRAVITY, HAND_CONFIG, REALTIME_PRIORITY, ParamSpec,
-                                       ParameterError, StopRequested, hand_parameter,
-                                       kinematics_parameter, publisher_qos, run_node,
-                                       subscriber_qos)
+from tacforce_ros.nodes.node_base import StopRequested
+from tacforce_ros.nodes.parameters import (GRAVITY, HAND_CONFIG, ParamSpec, ParameterError,
+                                           hand_parameter, kinematics_parameter)
+from tacforce_ros.nodes.qos import publisher_qos, subscriber_qos
+from tacforce_ros.nodes.realtime import REALTIME_PRIORITY
+from tacforce_ros.nodes.runner import run_node
 from tacforce_ros.nodes.link_status import STATUS_PARAMETERS
 from tacforce_ros.nodes.managed_driver import AUTOSTART, ManagedDriver
 from tacforce_ros.nodes.messages import stamp
+from tacforce_ros.rig import RATE_HZ
 from tacforce_ros.topics import TOPIC_JOINTS, TOPIC_TORQUE_COMMAND, relative
 
 # Wall-time period of the check that ends the node on a lost link (and, under force control, on
 # a hand the driver made safe): the exit follows the fault within this.
 LINK_CHECK_PERIOD_S = 0.05
 CONNECT_RETRY_S = 0.2          # wall s between attempts to reach the hand at start-up
+
 
 class JointVelocity:
     """Joint velocity from positions: finite differences on the caller's clock, low-passed
@@ -100,7 +105,7 @@ class AllegroDriver(ManagedDriver):
         HAND_CONFIG,
         ParamSpec('control', 'torque', 'torque: joint torques from the torque_command topic; '
                   'off: joint states only, no torque ever sent', choices=('torque', 'off')),
-        ParamSpec('control_rate_hz', 100.0, 'rate of the driver\'s own loop (holds, command '
+        ParamSpec('control_rate_hz', RATE_HZ, 'rate of the driver\'s own loop (holds, command '
                   'timeouts) on the node clock (Hz)', range=(1.0, MAX_JOINT_RATE_HZ)),
         ParamSpec('command_timeout', 0.05, 'a joint without a torque command for this long '
                   'gets zero torque (s, node clock)', range=(0.001, 10.0)),

@@ -15,8 +15,11 @@ from geometry_msgs.msg import Vector3Stamped
 from std_srvs.srv import Trigger
 
 from tacforce_ros.control.command_sequence import ForceSequence, SequenceError
-from tacforce_ros.nodes.common import (FRAME_PREFIX, ParameterError, ParamSpec, TacforceNode,
-                                       publisher_qos, run_node)
+from tacforce_ros.nodes.node_base import TacforceNode
+from tacforce_ros.nodes.parameters import FRAME_PREFIX, ParamSpec, ParameterError
+from tacforce_ros.nodes.qos import publisher_qos
+from tacforce_ros.nodes.runner import run_node
+from tacforce_ros.rig import RATE_HZ
 from tacforce_ros.topics import TOPIC_DESIRED, relative
 
 
@@ -28,7 +31,7 @@ class CommandPlayer(TacforceNode):
     PARAMETERS = (
         ParamSpec('sequence', 'paper_70s', 'command sequence: a YAML path or a name in '
                   'config/commands/'),
-        ParamSpec('rate_hz', 100.0, 'publication rate (Hz)', range=(1.0, 1000.0)),
+        ParamSpec('rate_hz', RATE_HZ, 'publication rate (Hz)', range=(1.0, 1000.0)),
         ParamSpec('frame_id', '', 'frame of the published forces; empty = the sequence\'s own'),
         FRAME_PREFIX,
         ParamSpec('loop', False, 'start over at the end of the sequence'),

@@ -19,9 +19,11 @@ from rclpy.clock import Clock, ClockType
 from tacforce_msgs.msg import CalibrationSample
 
 from tacforce_ros.hand.description import hand_config
-from tacforce_ros.nodes.common import (HAND_CONFIG, ParamSpec, ParameterError, TacforceNode,
-                                       hand_parameter, kinematics_parameter, run_node,
-                                       subscriber_qos)
+from tacforce_ros.nodes.node_base import TacforceNode
+from tacforce_ros.nodes.parameters import (HAND_CONFIG, ParamSpec, ParameterError, hand_parameter,
+                                           kinematics_parameter)
+from tacforce_ros.nodes.qos import subscriber_qos
+from tacforce_ros.nodes.runner import run_node
 from tacforce_ros.nodes.messages import stamp_ns
 from tacforce_ros.recording.campaign import (CampaignError, CampaignPlan, CoverageLimits,
                                              LiveCoverage, coverage_view)

@@ -37,10 +37,13 @@ from __future__ import annotations
 
 import gc
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import Point, WrenchStamped
+from rclpy.clock import Clock, ClockType
 from std_srvs.srv import Trigger
 from tacforce_msgs.msg import ForceEstimateArray, TactileHand
 from visualization_msgs.msg import Marker, MarkerArray
@@ -51,16 +54,21 @@ except ImportError:     # Humble
     from rclpy.qos_event import PublisherEventCallbacks
 
 from tacforce_ros.estimation.causal_filter import FilterDesignError
-from tacforce_ros.estimation.model_set import ModelConfigError, default_model_config, load_model_set
+from tacforce_ros.estimation.model_set import (ModelConfigError, TareWindow, default_model_config,
+                                               load_model_set)
 from tacforce_ros.estimation.preprocessing import SAMPLE_RATE_HZ
-from tacforce_ros.nodes.common import (FRAME_PREFIX, HAND_CONFIG, REALTIME_PRIORITY, RELIABLE_QOS,
-                                       ParamSpec, ParameterError, TacforceNode, events_executor,
-                                       hand_parameter, publisher_qos, run_node, subscriber_qos)
+from tacforce_ros.estimation.taxel_health import FROZEN_FRAMES, OUT_OF_RANGE, TAXEL_STATUS
+from tacforce_ros.nodes.node_base import TacforceNode
+from tacforce_ros.nodes.parameters import (FRAME_PREFIX, HAND_CONFIG, ParamSpec, ParameterError,
+                                           hand_parameter)
+from tacforce_ros.nodes.qos import RELIABLE_QOS, publisher_qos, subscriber_qos
+from tacforce_ros.nodes.realtime import REALTIME_PRIORITY
+from tacforce_ros.nodes.runner import events_executor, run_node
 from tacforce_ros.nodes.messages import stamp
 from tacforce_ros.nodes.serialized import (SerializedMessages, TactileHandDecoder,
                                            serialized_estimates, serialized_wrenches)
-from tacforce_ros.topics import (TOPIC_ESTIMATES, TOPIC_MARKERS, TOPIC_TACTILE,
-                                 array_wrench_topic, relative)
+from tacforce_ros.topics import (TOPIC_DIAGNOSTICS, TOPIC_ESTIMATES, TOPIC_MARKERS,
+                                 TOPIC_TACTILE, array_wrench_topic, relative)
 
 STATUS_STALE = 'stale'
 # Frames the best-effort subscription keeps: a scheduling stall of a busy machine delays frames
@@ -68,6 +76,7 @@ STATUS_STALE = 'stale'
 # with the sensor-data depth 5, none in 3 runs with 20); each frame keeps its own stamp, and a
 # backlog clears at ~0.3 ms a frame.
 FRAME_QUEUE_DEPTH = 20
+FAULT_LOG_PERIOD_S = 1.0    # at most one line a second per array about its taxels
 
 
 
@@ -96,6 +105,14 @@ class Estimator(TacforceNode):
         ParamSpec('lowpass_order', 2, 'Butterworth order of that low-pass', range=(1, 8)),
         ParamSpec('frame_rate_hz', SAMPLE_RATE_HZ, 'tactile frame rate the low-pass is designed '
                   'for (Hz)', range=(1.0, 10000.0)),
+        ParamSpec('frozen_frames', FROZEN_FRAMES, 'a taxel whose three channels stay unchanged '
+                  'this many frames in a row is frozen and its array\'s estimate invalid; 0 = not '
+                  'looked for', range=(0, 100000)),
+        ParamSpec('out_of_range', OUT_OF_RANGE, 'an array whose standardised input |z| exceeds '
+                  'this is far outside its calibration and its estimate invalid; 0 = never',
+                  range=(0.0, 1e9)),
+        ParamSpec('diagnostics_period', 1.0, 'taxel health on /diagnostics every this many wall '
+                  'seconds; 0 = never', range=(0.0, 3600.0)),
         REALTIME_PRIORITY,
     )
 
@@ -113,7 +130,19 @@ class Estimator(TacforceNode):
                                               p['lowpass_order'])
         except FilterDesignError as exc:
             raise ParameterError(f'lowpass_hz: {exc}') from None
+        if p['frozen_frames'] == 1:
+            raise ParameterError('frozen_frames: 1 would flag every taxel; 0 (off) or 2 and more')
+        self.models.check_taxels(p['frozen_frames'] or None, p['out_of_range'] or np.inf)
         self.names = tuple(a.name for a in self.models.arrays)
+        self._faults: dict[str, str] = {}      # array -> its latest taxel fault, this period
+        self._faulty_frames = 0
+        self._faulty_now: dict[str, str] = {}  # array -> its fault in the last frame (the log)
+        self._fault_logged: dict[str, float] = {}  # array -> monotonic s of its last line
+        if p['diagnostics_period'] > 0:
+            self.diagnostics_publisher = self.create_publisher(
+                DiagnosticArray, TOPIC_DIAGNOSTICS, publisher_qos(TOPIC_DIAGNOSTICS))
+            self.create_timer(p['diagnostics_period'], self._report_taxels,
+                              clock=Clock(clock_type=ClockType.STEADY_TIME))
         self.frames = tuple(self.frame(a.frame_id) for a in self.models.arrays)
         # rclpy's default QoS-event handlers (incompatible QoS or type: a log line) would add two
         # waitables per publisher, 38 of the 42 an executor polls per frame; subscribers of these
@@ -149,7 +178,7 @@ class Estimator(TacforceNode):
         # estimates are published only once the start-up tare is done.
         tare_loaded = self._load_tare_file()
         tare_at_start = p['tare_at_start'] and not tare_loaded
-        self._tare_buffer: list[np.ndarray] | None = [] if tare_at_start else None
+        self._tare_window = TareWindow(p['tare_frames']) if tare_at_start else None
         self._tared = not tare_at_start
         self.rejected = 0
         self.get_logger().info(
@@ -178,7 +207,7 @@ class Estimator(TacforceNode):
             self.get_logger().warn(f'tactile frame refused ({self.rejected} so far): {exc}',
                                    throttle_duration_sec=5.0)
             return
-        if self._tare_buffer is not None:
+        if self._tare_window is not None:
             self._collect_tare(counts)
         if not self._tared:
             return
@@ -186,6 +215,8 @@ class Estimator(TacforceNode):
         self.wrenches.set_stamp(stamp_ns)
         self.wrenches.set('force', estimate.force)
         valid = estimate.valid
+        if np.count_nonzero(valid) < valid.size or self._faulty_now:
+            self._note_faults(estimate.status)
         for k, publisher in enumerate(self.wrench_publishers):
             if valid[k]:
                 publisher.publish(self.wrenches.message(k))
@@ -211,6 +242,49 @@ class Estimator(TacforceNode):
         layout.set('ood_score', ood_score)
         return layout.message(0)
 
+    # --- taxel health ----------------------------------------------------------------------
+
+    def _note_faults(self, status: tuple[str, ...]) -> None:
+        """Logs each array's taxel fault when it begins or changes, and when it ends; keeps
+        the period's faults for /diagnostics."""
+        now = {name: why for name, why in zip(self.names, status) if why.startswith(TAXEL_STATUS)}
+        wall = time.monotonic()
+
+        def may_log(name: str) -> bool:     # a taxel flickering at a rail: a line a second
+            if wall - self._fault_logged.get(name, -np.inf) < FAULT_LOG_PERIOD_S:
+                return False
+            self._fault_logged[name] = wall
+            return True
+
+        for name, why in now.items():
+            if self._faulty_now.get(name) != why and may_log(name):
+                self.get_logger().warning(f'{name}: {why}; its estimate is invalid')
+        for name in self._faulty_now.keys() - now.keys():
+            if may_log(name):
+                self.get_logger().info(f'{name}: taxels healthy again')
+        self._faulty_now = now
+        self._faults.update(now)
+        self._faulty_frames += bool(now)
+
+    def _report_taxels(self) -> None:
+        """/diagnostics: WARN naming each array whose estimate a taxel fault made invalid in
+        the period, OK otherwise."""
+        faults, frames = self._faults, self._faulty_frames
+        self._faults, self._faulty_frames = {}, 0
+        if faults:
+            level = DiagnosticStatus.WARN
+            message = '; '.join(f'{n}: {w}' for n, w in faults.items())
+        else:
+            level, message = DiagnosticStatus.OK, 'no faulty taxel'
+        status = DiagnosticStatus(
+            level=level, name=f'{self.get_fully_qualified_name()}: taxels', message=message,
+            hardware_id=self.hand.base_frame,
+            values=[KeyValue(key=n, value=w) for n, w in faults.items()]
+            + [KeyValue(key='faulty_frames', value=str(frames))])
+        array = DiagnosticArray(status=[status])
+        array.header.stamp = self.get_clock().now().to_msg()
+        self.diagnostics_publisher.publish(array)
+
     # --- staleness -------------------------------------------------------------------------
 
     def _on_stale(self) -> None:
@@ -223,7 +297,7 @@ class Estimator(TacforceNode):
 
     def _on_tare(self, request: Trigger.Request, response: Trigger.Response
                  ) -> Trigger.Response:
-        self._tare_buffer = []
+        self._tare_window = TareWindow(self.params['tare_frames'])
         response.success = True
         response.message = (f'taring {len(self.names)} arrays from the next '
                             f'{self.params["tare_frames"]} frames; keep them untouched')
@@ -231,10 +305,9 @@ class Estimator(TacforceNode):
         return response
 
     def _collect_tare(self, counts: np.ndarray) -> None:
-        self._tare_buffer.append(counts)
-        if len(self._tare_buffer) < self.params['tare_frames']:
+        if not self._tare_window.add(counts):
             return
-        frames, self._tare_buffer = np.stack(self._tare_buffer), None
+        frames, self._tare_window = self._tare_window.take(), None
         try:
             self.models.set_tare(frames)
         except ValueError as exc:

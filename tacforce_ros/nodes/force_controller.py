@@ -32,12 +32,16 @@ from tacforce_msgs.msg import ControllerState, ForceEstimateArray
 
 from tacforce_ros.control.finger_session import FingerSession
 from tacforce_ros.control.force_controller import ControllerConfigError, ForceControllerConfig
-from tacforce_ros.devices.allegro import MAX_JOINT_RATE_HZ, N_JOINTS
-from tacforce_ros.nodes.common import (FRAME_PREFIX, GRAVITY, HAND_CONFIG, REALTIME_PRIORITY,
-                                       ParamSpec, ParameterError, TacforceNode, hand_parameter,
-                                       kinematics_parameter, publisher_qos, run_node,
-                                       subscriber_qos)
+from tacforce_ros.devices.allegro import MAX_JOINT_RATE_HZ
+from tacforce_ros.devices.allegro_codec import N_JOINTS
+from tacforce_ros.nodes.node_base import TacforceNode
+from tacforce_ros.nodes.parameters import (FRAME_PREFIX, GRAVITY, HAND_CONFIG, ParamSpec,
+                                           ParameterError, hand_parameter, kinematics_parameter)
+from tacforce_ros.nodes.qos import publisher_qos, subscriber_qos
+from tacforce_ros.nodes.realtime import REALTIME_PRIORITY
+from tacforce_ros.nodes.runner import run_node
 from tacforce_ros.nodes.messages import stamp, stamp_ns, vector3
+from tacforce_ros.rig import RATE_HZ
 from tacforce_ros.topics import (TOPIC_CONTROLLER_STATE, TOPIC_DESIRED, TOPIC_ESTIMATES,
                                  TOPIC_JOINTS, TOPIC_TORQUE_COMMAND, relative)
 
@@ -61,7 +65,7 @@ class ForceControllerNode(TacforceNode):
     NODE_NAME = 'force_controller'
     PARAMETERS = (
         HAND_CONFIG, FRAME_PREFIX,
-        ParamSpec('control_rate_hz', 100.0, 'controller loop rate (Hz, node clock), up to the '
+        ParamSpec('control_rate_hz', RATE_HZ, 'controller loop rate (Hz, node clock), up to the '
                   '333 Hz joint stream', range=(1.0, MAX_JOINT_RATE_HZ)),
         ParamSpec('estimate_array', 'index_tip', 'array whose estimate closes the loop'),
         GRAVITY,

@@ -23,8 +23,9 @@ from std_srvs.srv import Trigger
 
 from tacforce_ros.devices.netft import (FORCE_UNITS_SI, TORQUE_UNITS_SI, NetFtClient, NetFtConfig,
                                         WrenchSample)
-from tacforce_ros.nodes.common import (FRAME_PREFIX, ParameterError, ParamSpec, publisher_qos,
-                                       run_node)
+from tacforce_ros.nodes.parameters import FRAME_PREFIX, ParamSpec, ParameterError
+from tacforce_ros.nodes.qos import publisher_qos
+from tacforce_ros.nodes.runner import run_node
 from tacforce_ros.nodes.link_status import STATUS_PARAMETERS
 from tacforce_ros.nodes.managed_driver import AUTOSTART, ManagedDriver
 from tacforce_ros.nodes.messages import wrench_stamped

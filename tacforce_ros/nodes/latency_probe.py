@@ -1,4 +1,4 @@
-"""The probe of bench_ros (tools/bench_ros.py): a node that feeds the estimator node frames and
+"""The probe of bench_ros (benchmarks/bench_ros.py): a node that feeds the estimator node frames and
 times what comes back, and watches the controller's tick stamps. How and why it measures as it
 does is in that tool's description."""
 from __future__ import annotations
@@ -15,7 +15,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from rclpy.serialization import serialize_message
 from tacforce_msgs.msg import ControllerState, ForceEstimateArray, TactileHand
 
-from tacforce_ros.nodes.common import publisher_qos
+from tacforce_ros.nodes.qos import publisher_qos
 from tacforce_ros.nodes.messages import tactile_hand
 from tacforce_ros.topics import (TOPIC_CONTROLLER_STATE, TOPIC_ESTIMATES, TOPIC_TACTILE,
                                  array_wrench_topic)

@@ -22,7 +22,9 @@ from rclpy.clock import Clock, ClockType
 from tacforce_ros.devices.diagnostics import (ERROR, LEVEL_NAMES, OK, STALE, WARN,
                                               LinkDiagnostics, link_health)
 from tacforce_ros.devices.polling import PollingDriver
-from tacforce_ros.nodes.common import ParamSpec, TacforceNode, publisher_qos
+from tacforce_ros.nodes.node_base import TacforceNode
+from tacforce_ros.nodes.parameters import ParamSpec
+from tacforce_ros.nodes.qos import publisher_qos
 from tacforce_ros.topics import TOPIC_DIAGNOSTICS
 
 # Parameters every driver node with a link-health report declares.

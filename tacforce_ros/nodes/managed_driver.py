@@ -26,7 +26,8 @@ from collections.abc import Callable
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
 
 from tacforce_ros.devices.polling import PollingDriver
-from tacforce_ros.nodes.common import ParameterError, ParamSpec, StopRequested, TacforceNode
+from tacforce_ros.nodes.node_base import StopRequested, TacforceNode
+from tacforce_ros.nodes.parameters import ParamSpec, ParameterError
 from tacforce_ros.nodes.link_status import LinkStatusReporter
 
 AUTOSTART = ParamSpec('autostart', True, 'configure and activate at start-up; false: start '

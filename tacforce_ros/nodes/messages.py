@@ -11,20 +11,13 @@ from collections.abc import Sequence
 
 import numpy as np
 from builtin_interfaces.msg import Time
-from geometry_msgs.msg import Vector3, WrenchStamped
+from geometry_msgs.msg import Vector3, Wrench, WrenchStamped
+from sensor_msgs.msg import JointState
 from std_msgs.msg import Header
 from tacforce_msgs.msg import TactileArray, TactileHand
 
+from tacforce_ros import message_build as build
 from tacforce_ros.hand.description import HandDescription
-
-
-def stamp(ns: int) -> Time:
-    sec, nanosec = divmod(int(ns), 1_000_000_000)
-    return Time(sec=sec, nanosec=nanosec)
-
-
-def stamp_ns(time: Time) -> int:
-    return time.sec * 1_000_000_000 + time.nanosec
 
 
 def _typed(values: np.ndarray, typecode: str, dtype: type) -> array.array:
@@ -33,43 +26,37 @@ def _typed(values: np.ndarray, typecode: str, dtype: type) -> array.array:
     return out
 
 
+KIT = build.Kit(Time=Time, Header=Header, Vector3=Vector3, Wrench=Wrench,
+                WrenchStamped=WrenchStamped, TactileArray=TactileArray, TactileHand=TactileHand,
+                JointState=JointState,
+                uint16=lambda v: _typed(v, 'H', np.uint16),
+                float32=lambda v: _typed(v, 'f', np.float32),
+                float64=lambda v: _typed(v, 'd', np.float64))
+
+
+def stamp(ns: int) -> Time:
+    return build.stamp(KIT, ns)
+
+
+def stamp_ns(time: Time) -> int:
+    return time.sec * 1_000_000_000 + time.nanosec
+
+
 def vector3(values: Sequence[float]) -> Vector3:
-    return Vector3(x=float(values[0]), y=float(values[1]), z=float(values[2]))
+    return build.vector3(KIT, values)
 
 
 def wrench_stamped(ns: int, frame_id: str, force: Sequence[float],
                    torque: Sequence[float] = (0.0, 0.0, 0.0)) -> WrenchStamped:
-    msg = WrenchStamped()
-    msg.header.stamp = stamp(ns)
-    msg.header.frame_id = frame_id
-    msg.wrench.force = vector3(force)
-    msg.wrench.torque = vector3(torque)
-    return msg
+    return build.wrench_stamped(KIT, ns, frame_id, force, torque)
 
 
 def tactile_hand(ns: int, hand: HandDescription, counts: np.ndarray,
                  temperatures: np.ndarray | None, server_time: float,
                  server_sequence: int, frame_prefix: str = '') -> TactileHand:
-    """Whole-hand message from XELA's flat (368, 3) counts; one TactileArray per hand array,
-    each stamped alike and framed in its array frame {S0} (after `frame_prefix`)."""
-    msg = TactileHand()
-    msg.header.stamp = stamp(ns)
-    msg.header.frame_id = frame_prefix + hand.base_frame
-    msg.server_time = float(server_time)
-    msg.server_sequence = int(server_sequence) & 0xFFFFFFFF
-    per_temp = (hand.split(np.asarray(temperatures)[:, None]) if temperatures is not None
-                and np.size(temperatures) else [None] * len(hand.arrays))
-    for spec, block, temps in zip(hand.arrays, hand.split(np.asarray(counts)), per_temp):
-        item = TactileArray()
-        item.header = Header(stamp=msg.header.stamp, frame_id=frame_prefix + spec.frame_id)
-        item.name = spec.name
-        item.x = _typed(block[:, 0], 'H', np.uint16)
-        item.y = _typed(block[:, 1], 'H', np.uint16)
-        item.z = _typed(block[:, 2], 'H', np.uint16)
-        if temps is not None:
-            item.temperature = _typed(temps[:, 0], 'f', np.float32)
-        msg.arrays.append(item)
-    return msg
+    """Whole-hand message (message_build.tactile_hand) as rclpy's message class."""
+    return build.tactile_hand(KIT, ns, hand, counts, temperatures, server_time, server_sequence,
+                              frame_prefix)
 
 
 def flat_counts(msg: TactileHand, hand: HandDescription) -> np.ndarray:

@@ -57,12 +57,14 @@ from std_srvs.srv import SetBool
 from sensor_msgs.msg import JointState
 from tacforce_msgs.msg import CalibrationSample, ControllerState
 
-from tacforce_ros.nodes.common import (FRAME_PREFIX, HAND_CONFIG, RELIABLE_QOS, ParamSpec,
-                                       ParameterError, TacforceNode, hand_parameter,
-                                       publisher_qos, run_node, subscriber_qos)
+from tacforce_ros.nodes.node_base import TacforceNode
+from tacforce_ros.nodes.parameters import (FRAME_PREFIX, HAND_CONFIG, ParamSpec, ParameterError,
+                                           hand_parameter)
+from tacforce_ros.nodes.qos import RELIABLE_QOS, publisher_qos, subscriber_qos
+from tacforce_ros.nodes.runner import run_node
 from tacforce_ros.nodes.messages import stamp, wrench_stamped
 from tacforce_ros.nodes.serialized import header_stamp_ns
-from tacforce_ros.nodes.session_plan import SCENE_DONE_MARKER
+from tacforce_ros.bringup.session_plan import SCENE_DONE_MARKER
 from tacforce_ros.sim import SceneError, make_simulator
 from tacforce_ros.sim.emulators.allegro import V4_HAND_INFO, AllegroEmulator
 from tacforce_ros.sim.emulators.base import Pacer

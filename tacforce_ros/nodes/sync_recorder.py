@@ -39,8 +39,10 @@ from tacforce_msgs.srv import StartRecording
 
 from tacforce_ros.bagio import (TOPIC_TYPES, BagError, CalibrationBagWriter, calibration_sample,
                                 session_metadata, typestore)
-from tacforce_ros.nodes.common import (HAND_CONFIG, ParamSpec, ParameterError, TacforceNode,
-                                       hand_parameter, publisher_qos, run_node, subscriber_qos)
+from tacforce_ros.nodes.node_base import TacforceNode
+from tacforce_ros.nodes.parameters import HAND_CONFIG, ParamSpec, ParameterError, hand_parameter
+from tacforce_ros.nodes.qos import publisher_qos, subscriber_qos
+from tacforce_ros.nodes.runner import run_node
 from tacforce_ros.recording.synchroniser import ApproximateTimeSynchroniser
 from tacforce_ros.topics import (TOPIC_CONTROLLER_STATE, TOPIC_DESIRED, TOPIC_JOINTS,
                                  TOPIC_SAMPLE, TOPIC_SIM_CONTACT, TOPIC_TACTILE, TOPIC_WRENCH,

@@ -24,7 +24,8 @@ from collections.abc import Sequence
 
 import importlib
 
-from tacforce_ros.nodes.common import EXIT_BAD_PARAMETERS, TacforceNode, run_nodes
+from tacforce_ros.nodes.node_base import TacforceNode
+from tacforce_ros.nodes.runner import EXIT_BAD_PARAMETERS, run_nodes
 
 # Node name (= its executable and module under tacforce_ros.nodes): its class, imported only
 # when hosted (the simulator's module alone pulls in MuJoCo).

@@ -25,8 +25,10 @@ from tacforce_msgs.msg import TactileHand
 
 from tacforce_ros.devices.device_clock import DEFAULT_MAX_SKEW, DeviceClock
 from tacforce_ros.devices.xela import XelaClient, XelaConfig, XelaFrame
-from tacforce_ros.nodes.common import (FRAME_PREFIX, HAND_CONFIG, ParamSpec, ParameterError,
-                                       hand_parameter, publisher_qos, run_node)
+from tacforce_ros.nodes.parameters import (FRAME_PREFIX, HAND_CONFIG, ParamSpec, ParameterError,
+                                           hand_parameter)
+from tacforce_ros.nodes.qos import publisher_qos
+from tacforce_ros.nodes.runner import run_node
 from tacforce_ros.nodes.link_status import STATUS_PARAMETERS
 from tacforce_ros.nodes.managed_driver import AUTOSTART, ManagedDriver
 from tacforce_ros.nodes.messages import tactile_hand

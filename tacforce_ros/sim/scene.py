@@ -22,6 +22,7 @@ import numpy as np
 import yaml
 
 from tacforce_ros.paths import config_dir
+from tacforce_ros.rig import FINGERS
 
 KINDS = ('calibration', 'closed_loop')
 FINGER_FIELDS = {'pose': 4, 'others': 12, 'others_kp': 0, 'others_kd': 0, 'tip_radius': 0,
@@ -87,7 +88,7 @@ CALIBRATION_PREFIX = 'calibration_'
 CALIBRATION_DEFAULTS = '_calibration'
 CLOSED_LOOP_PREFIX = 'closed_loop_'
 CLOSED_LOOP_FINGER = 'index'        # the finger of the closed_loop_<object> scene files
-CLOSED_LOOP_FINGERS = ('index', 'middle', 'ring', 'thumb')
+CLOSED_LOOP_FINGERS = FINGERS      # every finger has its closed-loop scene
 
 
 def list_scenes() -> list[str]:
@@ -241,7 +242,7 @@ def _effects(raw: dict, where: str) -> dict[str, dict[str, Any]]:
             raise SceneError(f'{where}: field "effects.{name}" must be a mapping of parameters')
         try:
             EFFECTS[name](**params)
-        except TypeError as exc:
+        except (TypeError, ValueError) as exc:
             raise SceneError(f'{where}: field "effects.{name}": {exc}') from exc
         result[name] = dict(params)
     return result

@@ -93,3 +93,4 @@ class TactileSensor:
         state.temperatures = self._warm
         self.pipeline.run('counts', state)
         state.counts_out = to_uint16(state.counts)
+        self.pipeline.run('readout', state)

@@ -29,7 +29,7 @@ from tqdm import tqdm
 
 from tacforce_ros import bagio
 from tacforce_ros.estimation.dataset import DatasetError
-from tacforce_ros.experiments.paper_reference import TRAINING_PLATES
+from tacforce_ros.rig import TRAINING_PLATES
 from tacforce_ros.estimation.preprocessing import StaticSegmentError
 from tacforce_ros.hand.description import SIDES, hand_config, load_hand
 from tacforce_ros.recording.campaign import (Campaign, CampaignError, CampaignPlan, SessionSlot,

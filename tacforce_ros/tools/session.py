@@ -1,7 +1,7 @@
 """session: run a calibration or closed-loop session without `ros2 launch`.
 
 Starts the same executables with the same parameter files and argument-derived overrides as
-launch/<mode>.launch.py (both read tacforce_ros.nodes.session_plan), waits for Ctrl-C,
+launch/<mode>.launch.py (both read tacforce_ros.bringup.session_plan), waits for Ctrl-C,
 `--duration` seconds (wall time), the end of the scene (`--sim-duration` simulated seconds:
 sim_world then logs session_plan.SCENE_DONE_MARKER) or for a node to exit, then stops every node
 cleanly: SIGINT, wait `--grace` s, then kill. Prints where the bag is. Exit code 0 when every
@@ -34,15 +34,14 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from tacforce_ros.bringup.processes import (cpu_seconds, first_exited, start_nodes,
+from tacforce_ros.bringup.processes import (cpu_report, cpu_seconds, first_exited, start_nodes,
                                            stop_nodes)
-from tacforce_ros.nodes.session_plan import (CAN_PORT, MODES, NETFT_PORT, SCENE_DONE_MARKER,
+from tacforce_ros.bringup.session_plan import (CAN_PORT, MODES, NETFT_PORT, SCENE_DONE_MARKER,
                                              SESSION_SCENE_ENDED, XELA_PORT, NodeLaunch,
                                              PlanError, SessionArgs, campaign_session, plan)
 from tacforce_ros.paths import output_folder
 
 POLL_S = 0.1
-CPU_REPORT = 'session: CPU seconds per process:'
 
 
 class SceneLog:
@@ -155,8 +154,7 @@ def run(args: SessionArgs, duration: float | None, grace: float,
             time.sleep(POLL_S)
     finally:
         cpu = {name: cpu_seconds(proc.pid) for name, proc in procs}
-        print(f'{CPU_REPORT} ' + ', '.join(f'{name}={seconds:.1f}' for name, seconds in cpu.items()
-                                        if seconds is not None), flush=True)
+        print(cpu_report(cpu), flush=True)
         codes = stop_nodes(procs, grace)
         for sig, handler in previous.items():
             signal.signal(sig, handler)

@@ -20,8 +20,9 @@ from tacforce_ros.recording.campaign import SessionSlot
 from tacforce_ros.recording.sim_session import record_session
 from tacforce_ros.sim import load_scene
 from tacforce_ros.sim.scene import calibration_scene_name
+from tacforce_ros.rig import HELD_OUT_PLATE, TRAINING_PLATES
 
-PLATES = ('button', 'flat', 'fillet', 'convex', 'edge', 'spherical')
+PLATES = (*TRAINING_PLATES, HELD_OUT_PLATE)
 ARRAYS = ('index_tip', 'index_middle')     # the paper's Table I arrays
 
 

@@ -256,7 +256,7 @@ def main(argv: list[str] | None = None) -> int:
                                  'cross_validation': cv})
     write_model_lists(args.out, report)
     if not args.no_cv:
-        from tacforce_ros.experiments.plots import hand_errors
+        from tacforce_ros.hand.figure import hand_errors
         for kind in args.kinds:
             hand_errors(hand, {e['array']: e['cross_validation']['e_hat_mean']
                                for e in report['models'] if e['kind'] == kind},

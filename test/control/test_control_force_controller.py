@@ -6,10 +6,11 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from tacforce_ros.control.force_controller import (FIRMWARE_TORQUE_LIMITS, MODE_CLOSED_LOOP,
+from tacforce_ros.control.force_controller import (MODE_CLOSED_LOOP,
                                                    MODE_HOLD, MODE_OPEN_LOOP, MODE_SAFE,
                                                    ControllerConfigError, ForceController,
                                                    ForceControllerConfig, saturation_scale)
+from tacforce_ros.rig import finger_torque_limits
 
 DT = 0.01   # the paper's 100 Hz control loop
 
@@ -124,7 +125,7 @@ def test_saturation_keeps_direction_within_every_limit(f, q, qdot):
     qdot16 = np.r_[qdot, np.zeros(12)]
     tau, state = ctrl.update(0.0, q16, qdot16, np.zeros(3), 0.0, 0.0, np.asarray(f))
     raw = state.tau_unsaturated
-    limits = np.minimum(0.35, FIRMWARE_TORQUE_LIMITS['index'])
+    limits = np.minimum(0.35, finger_torque_limits('index'))
     assert np.all(np.abs(tau) <= limits * (1 + 1e-12))
     assert np.max(np.abs(tau)) <= 0.35 * (1 + 1e-12)
     # Same direction: tau = s * raw with one s in (0, 1], so every component ratio is unchanged.
@@ -135,7 +136,7 @@ def test_saturation_keeps_direction_within_every_limit(f, q, qdot):
 
 
 def test_firmware_clamp_of_a_weak_joint_scales_the_whole_finger():
-    limits = np.minimum(0.35, FIRMWARE_TORQUE_LIMITS['index'])     # joint 3: 0.2375 Nm
+    limits = np.minimum(0.35, finger_torque_limits('index'))     # joint 3: 0.2375 Nm
     raw = np.array([0.1, 0.2, 0.1, 0.3])    # within the 0.35 cap, over joint 3's clamp
     scale = saturation_scale(raw, limits)
     assert scale == pytest.approx(0.2375 / 0.3)
@@ -254,9 +255,9 @@ def test_the_shipped_watchdog_holds_within_what_the_fault_drill_asks():
     closed-loop scene's simulated clock) inside the hold the fault drill asks for."""
     import yaml
 
-    from tacforce_ros.nodes.session_plan import params_file
+    from tacforce_ros.bringup.session_plan import params_file
     from tacforce_ros.sim.scene import load_scene
-    from tacforce_ros.tools.bench_graph import HOLD_WITHIN_S, LOOP_SCENE
+    from tacforce_ros.benchmarks.bench_graph import HOLD_WITHIN_S, LOOP_SCENE
     shipped = ForceControllerConfig.from_yaml(params_file('force_controller'))
     node = yaml.safe_load(params_file('force_controller').read_text())
     rate = node['/**/force_controller']['ros__parameters']['control_rate_hz']
@@ -429,15 +430,6 @@ def test_parameter_file_loads_and_unknown_keys_are_refused(tmp_path):
     assert dataclasses.replace(cfg, k_i=(0.0, 0.0, 0.0)).k_i == (0.0, 0.0, 0.0)
     with pytest.raises(ControllerConfigError, match='kp'):
         ForceControllerConfig.from_mapping({'kp': [1, 1, 1, 1]})
-
-
-def test_class_defaults_are_the_project_parameter_file():
-    """One source of gains: the node's declared defaults may not drift from the file."""
-    from tacforce_ros.paths import config_dir
-    project = ForceControllerConfig.from_yaml(config_dir() / 'params' / 'force_controller.yaml')
-    # Only the estimate frame differs: the class default is the force frame itself (no turn).
-    assert project.estimate_frame == 'uskin_index_tip'
-    assert dataclasses.replace(project, estimate_frame='') == ForceControllerConfig()
 
 
 def test_pressing_with_another_fingertip_keeps_the_law_and_gives_the_thumb_its_own_gains(

@@ -13,12 +13,14 @@ from hypothesis import given
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
-from tacforce_ros.devices.allegro import (CMD_FINGER_POSE, CMD_HAND_INFO, CMD_SERIAL,
-                                          CMD_SET_PERIOD, CMD_SET_TORQUE, CMD_SYSTEM_OFF,
-                                          CMD_SYSTEM_ON, FIRMWARE_TORQUE_LIMITS, PWM_PER_NM_8V,
-                                          RAD_PER_COUNT, AllegroConfig, AllegroError,
-                                          AllegroV4Driver, HandInfo, decode_int16x4,
-                                          encode_period, encode_torque, torque_to_pwm, wire_id)
+from tacforce_ros.devices.allegro import AllegroConfig, AllegroV4Driver
+from tacforce_ros.devices.allegro_codec import (CMD_FINGER_POSE, CMD_HAND_INFO, CMD_SERIAL,
+                                                CMD_SET_PERIOD, CMD_SET_TORQUE, CMD_SYSTEM_OFF,
+                                                CMD_SYSTEM_ON, PWM_PER_NM_8V, RAD_PER_COUNT,
+                                                AllegroError, HandInfo, decode_int16x4,
+                                                encode_period, encode_torque, torque_to_pwm,
+                                                wire_id)
+from tacforce_ros.rig import TORQUE_LIMITS
 from tacforce_ros.sim.emulators.allegro import AllegroEmulator
 
 POSE = np.linspace(-0.4, 1.5, 16)
@@ -115,7 +117,7 @@ def test_pose_stream_torques_and_safe_close(hand):
         np.testing.assert_allclose(driver.latest().positions, POSE, atol=RAD_PER_COUNT / 2)
         assert hand.servo_on and hand.period_ms == 3
         driver.set_torques(np.full(16, 10.0))
-        assert wait_until(lambda: np.allclose(hand.torques, FIRMWARE_TORQUE_LIMITS), EVENT_TIMEOUT)
+        assert wait_until(lambda: np.allclose(hand.torques, TORQUE_LIMITS), EVENT_TIMEOUT)
         diag = driver.diagnostics.snapshot()
         assert diag.gaps == diag.malformed == 0
     assert wait_until(lambda: not hand.servo_on and hand.period_ms == 0, EVENT_TIMEOUT)
@@ -200,6 +202,6 @@ def test_driver_reaches_a_hand_in_another_process():
         process.kill() if process.poll() is None else None
         process.wait(timeout=5)
     assert summary['servo_on'] is False and summary['period_ms'] == 0
-    np.testing.assert_allclose(summary['max_torques'], np.minimum(0.2, FIRMWARE_TORQUE_LIMITS),
+    np.testing.assert_allclose(summary['max_torques'], np.minimum(0.2, TORQUE_LIMITS),
                                atol=1 / 1200)
     assert summary['last_torques'] == [0.0] * 16 and summary['malformed'] == 0

@@ -10,8 +10,9 @@ import numpy as np
 import pytest
 from devices_support import EVENT_TIMEOUT, Relay, wait_until
 
-from tacforce_ros.devices import allegro
-from tacforce_ros.devices.allegro import AllegroConfig, AllegroError, AllegroV4Driver
+from tacforce_ros.devices import socketcand_link
+from tacforce_ros.devices.allegro import AllegroConfig, AllegroV4Driver
+from tacforce_ros.devices.allegro_codec import AllegroError
 from tacforce_ros.devices.polling import LinkLost
 from tacforce_ros.sim.emulators.allegro import AllegroEmulator
 
@@ -34,7 +35,7 @@ def test_no_server_is_refused_at_once_without_python_cans_retries(caplog):
     """python-can's client retries a refused connection for 10 s without a pause, so a driver
     asked to stop meanwhile stayed: the server is asked first, and no retry loop runs."""
     port = unused_port()
-    with caplog.at_level(logging.WARNING, logger=allegro.SOCKETCAND_LOGGER):
+    with caplog.at_level(logging.WARNING, logger=socketcand_link.SOCKETCAND_LOGGER):
         with pytest.raises(AllegroError, match=f'no socketcand server at 127.0.0.1:{port}'):
             AllegroV4Driver(config(port))
     assert not [r for r in caplog.records if 'Failed to connect' in r.getMessage()]
@@ -65,7 +66,7 @@ def test_a_link_that_stops_reading_is_lost_once_and_the_driver_closes():
             Relay(hand.address, buffer=4096) as relay:
         driver = AllegroV4Driver(config(relay.address[1], silent_timeout=60.0))
         try:
-            allegro._socketcand_socket(driver.bus).setsockopt(socket.SOL_SOCKET,
+            socketcand_link.socketcand_socket(driver.bus).setsockopt(socket.SOL_SOCKET,
                                                               socket.SO_SNDBUF, 4096)
             relay.freeze()
             with pytest.raises(LinkLost, match='sending to the hand failed'):
@@ -74,7 +75,7 @@ def test_a_link_that_stops_reading_is_lost_once_and_the_driver_closes():
             started = time.monotonic()
             with pytest.raises(LinkLost):
                 driver.set_torques(np.zeros(16))
-            assert time.monotonic() - started < allegro.SOCKETCAND_TIMEOUT_S, 'waited again'
+            assert time.monotonic() - started < socketcand_link.SOCKETCAND_TIMEOUT_S, 'waited again'
         finally:
             closer = threading.Thread(target=driver.close, daemon=True)
             closer.start()

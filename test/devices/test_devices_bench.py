@@ -1,7 +1,7 @@
 """bench_devices runs every link end to end and writes JSON that matches its table."""
 import json
 
-from tacforce_ros.tools.bench_devices import main
+from tacforce_ros.benchmarks.bench_devices import main
 
 
 def test_bench_devices_writes_json_for_every_device(tmp_path, capsys):

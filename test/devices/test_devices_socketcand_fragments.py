@@ -7,8 +7,9 @@ import itertools
 import numpy as np
 from devices_support import Relay, wait_until
 
-from tacforce_ros.devices import allegro
-from tacforce_ros.devices.allegro import RAD_PER_COUNT, AllegroConfig, AllegroV4Driver
+from tacforce_ros.devices import socketcand_link
+from tacforce_ros.devices.allegro import AllegroConfig, AllegroV4Driver
+from tacforce_ros.devices.allegro_codec import RAD_PER_COUNT
 from tacforce_ros.sim.emulators.allegro import AllegroEmulator
 
 PIECE = 29          # bytes; a socketcand frame line is ~40, so most reads end mid-frame
@@ -21,7 +22,7 @@ def test_frames_split_across_reads_are_delivered_complete_and_in_order():
     with AllegroEmulator(lambda: np.full(16, next(cycle) * RAD_PER_COUNT),
                          lambda tau: None) as hand:
         relay = Relay(hand.address, piece=PIECE, pause=PAUSE_S)
-        suppressed_before = allegro.SOCKETCAND_LOG.suppressed
+        suppressed_before = socketcand_link.SOCKETCAND_LOG.suppressed
         try:
             host, port = relay.address
             config = AllegroConfig(interface='socketcand', channel='can0', rtr_requests=False,
@@ -46,4 +47,4 @@ def test_frames_split_across_reads_are_delivered_complete_and_in_order():
         'a cycle was lost or reordered'
     assert diagnostics.gaps == diagnostics.malformed == 0
     # The relay did split frames across reads: python-can said so, and the filter hid it.
-    assert allegro.SOCKETCAND_LOG.suppressed > suppressed_before
+    assert socketcand_link.SOCKETCAND_LOG.suppressed > suppressed_before

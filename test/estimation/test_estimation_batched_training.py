@@ -223,12 +223,12 @@ def test_the_hand_written_cnn_gradient_is_torchs_modules(real, seed, phalanx):
 def test_the_dense_form_of_a_valid_convolution_is_the_convolution():
     """conv_as_matrix_index against a direct loop over output cells (hand-computed case)."""
     rng = np.random.default_rng(3)
-    H, W, C, O, k = 5, 4, 2, 3, 2
-    weight = rng.standard_normal((O, C, k, k))
+    H, W, C, n_out, k = 5, 4, 2, 3, 2
+    weight = rng.standard_normal((n_out, C, k, k))
     image = rng.standard_normal((H, W, C))
-    index = conv_as_matrix_index((H, W, C), O, k)
+    index = conv_as_matrix_index((H, W, C), n_out, k)
     matrix = np.append(weight.ravel(), 0.0)[index]
-    expected = np.empty((H - k + 1, W - k + 1, O))
+    expected = np.empty((H - k + 1, W - k + 1, n_out))
     for i in range(H - k + 1):
         for j in range(W - k + 1):
             patch = image[i:i + k, j:j + k].transpose(2, 0, 1)        # (C, k, k)

@@ -137,3 +137,17 @@ def test_each_hand_starts_with_its_own_shipped_models_and_refuses_the_other_hand
         with pytest.raises(ModelConfigError, match=f"for the {one.side} hand's index_tip, not "
                            f"the {other.side} hand's"):
             load_model_set(default_model_config(one), other)
+
+
+def test_a_tare_window_gathers_its_frames_then_hands_them_over_once():
+    from tacforce_ros.estimation.model_set import TareWindow
+    window = TareWindow(3)
+    frames = [np.full((368, 3), float(k)) for k in range(3)]
+    assert [window.add(f) for f in frames] == [False, False, True]
+    taken = window.take()
+    assert taken.shape == (3, 368, 3) and taken.dtype == np.float64
+    assert np.array_equal(taken[:, 0, 0], [0.0, 1.0, 2.0])
+    with pytest.raises(ValueError, match='no frames'):
+        window.take()
+    with pytest.raises(ValueError, match='at least one frame'):
+        TareWindow(0)

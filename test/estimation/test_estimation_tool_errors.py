@@ -9,7 +9,8 @@ from pathlib import Path
 import pytest
 
 from tacforce_ros import bagio, topics
-from tacforce_ros.tools import reproduce, train
+from tacforce_ros.experiments import reproduce
+from tacforce_ros.tools import train
 
 
 @pytest.fixture(scope='module')
@@ -111,7 +112,7 @@ def test_train_refuses_a_device_it_cannot_train_on_before_reading_the_inputs(
 
 
 def test_bench_train_refuses_a_device_it_cannot_train_on(tmp_path, capsys, missing_gpu):
-    from tacforce_ros.tools import bench_train
+    from tacforce_ros.benchmarks import bench_train
 
     assert bench_train.main(['--out', str(tmp_path / 'out'), '--device', missing_gpu]) == 2
     assert "torch device 'cuda'" in capsys.readouterr().err

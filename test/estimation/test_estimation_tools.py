@@ -1,7 +1,6 @@
 """Datasets, calibration bags -> dataset, and the train / bench command-line tools."""
 import json
 import subprocess
-import sys
 
 import numpy as np
 import pytest
@@ -14,7 +13,9 @@ from tacforce_ros.estimation.model_set import load_model_set, model_files
 from tacforce_ros.estimation.synthetic import synthetic_dataset
 from tacforce_ros.hand.kinematics import HandKinematics
 from tacforce_ros.paths import config_dir
-from tacforce_ros.tools import bench, bench_train, train
+from tacforce_ros.tools import train
+from tacforce_ros.benchmarks import bench, bench_train
+from tacforce_ros.bringup.processes import executable
 
 
 def test_synthetic_is_deterministic_and_labelled(phalanx):
@@ -229,7 +230,7 @@ def test_bench_train_refuses_an_unwritable_output_before_training(tmp_path, caps
 
 @pytest.mark.parametrize('tool', ['train', 'bench', 'bench_train', 'campaign'])
 def test_tools_have_help(tool):
-    out = subprocess.run([sys.executable, '-m', f'tacforce_ros.tools.{tool}', '--help'],
+    out = subprocess.run([str(executable(tool)), '--help'],
                          capture_output=True, text=True, timeout=60)
     assert out.returncode == 0 and 'usage' in out.stdout
 

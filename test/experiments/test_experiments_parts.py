@@ -16,8 +16,9 @@ from tacforce_ros.experiments.calibration_data import simulate_calibration
 from tacforce_ros.experiments.closed_loop import (ClosedLoopTrace, CommandLink, run_closed_loop,
                                                   trace_metrics)
 from tacforce_ros.experiments.node_path import _free_ports, compare_closed_loop
-from tacforce_ros.experiments import pipeline, report
-from tacforce_ros.experiments.pipeline import controller_config
+from tacforce_ros.experiments import report
+from tacforce_ros.experiments import settings
+from tacforce_ros.experiments.settings import controller_config
 from tacforce_ros.experiments.plots import pareto_front
 from tacforce_ros.experiments.report import filter_closed_loop
 from tacforce_ros.hand.description import load_hand
@@ -145,11 +146,11 @@ def test_a_magnetic_skin_run_simulates_each_scene_on_the_magnetic_skin(tmp_path,
     """The main job's --skin magnetic scene files give the sessions the scene with
     with_magnetic_skin gives (what skin_sensitivity runs), sample for sample."""
     def context(skin):
-        return pipeline.Context(settings=pipeline.Settings(skin=skin), out=tmp_path,
+        return settings.Context(settings=settings.Settings(skin=skin), out=tmp_path,
                                 cache=StageCache(tmp_path / 'cache'), pool=None)
     name = 'calibration_index_middle_edge'
-    assert pipeline.scene_for(context('empirical'), name) == name
-    path = pipeline.scene_for(context('magnetic'), name)
+    assert settings.scene_for(context('empirical'), name) == name
+    path = settings.scene_for(context('magnetic'), name)
     assert path == str(tmp_path / 'scenes' / f'{name}_magnetic.yaml')
     scene, plain = load_scene(path), load_scene(name)
     assert scene.effects == with_magnetic_skin(plain.effects)
@@ -162,10 +163,10 @@ def test_a_magnetic_skin_run_simulates_each_scene_on_the_magnetic_skin(tmp_path,
     assert np.array_equal(a.X, b.X) and np.array_equal(a.F, b.F)
     assert scene_digest(path) != scene_digest(name)      # so the stages' cache keys differ
     for closed in ('closed_loop_spherical', 'closed_loop_softball'):
-        assert load_scene(pipeline.scene_for(context('magnetic'), closed)).effects == \
+        assert load_scene(settings.scene_for(context('magnetic'), closed)).effects == \
             with_magnetic_skin(load_scene(closed).effects)
     with pytest.raises(ValueError, match='skin'):
-        pipeline.scene_for(context('velvet'), name)
+        settings.scene_for(context('velvet'), name)
 
 
 def test_a_magnetic_skin_report_judges_the_skins_targets_on_its_own_tables():

@@ -8,9 +8,9 @@ import pytest
 
 from tacforce_ros.estimation.causal_filter import BatchLowPass
 from tacforce_ros.experiments import paper_reference as paper
-from tacforce_ros.experiments.pipeline import FILTER_CUTOFFS_HZ
+from tacforce_ros.experiments.settings import FILTER_CUTOFFS_HZ
 from tacforce_ros.experiments.report import MODEL_NAMES
-from tacforce_ros.tools import reproduce
+from tacforce_ros.experiments import reproduce
 
 NUMBER = re.compile(r'-?\d+(?:\.\d+)?')
 LABELS = {v: k for k, v in MODEL_NAMES.items()}

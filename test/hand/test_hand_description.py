@@ -97,7 +97,8 @@ def test_flat_pads_identity_curved_tips_follow_the_surface():
             np.testing.assert_allclose(radius, radius[0], rtol=1e-12)
             np.testing.assert_allclose(radial / radius[:, None], normals, atol=1e-12)
         else:
-            np.testing.assert_array_equal(a.rotations, np.broadcast_to(np.eye(3), a.rotations.shape))
+            np.testing.assert_array_equal(a.rotations,
+                                          np.broadcast_to(np.eye(3), a.rotations.shape))
             np.testing.assert_array_equal(a.positions[:, 2], 0.0)
 
 
@@ -123,7 +124,8 @@ def test_unknown_name_is_a_clear_key_error():
 
 
 @settings(max_examples=40, deadline=None)
-@given(lead=st.lists(st.integers(1, 3), max_size=2), k=st.integers(1, 4), seed=st.integers(0, 2**31))
+@given(lead=st.lists(st.integers(1, 3), max_size=2), k=st.integers(1, 4),
+       seed=st.integers(0, 2**31))
 def test_split_merge_round_trip(lead, k, seed):
     flat = np.random.default_rng(seed).normal(size=(*lead, 368, k))
     parts = HAND.split(flat)
@@ -170,18 +172,30 @@ def _skewed_rotations(doc):
 
 
 BROKEN = {
-    'missing key': (lambda d: d['arrays'][2].pop('parent_link'), r'arrays\[2\] \(index_middle\)\.parent_link: missing key'),
-    'wrong count': (lambda d: d['arrays'][0].update(n_taxels=29), r'index_tip\)\.n_taxels: 29 .* 30 taxels'),
-    'short mapping': (lambda d: d['arrays'][0]['flat_indices'].pop(), r'index_tip\)\.flat_indices: need 30'),
-    'duplicate flat index': (_swap_first_flat, r'index_distal\)\.flat_indices: 66 duplicates .*index_tip'),
-    'out of range': (lambda d: d['arrays'][3]['flat_indices'].__setitem__(0, 368), r'index_proximal\)\.flat_indices: 368 outside'),
-    'unknown neighbour': (lambda d: d['arrays'][0].update(neighbours=['pinky_tip']), r'index_tip\)\.neighbours: unknown array .pinky_tip'),
-    'one-sided neighbour': (lambda d: d['arrays'][0]['neighbours'].append('ring_tip'), r'does not list'),
-    'grid mismatch': (lambda d: d['modules']['uSPa44']['grid'].pop(), r'index_distal\)\.n_taxels: 16 but module uSPa44 grid has 12'),
-    'bad grid numbers': (lambda d: d['modules']['uSPa46']['grid'][0].__setitem__(0, 7), r'modules\.uSPa46\.grid'),
-    'non-orthonormal rotation': (_skewed_rotations, r'rotations \(module uSPa44\): not proper rotations'),
-    'unknown module': (lambda d: d['arrays'][5].update(module='uSPa99'), r'middle_distal\)\.module: unknown'),
-    'finger on palm': (lambda d: d['arrays'][-1].update(finger='index'), r'palm_ring_side\)\.finger'),
+    'missing key': (lambda d: d['arrays'][2].pop('parent_link'),
+                    r'arrays\[2\] \(index_middle\)\.parent_link: missing key'),
+    'wrong count': (lambda d: d['arrays'][0].update(n_taxels=29),
+                    r'index_tip\)\.n_taxels: 29 .* 30 taxels'),
+    'short mapping': (lambda d: d['arrays'][0]['flat_indices'].pop(),
+                      r'index_tip\)\.flat_indices: need 30'),
+    'duplicate flat index': (_swap_first_flat,
+                             r'index_distal\)\.flat_indices: 66 duplicates .*index_tip'),
+    'out of range': (lambda d: d['arrays'][3]['flat_indices'].__setitem__(0, 368),
+                     r'index_proximal\)\.flat_indices: 368 outside'),
+    'unknown neighbour': (lambda d: d['arrays'][0].update(neighbours=['pinky_tip']),
+                          r'index_tip\)\.neighbours: unknown array .pinky_tip'),
+    'one-sided neighbour': (lambda d: d['arrays'][0]['neighbours'].append('ring_tip'),
+                            r'does not list'),
+    'grid mismatch': (lambda d: d['modules']['uSPa44']['grid'].pop(),
+                      r'index_distal\)\.n_taxels: 16 but module uSPa44 grid has 12'),
+    'bad grid numbers': (lambda d: d['modules']['uSPa46']['grid'][0].__setitem__(0, 7),
+                         r'modules\.uSPa46\.grid'),
+    'non-orthonormal rotation': (_skewed_rotations,
+                                 r'rotations \(module uSPa44\): not proper rotations'),
+    'unknown module': (lambda d: d['arrays'][5].update(module='uSPa99'),
+                       r'middle_distal\)\.module: unknown'),
+    'finger on palm': (lambda d: d['arrays'][-1].update(finger='index'),
+                       r'palm_ring_side\)\.finger'),
     'duplicate name': (lambda d: d['arrays'][1].update(name='index_tip'), r'name: duplicates'),
     'bad pitch': (lambda d: d['modules']['uSCuAH'].update(pitch=0), r'modules\.uSCuAH\.pitch'),
     'missing top-level': (lambda d: d.pop('ft_frame'), r'ft_frame: missing key'),

@@ -9,7 +9,8 @@ from hypothesis import given, settings, strategies as st
 from scipy.spatial.transform import Rotation
 
 from tacforce_ros.hand.description import HandConfigError, load_hand
-from tacforce_ros.hand.kinematics import FINGERS, HandKinematics
+from tacforce_ros.hand.kinematics import HandKinematics
+from tacforce_ros.rig import FINGERS
 
 HAND = load_hand()
 KIN = HandKinematics.for_hand(HAND)
@@ -109,8 +110,8 @@ def _fd_jacobian(q, finger, point):
 def test_fingertip_jacobian_matches_finite_differences(seed, finger, offset):
     q = random_q(seed)
     point = np.array(offset)
-    np.testing.assert_allclose(KIN.fingertip_jacobian(q, finger), _fd_jacobian(q, finger, np.zeros(3)),
-                               atol=1e-8)
+    np.testing.assert_allclose(KIN.fingertip_jacobian(q, finger),
+                               _fd_jacobian(q, finger, np.zeros(3)), atol=1e-8)
     np.testing.assert_allclose(KIN.fingertip_jacobian(q, finger, point),
                                _fd_jacobian(q, finger, point), atol=1e-8)
 
@@ -151,7 +152,8 @@ def test_mujoco_compiles_keeps_frames_and_agrees():
         np.testing.assert_allclose(data.xpos[body], p, atol=1e-9)
         np.testing.assert_allclose(data.xmat[body].reshape(3, 3), R, atol=1e-9)
     # Same masses and inertias: MuJoCo's bias force at rest is the gravity torque.
-    dof = [mj.jnt_dofadr[mujoco.mj_name2id(mj, mujoco.mjtObj.mjOBJ_JOINT, n)] for n in KIN.joint_names]
+    dof = [mj.jnt_dofadr[mujoco.mj_name2id(mj, mujoco.mjtObj.mjOBJ_JOINT, n)]
+           for n in KIN.joint_names]
     np.testing.assert_allclose(data.qfrc_bias[dof], KIN.gravity_torques(q), atol=1e-9)
 
 
@@ -169,7 +171,8 @@ def _hand_with_urdf(tmp_path, edit):
     (tmp_path / 'urdf' / 'allegro_right_uskin.urdf').write_text(edit(URDF_TEXT))
     (tmp_path / 'hand').mkdir()
     yaml_path = tmp_path / 'hand' / 'h.yaml'
-    yaml_path.write_text((HAND.urdf_path.parent.parent / 'hand' / 'allegro_right_uskin.yaml').read_text())
+    shipped = HAND.urdf_path.parent.parent / 'hand' / 'allegro_right_uskin.yaml'
+    yaml_path.write_text(shipped.read_text())
     return load_hand(yaml_path)
 
 

@@ -9,7 +9,7 @@ import time
 from pathlib import Path
 
 from tacforce_ros.estimation.model_set import write_synthetic_model_set as synthetic_model_set
-from tacforce_ros.nodes.session_plan import NodeLaunch, SessionArgs, plan
+from tacforce_ros.bringup.session_plan import NodeLaunch, SessionArgs, plan
 from tacforce_ros.bringup.processes import start_nodes, stop_nodes
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))

@@ -24,8 +24,8 @@ from tacforce_ros import bagio
 from tacforce_ros.control.command_sequence import ForceSequence
 from tacforce_ros.experiments.closed_loop import trace_metrics
 from tacforce_ros.experiments.node_path import node_trace
-from tacforce_ros.experiments.pipeline import tare_frames
-from tacforce_ros.nodes.common import subscriber_qos
+from tacforce_ros.experiments.settings import tare_frames
+from tacforce_ros.nodes.qos import subscriber_qos
 from tacforce_ros.nodes.messages import stamp_ns
 from tacforce_ros.topics import TOPIC_CONTROLLER_STATE as TOPIC_STATE
 

@@ -22,7 +22,7 @@ from tacforce_msgs.msg import ControllerState, ForceEstimateArray, TactileHand
 
 from tacforce_ros.estimation.model_set import default_model_config, model_files
 from tacforce_ros.hand.description import load_hand
-from tacforce_ros.nodes.common import publisher_qos
+from tacforce_ros.nodes.qos import publisher_qos
 from tacforce_ros.nodes.messages import stamp_ns
 from tacforce_ros.nodes.serialized import TactileHandDecoder
 

@@ -16,7 +16,7 @@ from tacforce_msgs.msg import ForceEstimateArray
 
 from tacforce_ros.estimation.model_set import default_model_config, model_files
 from tacforce_ros.hand.description import load_hand
-from tacforce_ros.nodes.common import subscriber_qos
+from tacforce_ros.nodes.qos import subscriber_qos
 from tacforce_ros.nodes.messages import stamp_ns
 from tacforce_ros.sim import load_scene
 

@@ -12,7 +12,8 @@ import pytest
 import rclpy
 from sensor_msgs.msg import JointState
 
-from tacforce_ros.nodes.common import EXIT_FAILURE, publisher_qos
+from tacforce_ros.nodes.qos import publisher_qos
+from tacforce_ros.nodes.runner import EXIT_FAILURE
 from tacforce_ros.sim.emulators.allegro import AllegroEmulator
 from tacforce_ros.topics import TOPIC_TORQUE_COMMAND
 

@@ -5,7 +5,7 @@ from pathlib import Path
 
 import pytest
 
-from tacforce_ros.nodes.common import EXIT_BAD_PARAMETERS
+from tacforce_ros.nodes.runner import EXIT_BAD_PARAMETERS
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from ros_processes import executable, start, stop, unique_domain_id  # noqa: E402

@@ -3,14 +3,14 @@ skin without models trained on it, is refused before any session starts; what it
 recorded closed-loop bag (watchdog ticks, duplicate stamps, missing tactile frames) is checked on
 a bag of known content, and what it reads from a fault run on ticks of known content."""
 import subprocess
-import sys
 
 import numpy as np
 import pytest
 
 from tacforce_ros import bagio, topics
-from tacforce_ros.tools.bench_graph import (crash_metrics, driver_kill_metrics, stream_counts,
+from tacforce_ros.benchmarks.bench_graph import (crash_metrics, driver_kill_metrics, stream_counts,
                                             watchdog_ticks)
+from tacforce_ros.bringup.processes import executable
 
 
 @pytest.mark.parametrize('models, message', [
@@ -19,7 +19,7 @@ from tacforce_ros.tools.bench_graph import (crash_metrics, driver_kill_metrics, 
 def test_a_model_list_that_cannot_close_the_loop_is_refused_first(tmp_path, models, message):
     config = tmp_path / 'models.yaml'
     config.write_text(models)
-    done = subprocess.run([sys.executable, '-m', 'tacforce_ros.tools.bench_graph', '--runs', '1',
+    done = subprocess.run([str(executable('bench_graph')), '--runs', '1',
                            '--model', str(config), '--out', str(tmp_path / 'out')],
                           capture_output=True, text=True, timeout=120)
     assert done.returncode == 2, done.stderr
@@ -28,7 +28,7 @@ def test_a_model_list_that_cannot_close_the_loop_is_refused_first(tmp_path, mode
 
 
 def test_the_magnetic_skin_without_a_model_trained_on_it_is_refused_first(tmp_path):
-    done = subprocess.run([sys.executable, '-m', 'tacforce_ros.tools.bench_graph', '--runs', '1',
+    done = subprocess.run([str(executable('bench_graph')), '--runs', '1',
                            '--skin', 'magnetic', '--out', str(tmp_path / 'out')],
                           capture_output=True, text=True, timeout=120)
     assert done.returncode == 2, done.stderr
@@ -161,8 +161,8 @@ def test_crash_metrics_fail_a_lost_contact_a_late_hold_and_a_missing_outage():
 def test_session_figures_are_read_from_its_log_and_tabled_side_by_side(tmp_path):
     """Wall time and CPU per process come from the session tool's own lines; a composed run is
     tabled next to the run of the same seed with one process per node."""
-    from tacforce_ros.tools.bench_graph import process_cpu, session_seconds, summary, table
-    from tacforce_ros.tools.session import CPU_REPORT
+    from tacforce_ros.benchmarks.bench_graph import process_cpu, session_seconds, summary, table
+    from tacforce_ros.bringup.processes import CPU_REPORT
     (tmp_path / 'session.log').write_text(
         'session closed_loop: started sim_world, tacforce_container\n'
         f'{CPU_REPORT} sim_world=16.6, tacforce_container=30.6\n'

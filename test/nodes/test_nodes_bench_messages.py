@@ -1,7 +1,7 @@
 """bench_messages times both ways of each half of a frame and writes JSON matching its table."""
 import json
 
-from tacforce_ros.tools.bench_messages import main
+from tacforce_ros.benchmarks.bench_messages import main
 
 
 def test_bench_messages_writes_both_ways_of_both_halves(tmp_path, capsys):

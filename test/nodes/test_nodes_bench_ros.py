@@ -7,7 +7,7 @@ import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from ros_processes import ros_env, unique_domain_id  # noqa: E402
+from ros_processes import executable, ros_env, unique_domain_id  # noqa: E402
 
 DOMAIN = unique_domain_id(offset=29)
 
@@ -19,7 +19,7 @@ def test_a_failed_part_keeps_the_other_parts_results(tmp_path):
         can_port = taken.getsockname()[1]
         out = tmp_path / 'bench_ros.json'
         done = subprocess.run(
-            [sys.executable, '-m', 'tacforce_ros.tools.bench_ros', '--parts', 'estimator',
+            [str(executable('bench_ros')), '--parts', 'estimator',
              'controller', '--latency-seconds', '1', '--rates', '100', '--seconds', '0.5',
              '--realtime-priority', '0', '--domain', str(DOMAIN),
              '--ports', str(can_port - 2), str(can_port - 1), str(can_port), '--out', str(out)],
@@ -41,8 +41,8 @@ def test_the_real_time_part_starts_the_estimator_on_the_normal_scheduler(tmp_pat
 
     import pytest
 
-    from tacforce_ros.nodes.common import use_realtime_scheduling
-    from tacforce_ros.tools import bench_ros
+    from tacforce_ros.nodes.realtime import use_realtime_scheduling
+    from tacforce_ros.benchmarks import bench_ros
     try:
         use_realtime_scheduling(50)
     except OSError as exc:

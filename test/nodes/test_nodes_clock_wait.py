@@ -11,7 +11,8 @@ from rosgraph_msgs.msg import Clock
 from tacforce_msgs.msg import TactileHand
 
 from tacforce_ros.hand.description import load_hand
-from tacforce_ros.nodes.common import EXIT_OK, subscriber_qos
+from tacforce_ros.nodes.qos import subscriber_qos
+from tacforce_ros.nodes.runner import EXIT_OK
 from tacforce_ros.nodes.sim_world import CLOCK_QOS
 from tacforce_ros.paths import config_dir
 from tacforce_ros.sim.emulators.xela_server import XelaServerEmulator

@@ -12,7 +12,8 @@ from rclpy.time import Time
 from std_srvs.srv import Trigger
 
 from tacforce_ros.control.command_sequence import ForceSequence
-from tacforce_ros.nodes.common import EXIT_BAD_PARAMETERS, EXIT_OK, subscriber_qos
+from tacforce_ros.nodes.qos import subscriber_qos
+from tacforce_ros.nodes.runner import EXIT_BAD_PARAMETERS, EXIT_OK
 from tacforce_ros.paths import config_dir
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))

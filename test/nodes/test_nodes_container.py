@@ -11,8 +11,9 @@ from tacforce_msgs.msg import ForceEstimateArray
 
 from tacforce_ros.estimation.model_set import write_synthetic_model_set
 from tacforce_ros.hand.description import load_hand
-from tacforce_ros.nodes.common import EXIT_BAD_PARAMETERS, EXIT_OK, subscriber_qos
-from tacforce_ros.nodes.session_plan import NodeLaunch, SessionArgs, composed, params_file, plan
+from tacforce_ros.nodes.qos import subscriber_qos
+from tacforce_ros.nodes.runner import EXIT_BAD_PARAMETERS, EXIT_OK
+from tacforce_ros.bringup.session_plan import NodeLaunch, SessionArgs, composed, params_file, plan
 from tacforce_ros.nodes.tacforce_container import NODE_CLASSES, node_class, node_groups
 from tacforce_ros.sim.emulators.xela_server import XelaServerEmulator
 from tacforce_ros.topics import TOPIC_ESTIMATES

@@ -11,8 +11,8 @@ import pytest
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 
 from tacforce_ros.hand.description import load_hand
-from tacforce_ros.nodes.common import subscriber_qos
-from tacforce_ros.nodes.session_plan import params_file
+from tacforce_ros.nodes.qos import subscriber_qos
+from tacforce_ros.bringup.session_plan import params_file
 from tacforce_ros.sim.emulators.allegro import AllegroEmulator
 from tacforce_ros.sim.emulators.netft import NetFtEmulator
 from tacforce_ros.sim.emulators.xela_server import XelaServerEmulator

@@ -12,10 +12,11 @@ from std_srvs.srv import Trigger
 from tacforce_msgs.msg import ForceEstimateArray, TactileHand
 
 from tacforce_ros.hand.description import load_hand
-from tacforce_ros.nodes.common import EXIT_OK, publisher_qos
+from tacforce_ros.nodes.qos import publisher_qos
+from tacforce_ros.nodes.runner import EXIT_OK
 from tacforce_ros.nodes.messages import stamp_ns, tactile_hand
 from tacforce_ros.estimation.model_set import load_model_set, write_synthetic_model_set
-from tacforce_ros.nodes.session_plan import params_file
+from tacforce_ros.bringup.session_plan import params_file
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from ros_processes import (call_service, executable, rclpy_node, spin_until, start,  # noqa: E402
@@ -44,7 +45,8 @@ def test_estimates_follow_the_model_set_with_the_node_tare(models, tmp_path):
     rest = HAND.merge([b.x_offset for b in reference.estimator.bundles]) + 30.0   # drifted
     proc = start([executable('estimator'), '--ros-args', '--params-file',
                   params_file('estimator'), '-p', f'model_config:={models}',
-                  '-p', f'tare_frames:={TARE_FRAMES}', '-p', 'marker_rate_hz:=0.0'], DOMAIN)
+                  '-p', f'tare_frames:={TARE_FRAMES}', '-p', 'marker_rate_hz:=0.0',
+                  '-p', 'frozen_frames:=0', '-p', 'out_of_range:=0.0'], DOMAIN)
     output = ''
     try:
         with rclpy_node('estimator_node_test', DOMAIN) as node:
@@ -140,6 +142,7 @@ def test_low_pass_estimates_are_the_core_filter_on_the_frames_received(models):
     proc = start([executable('estimator'), '--ros-args', '--params-file',
                   params_file('estimator'), '-p', f'model_config:={models}',
                   '-p', f'tare_frames:={TARE_FRAMES}', '-p', 'marker_rate_hz:=0.0',
+                  '-p', 'frozen_frames:=0', '-p', 'out_of_range:=0.0',
                   '-p', 'lowpass_hz:=10.0'], DOMAIN)
     try:
         with rclpy_node('estimator_lowpass_test', DOMAIN) as node:

@@ -13,10 +13,11 @@ from rosgraph_msgs.msg import Clock
 from tacforce_msgs.msg import ForceEstimateArray, TactileHand
 
 from tacforce_ros.hand.description import load_hand
-from tacforce_ros.nodes.common import EXIT_OK, events_executor, publisher_qos
+from tacforce_ros.nodes.qos import publisher_qos
+from tacforce_ros.nodes.runner import EXIT_OK, events_executor
 from tacforce_ros.nodes.messages import stamp_ns, tactile_hand
 from tacforce_ros.estimation.model_set import write_synthetic_model_set
-from tacforce_ros.nodes.session_plan import params_file
+from tacforce_ros.bringup.session_plan import params_file
 from tacforce_ros.nodes.sim_world import CLOCK_QOS
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
@@ -35,7 +36,8 @@ def test_stale_watchdog_follows_the_simulated_clock(tmp_path):
     proc = start([executable('estimator'), '--ros-args', '--params-file',
                   params_file('estimator'), '-p', f'model_config:={models}',
                   '-p', 'use_sim_time:=true', '-p', 'tare_at_start:=false',
-                  '-p', f'stale_timeout:={STALE_TIMEOUT_S}', '-p', 'marker_rate_hz:=0.0'], DOMAIN)
+                  '-p', f'stale_timeout:={STALE_TIMEOUT_S}', '-p', 'marker_rate_hz:=0.0',
+                  '-p', 'frozen_frames:=0', '-p', 'out_of_range:=0.0'], DOMAIN)
     try:
         with rclpy_node('estimator_sim_time_test', DOMAIN) as node:
             received: list[ForceEstimateArray] = []

@@ -20,9 +20,10 @@ from tacforce_ros.control.finger_session import FingerSession
 from tacforce_ros.control.force_controller import ForceControllerConfig
 from tacforce_ros.hand.description import load_hand
 from tacforce_ros.hand.kinematics import HandKinematics
-from tacforce_ros.nodes.common import EXIT_OK, publisher_qos, subscriber_qos
+from tacforce_ros.nodes.qos import publisher_qos, subscriber_qos
+from tacforce_ros.nodes.runner import EXIT_OK
 from tacforce_ros.nodes.messages import stamp, stamp_ns
-from tacforce_ros.nodes.session_plan import params_file
+from tacforce_ros.bringup.session_plan import params_file
 from tacforce_ros.nodes.sim_world import CLOCK_QOS
 from tacforce_ros.topics import (TOPIC_CONTROLLER_STATE, TOPIC_DESIRED, TOPIC_ESTIMATES,
                                  TOPIC_JOINTS, TOPIC_TORQUE_COMMAND)

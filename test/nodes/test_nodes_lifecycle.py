@@ -21,8 +21,8 @@ from sensor_msgs.msg import JointState
 from tacforce_msgs.msg import TactileHand
 
 from tacforce_ros.hand.description import load_hand
-from tacforce_ros.nodes.common import subscriber_qos
-from tacforce_ros.nodes.session_plan import params_file
+from tacforce_ros.nodes.qos import subscriber_qos
+from tacforce_ros.bringup.session_plan import params_file
 from tacforce_ros.sim.emulators.allegro import AllegroEmulator
 from tacforce_ros.sim.emulators.xela_server import XelaServerEmulator
 from tacforce_ros.topics import TOPIC_DIAGNOSTICS, TOPIC_JOINTS, TOPIC_TACTILE

@@ -17,7 +17,7 @@ HAND = load_hand()
 
 
 @given(counts=arrays(np.uint16, (HAND.n_taxels, 3)),
-       ns=st.integers(min_value=0, max_value=2**62))
+       ns=st.integers(min_value=0, max_value=(2**31 - 1) * 10**9 + 999_999_999))
 def test_tactile_hand_round_trips(counts, ns):
     msg = tactile_hand(ns, HAND, counts, None, 12.5, 2**32 + 7)
     assert stamp_ns(msg.header.stamp) == ns and msg.server_sequence == 7
@@ -71,3 +71,8 @@ def test_header_stamp_of_something_else_is_refused():
         header_stamp_ns(b'\x00\x00\x00\x00' + bytes(8))      # big-endian encapsulation
     with pytest.raises(ValueError, match='CDR'):
         header_stamp_ns(b'\x00\x01\x00\x00\x01')             # too short for a stamp
+
+
+def test_a_stamp_beyond_the_time_message_is_refused_not_wrapped():
+    with pytest.raises(ValueError, match='does not fit'):
+        tactile_hand(2**31 * 10**9, HAND, np.zeros((HAND.n_taxels, 3), np.uint16), None, 0.0, 1)

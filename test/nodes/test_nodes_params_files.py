@@ -5,8 +5,8 @@ from pathlib import Path
 
 import pytest
 
-from tacforce_ros.nodes.common import (ParameterError, ParamSpec, node_key_matches,
-                                       params_file_node_keys, params_files)
+from tacforce_ros.nodes.parameters import (ParamSpec, ParameterError, node_key_matches,
+                                           params_file_node_keys, params_files)
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from ros_processes import OutputLines, executable, start, unique_domain_id  # noqa: E402
@@ -74,7 +74,7 @@ def test_a_params_file_that_names_no_such_node_is_reported(tmp_path):
 
 
 def test_a_frame_prefix_is_one_tf2_can_use():
-    from tacforce_ros.nodes.common import FRAME_PREFIX
+    from tacforce_ros.nodes.parameters import FRAME_PREFIX
     for good in ('', 'left/', 'rig_2/left/', 'left_'):
         assert FRAME_PREFIX.coerce(good) == good
     for bad in ('/left/', 'left hand/', 'left:'):

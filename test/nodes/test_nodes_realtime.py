@@ -17,7 +17,7 @@ DOMAIN = unique_domain_id(offset=67)
 # A process with rclpy initialised (its DDS threads exist) and one thread of its own.
 CHILD = textwrap.dedent('''
     import os, threading, rclpy
-    from tacforce_ros.nodes.common import use_realtime_scheduling
+    from tacforce_ros.nodes.realtime import use_realtime_scheduling
     rclpy.init(domain_id=%d)
     node = rclpy.create_node('realtime_probe')
     idle = threading.Event()

@@ -7,7 +7,7 @@ import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from ros_processes import ros_env, unique_domain_id  # noqa: E402
+from ros_processes import executable, ros_env, unique_domain_id  # noqa: E402
 
 DOMAIN = unique_domain_id(offset=31)
 
@@ -17,7 +17,7 @@ def test_a_simulator_that_cannot_listen_ends_the_session_naming_it(tmp_path):
         taken.bind(('127.0.0.1', 0))
         can_port = taken.getsockname()[1]
         done = subprocess.run(
-            [sys.executable, '-m', 'tacforce_ros.tools.session', 'calibration',
+            [str(executable('session')), 'calibration',
              '--out', str(tmp_path / 'out'), '--duration', '60',
              '--ports', str(can_port - 2), str(can_port - 1), str(can_port)],
             capture_output=True, text=True, timeout=120, env=ros_env(DOMAIN))
@@ -32,7 +32,7 @@ def test_a_simulator_that_cannot_listen_ends_the_session_naming_it(tmp_path):
 
 def test_an_unknown_array_starts_nothing_and_names_the_argument(tmp_path):
     done = subprocess.run(
-        [sys.executable, '-m', 'tacforce_ros.tools.session', 'calibration', '--array',
+        [str(executable('session')), 'calibration', '--array',
          'palm_nosuch', '--out', str(tmp_path / 'out'), '--duration', '60'],
         capture_output=True, text=True, timeout=120, env=ros_env(DOMAIN))
     assert done.returncode == 2, done.stdout + done.stderr

@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from tacforce_ros.nodes.session_plan import MODES, PlanError, SessionArgs, params_node_key, plan
+from tacforce_ros.bringup.session_plan import MODES, PlanError, SessionArgs, params_node_key, plan
 from tacforce_ros.paths import share_dir
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
@@ -43,7 +43,7 @@ def test_launch_files_build_their_graph_from_the_plan(name, mode):
     assert [c.args[0].value for c in calls] == [mode]
     shared = ast.parse((LAUNCH / 'session_launch.py').read_text())
     imported = {alias.name for n in ast.walk(shared) if isinstance(n, ast.ImportFrom)
-                and n.module == 'tacforce_ros.nodes.session_plan' for alias in n.names}
+                and n.module == 'tacforce_ros.bringup.session_plan' for alias in n.names}
     assert 'plan' in imported
 
 
@@ -102,7 +102,7 @@ def test_a_closed_loop_array_without_a_model_is_refused(tmp_path):
 
 
 def test_a_side_without_a_description_is_refused(monkeypatch, tmp_path):
-    from tacforce_ros.nodes import session_plan
+    from tacforce_ros.bringup import session_plan
     monkeypatch.setattr(session_plan, 'hand_config', lambda side: tmp_path / f'{side}.yaml')
     with pytest.raises(PlanError, match='no hand description'):
         plan(SessionArgs(mode='calibration', hand_side='left'))
@@ -138,7 +138,7 @@ def test_negative_seed_other_than_the_scene_default_is_refused():
 
 
 def test_boolean_launch_arguments_are_read_as_launch_reads_them_and_others_refused():
-    from tacforce_ros.nodes.session_plan import launch_bool
+    from tacforce_ros.bringup.session_plan import launch_bool
     assert [launch_bool('sim', v) for v in ('true', 'True', '1', 'false', 'FALSE', '0')] == [
         True, True, True, False, False, False]
     for text in ('yes', '', 'ture', '2'):
@@ -177,7 +177,7 @@ def test_lockstep_and_scene_length_reach_the_simulator():
 
 
 def test_session_sees_the_end_of_the_scene_in_the_log_of_sim_world(tmp_path):
-    from tacforce_ros.nodes.session_plan import SCENE_DONE_MARKER
+    from tacforce_ros.bringup.session_plan import SCENE_DONE_MARKER
     from tacforce_ros.tools.session import SceneLog
     log = SceneLog(tmp_path / 'sim_world.log')
     assert not log.done()                                  # no log yet
@@ -204,7 +204,7 @@ def test_each_session_tares_into_a_file_of_its_own_outside_the_bags(tmp_path, mo
 
 def test_a_crash_drill_of_a_node_the_session_lacks_is_refused_before_any_start(tmp_path):
     import subprocess
-    done = subprocess.run([sys.executable, '-m', 'tacforce_ros.tools.session', 'calibration',
+    done = subprocess.run([str(executable('session')), 'calibration',
                            '--out', str(tmp_path), '--crash', 'estimator', '10', '2'],
                           capture_output=True, text=True, timeout=60)
     assert done.returncode == 2 and "'estimator' is not a node of this session" in done.stderr
@@ -234,7 +234,7 @@ def test_a_namespace_that_is_not_one_is_refused(namespace):
 def test_the_two_hands_launch_takes_what_both_hands_share_and_nothing_set_per_hand():
     """two_hands_sim.launch.py declares only the arguments session_plan.two_hands shares (out
     among them); what it sets per hand is not among them, and is refused when given."""
-    from tacforce_ros.nodes.session_plan import ARGUMENT_NAMES, PER_HAND
+    from tacforce_ros.bringup.session_plan import ARGUMENT_NAMES, PER_HAND
     tree = ast.parse((LAUNCH / 'session_launch.py').read_text())
     shared = next(ast.literal_eval(n.value) for n in ast.walk(tree) if isinstance(n, ast.Assign)
                   and getattr(n.targets[0], 'id', '') == 'TWO_HANDS')
@@ -258,7 +258,7 @@ def test_the_recorder_starts_before_the_streams_it_records(sim):
 
 
 def test_a_campaign_session_is_the_first_due_slot_and_only_for_calibration(tmp_path):
-    from tacforce_ros.nodes.session_plan import campaign_session
+    from tacforce_ros.bringup.session_plan import campaign_session
     from tacforce_ros.recording.campaign import Campaign, CampaignPlan
     folder = tmp_path / 'campaign'
     Campaign.create(folder, CampaignPlan(hand_side='right', arrays=('palm_center', 'thumb_tip'),
@@ -282,7 +282,7 @@ def test_a_campaign_session_after_a_poor_one_takes_the_next_seed_and_a_complete_
         tmp_path):
     import json
     from tacforce_ros.hand.description import load_hand
-    from tacforce_ros.nodes.session_plan import campaign_session
+    from tacforce_ros.bringup.session_plan import campaign_session
     from tacforce_ros.recording.campaign import Campaign, CampaignPlan, CoverageLimits
     from tacforce_ros.recording.sim_session import record_session
     from tacforce_ros.sim.scene import session_seed
@@ -327,7 +327,7 @@ def test_an_argument_the_session_would_ignore_or_cannot_use_is_refused(args, mes
 
 
 def test_numeric_launch_arguments_name_themselves_when_unreadable():
-    from tacforce_ros.nodes.session_plan import launch_number
+    from tacforce_ros.bringup.session_plan import launch_number
     assert launch_number('seed', ' 7 ', int) == 7 and launch_number('sim_duration', '2.5') == 2.5
     with pytest.raises(PlanError, match="seed:='7.5': expected an integer"):
         launch_number('seed', '7.5', int)
@@ -336,7 +336,7 @@ def test_numeric_launch_arguments_name_themselves_when_unreadable():
 
 
 def test_two_hands_share_the_arguments_and_keep_their_own_names_ports_and_bags():
-    from tacforce_ros.nodes.session_plan import two_hands
+    from tacforce_ros.bringup.session_plan import two_hands
     hands = two_hands(SessionArgs('closed_loop', out='runs/today', seed=5, array='middle_tip'))
     assert [(h.hand_side, h.namespace, h.frame_prefix, h.out, h.seed, h.array) for h in hands] == [
         ('right', '/right', 'right/', 'runs/today/right', 5, 'middle_tip'),
@@ -353,7 +353,7 @@ def test_two_hands_share_the_arguments_and_keep_their_own_names_ports_and_bags()
     ('hand_side', 'left', 'hand_side'), ('namespace', '/x', 'namespace'),
     ('can_port', 1234, 'can_port'), ('model_config', 'm.yaml', 'model')])
 def test_two_hands_refuse_what_they_set_per_hand(field, value, name):
-    from tacforce_ros.nodes.session_plan import two_hands
+    from tacforce_ros.bringup.session_plan import two_hands
     with pytest.raises(PlanError, match=f'{name}: set per hand'):
         two_hands(SessionArgs('closed_loop', **{field: value}))
     with pytest.raises(PlanError, match='simulated closed-loop session only'):

@@ -5,7 +5,7 @@ import pytest
 import yaml
 
 from tacforce_ros.control.force_controller import finger_params_file
-from tacforce_ros.nodes.session_plan import params_node_key
+from tacforce_ros.bringup.session_plan import params_node_key
 from tacforce_ros.nodes.tacforce_container import NODE_CLASSES, node_class
 from tacforce_ros.paths import config_dir
 

@@ -11,9 +11,9 @@ from rosgraph_msgs.msg import Clock
 from std_msgs.msg import Float64
 from tacforce_msgs.msg import CalibrationSample
 
-from tacforce_ros.nodes.common import RELIABLE_QOS, publisher_qos
+from tacforce_ros.nodes.qos import RELIABLE_QOS, publisher_qos
 from tacforce_ros.nodes.messages import stamp, stamp_ns
-from tacforce_ros.nodes.session_plan import SCENE_DONE_MARKER
+from tacforce_ros.bringup.session_plan import SCENE_DONE_MARKER
 from tacforce_ros.nodes.sim_world import CLOCK_QOS
 from tacforce_ros.paths import config_dir
 from tacforce_ros.sim.lockstep import JOIN_INTERVALS, PERIOD_WINDOW

@@ -21,7 +21,8 @@ from tacforce_msgs.srv import StartRecording
 from tacforce_ros import bagio, topics
 from tacforce_ros.hand.description import load_hand
 from tacforce_ros.nodes import sync_recorder
-from tacforce_ros.nodes.common import EXIT_OK, publisher_qos, subscriber_qos
+from tacforce_ros.nodes.qos import publisher_qos, subscriber_qos
+from tacforce_ros.nodes.runner import EXIT_OK
 from tacforce_ros.paths import config_dir
 from tacforce_ros.recording.bag_repair import repair_bag
 
@@ -265,6 +266,7 @@ def test_sigterm_closes_the_bag_completely(ros_node, streams, tmp_path):
     sent = streams.published[topics.TOPIC_TACTILE]
     assert recorded.count(topics.TOPIC_TACTILE) >= 0.8 * len(sent)
     assert 'closed' in output
+
 
 def test_closed_loop_streams_are_recorded_when_published(ros_node, streams, tmp_path):
     """f_d, the controller state and the simulator's ground truth go into the bag as sent,

@@ -3,11 +3,11 @@ import json
 import os
 import signal
 import subprocess
-import sys
 import time
 
 import pytest
 
+from tacforce_ros.bringup.processes import executable
 from tacforce_ros.recording.campaign import (Campaign, CampaignError, CampaignPlan,
                                              CoverageLimits, SessionSlot)
 from tacforce_ros.estimation.model_set import load_model_set
@@ -42,7 +42,7 @@ def test_an_interrupted_campaign_resumes_and_records_only_what_is_missing(tmp_pa
                                                                          monkeypatch):
     folder = tmp_path / 'c'
     make(folder)
-    command = [sys.executable, '-m', 'tacforce_ros.tools.campaign', 'run', str(folder), '--sim']
+    command = [str(executable('campaign')), 'run', str(folder), '--sim']
     first = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     deadline = time.monotonic() + 120.0
     try:

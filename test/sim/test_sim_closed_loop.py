@@ -12,7 +12,7 @@ from tacforce_ros.paths import config_dir
 from tacforce_ros.sim import load_scene, make_simulator
 from tacforce_ros.sim.contact import skin_surface
 from tacforce_ros.sim.effects import Pipeline
-from tacforce_ros.sim.effects.actuator_limits import FINGER_CLAMP, THUMB_CLAMP
+from tacforce_ros.rig import TORQUE_LIMITS
 from tacforce_ros.sim.sample import StepState
 
 F_DESIRED = np.array([0.0, 0.0, -2.0])   # N in {F}: press down on the plate
@@ -120,7 +120,7 @@ def test_actuator_effects_clamp_throttle_and_scale(hand):
     for _ in range(50):                                     # 0.1 s at 0.6 N m: overheats
         state.torque = np.full(16, 0.6)
         pipeline.run('torque', state)
-    clamp = np.array(FINGER_CLAMP * 3 + THUMB_CLAMP)
+    clamp = TORQUE_LIMITS
     hot = limits.throttled
     # Only joints whose clamp lets them run above 0.35 N m can overheat.
     assert np.array_equal(hot, clamp > 0.35)

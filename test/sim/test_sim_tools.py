@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from tacforce_ros import bagio, topics
-from tacforce_ros.tools import bench_sim, sim_record
+from tacforce_ros.benchmarks import bench_sim
+from tacforce_ros.tools import sim_record
 
 
 def test_sim_record_writes_one_bag_per_session_in_the_lab_layout(tmp_path, hand):
@@ -36,7 +37,7 @@ def test_bag_metadata_names_the_distribution_and_each_topic_s_offered_qos(tmp_pa
     QoS its publishers offer (the recorder's own session metadata has none)."""
     import yaml
 
-    from tacforce_ros.nodes.common import publisher_qos
+    from tacforce_ros.nodes.qos import publisher_qos
     assert sim_record.main(['--out', str(tmp_path), '--arrays', 'index_tip', '--plates', 'flat',
                             '--sessions', '1', '--seconds', '0.5']) == 0
     (bag,) = tmp_path.iterdir()
@@ -86,7 +87,7 @@ def test_bench_sim_times_the_closed_loop_against_a_bare_mujoco_step(tmp_path, mo
 
 
 def test_skin_sensitivity_varies_each_estimate_and_writes_its_table(tmp_path):
-    from tacforce_ros.tools import skin_sensitivity
+    from tacforce_ros.experiments import skin_sensitivity
     out = tmp_path / 'out'
     assert skin_sensitivity.main(['--out', str(out), '--arrays', 'index_middle', '--seconds',
                                   '15', '--models', 'M3', 'M3-lambda', '--params', 'poisson',
@@ -160,7 +161,7 @@ def test_skin_sensitivity_counts_the_seeds_that_meet_each_target():
 
 
 def test_skin_sensitivity_refuses_an_array_without_a_table_i_row(tmp_path, capsys):
-    from tacforce_ros.tools import skin_sensitivity
+    from tacforce_ros.experiments import skin_sensitivity
     with pytest.raises(SystemExit):
         skin_sensitivity.main(['--out', str(tmp_path), '--arrays', 'palm_center'])
     assert 'Table I rows' in capsys.readouterr().err
@@ -178,13 +179,13 @@ def test_skin_sensitivity_refuses_an_array_without_a_table_i_row(tmp_path, capsy
     ('youngs_modulus=-1', 'the value must be finite and >= 0'),
     ('poisson=0.5', 'poisson must lie in (0, 0.499]')])
 def test_skin_sensitivity_refuses_a_setting_it_cannot_apply(setting, message):
-    from tacforce_ros.tools.skin_sensitivity import skin_setting
+    from tacforce_ros.experiments.skin_sensitivity import skin_setting
     with pytest.raises(argparse.ArgumentTypeError, match=re.escape(message)):
         skin_setting(setting)
 
 
 def test_skin_sensitivity_refuses_a_parameter_set_twice(tmp_path, capsys):
-    from tacforce_ros.tools import skin_sensitivity
+    from tacforce_ros.experiments import skin_sensitivity
     with pytest.raises(SystemExit):
         skin_sensitivity.main(['--out', str(tmp_path), '--set', 'poisson=0.4', '--set',
                                'poisson=0.45'])
@@ -192,7 +193,7 @@ def test_skin_sensitivity_refuses_a_parameter_set_twice(tmp_path, capsys):
 
 
 def test_a_skin_setting_reaches_the_simulated_skin(tmp_path):
-    from tacforce_ros.tools import skin_sensitivity
+    from tacforce_ros.experiments import skin_sensitivity
     # A 1 mm layer cannot hold magnets that read the measured rest values: every row says so.
     assert skin_sensitivity.main(['--out', str(tmp_path), '--arrays', 'index_middle',
                                   '--seconds', '5', '--models', 'M3', '--params', 'poisson',
@@ -204,7 +205,7 @@ def test_a_skin_setting_reaches_the_simulated_skin(tmp_path):
 
 
 def test_a_skin_setting_takes_the_parameters_shape():
-    from tacforce_ros.tools.skin_sensitivity import skin_setting, variants
+    from tacforce_ros.experiments.skin_sensitivity import skin_setting, variants
     assert skin_setting('rest_z_range=35600,35600') == ('rest_z_range', (35600.0, 35600.0))
     assert skin_setting('layer_thickness=0.004') == ('layer_thickness', 0.004)
     # a variant of a parameter set scales the value set, not the default

@@ -11,6 +11,7 @@ Stages, in the order a step runs them:
   taxel_force  each taxel's share of the contact force, in {S0}
   local_force  per-taxel force in its own frame
   counts       whole-hand float counts and temperatures (368 taxels)
+  readout      the 16-bit counts the skin's electronics send (faulty taxels)
   wrench       the F/T wrench in {F}
   torque       closed loop: joint torques between command and the simulated actuators
   delivery     what each stream delivers (latency, drop-outs)
@@ -24,8 +25,8 @@ from typing import Any, ClassVar
 import numpy as np
 
 HAND_STREAM = 1   # tag of the hand's random streams (see Pipeline.reset)
-STAGES = ('model', 'response', 'taxel_force', 'local_force', 'counts', 'wrench', 'torque',
-          'delivery')
+STAGES = ('model', 'response', 'taxel_force', 'local_force', 'counts', 'readout', 'wrench',
+          'torque', 'delivery')
 
 
 @dataclass
@@ -93,12 +94,12 @@ class Pipeline:
 def _registry() -> dict[str, type[Effect]]:
     from tacforce_ros.sim.effects import (actuator_limits, contact_offset, crosstalk,
                                           deformation, ft_noise, hysteresis, joint_friction,
-                                          kinematic_mismatch, magnetic_skin, taxel_noise,
-                                          taxel_variation, temperature_drift, torque_gain_error,
-                                          transport)
+                                          kinematic_mismatch, magnetic_skin, taxel_faults,
+                                          taxel_noise, taxel_variation, temperature_drift,
+                                          torque_gain_error, transport)
     modules = (taxel_variation, deformation, hysteresis, magnetic_skin, taxel_noise,
-               temperature_drift, crosstalk, ft_noise, actuator_limits, torque_gain_error,
-               joint_friction, kinematic_mismatch, contact_offset, transport)
+               temperature_drift, crosstalk, taxel_faults, ft_noise, actuator_limits,
+               torque_gain_error, joint_friction, kinematic_mismatch, contact_offset, transport)
     return {m.EFFECT.name: m.EFFECT for m in modules}
 
 

@@ -5,11 +5,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from tacforce_ros.rig import TORQUE_LIMITS
 from tacforce_ros.sim.effects import Effect
 
-# Firmware per-joint clamps, N m (PROTOCOLS.md section 2): fingers j0..j3, thumb j12..j15.
-FINGER_CLAMP = (0.3125, 0.5625, 0.375, 0.2375)
-THUMB_CLAMP = (0.4375, 0.3375, 0.225, 0.225)
 
 
 @dataclass
@@ -24,7 +22,7 @@ class ActuatorLimits(Effect):
     recover: float = 0.8
 
     def reset(self, rng: np.random.Generator, ctx) -> None:
-        self._clamp = np.array(FINGER_CLAMP * 3 + THUMB_CLAMP)
+        self._clamp = TORQUE_LIMITS.copy()   # the firmware's clamps
         self._negative_clamp = -self._clamp
         # heat' = (1 - a) heat + a (tau / threshold)^2 each step, a = dt / time_constant
         alpha = ctx.physics_dt / self.time_constant

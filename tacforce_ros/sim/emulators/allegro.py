@@ -17,12 +17,13 @@ from collections.abc import Callable
 import can
 import numpy as np
 
-from tacforce_ros.devices.allegro import (CMD_FINGER_POSE, CMD_HAND_INFO, CMD_SERIAL,
-                                          CMD_SET_PERIOD, CMD_SET_TORQUE, CMD_SYSTEM_OFF,
-                                          CMD_SYSTEM_ON, FIRMWARE_TORQUE_LIMITS, N_FINGERS,
-                                          N_JOINTS, PERIOD, PWM_PER_NM_V4, RAD_PER_COUNT,
-                                          HandInfo, decode_int16x4, encode_torque, split_wire_id,
-                                          wire_id)
+from tacforce_ros.devices.allegro_codec import (CMD_FINGER_POSE, CMD_HAND_INFO, CMD_SERIAL,
+                                                CMD_SET_PERIOD, CMD_SET_TORQUE, CMD_SYSTEM_OFF,
+                                                CMD_SYSTEM_ON, N_FINGERS, N_JOINTS, PERIOD,
+                                                PWM_PER_NM_V4, RAD_PER_COUNT, HandInfo,
+                                                decode_int16x4, encode_torque, split_wire_id,
+                                                wire_id)
+from tacforce_ros.rig import TORQUE_LIMITS
 from tacforce_ros.sim.emulators.base import LOOPBACK, Pacer
 from tacforce_ros.sim.emulators.socketcand import SocketcandServer
 
@@ -97,7 +98,7 @@ class AllegroEmulator:
             finger = command & 0x3
             tau = self.torques.copy()
             tau[4 * finger:4 * finger + 4] = decode_int16x4(message.data) / self.pwm_per_nm
-            self._apply_torques(np.clip(tau, -FIRMWARE_TORQUE_LIMITS, FIRMWARE_TORQUE_LIMITS))
+            self._apply_torques(np.clip(tau, -TORQUE_LIMITS, TORQUE_LIMITS))
         else:
             self.diagnostics.note_malformed(
                 f'hand ignored id 0x{message.arbitration_id:03x} DLC {message.dlc}')

@@ -15,6 +15,7 @@ from websockets.exceptions import ConnectionClosed
 from websockets.sync.server import Server, ServerConnection, serve
 
 from tacforce_ros.devices.xela import routine_message, welcome_message
+from tacforce_ros.rig import RATE_HZ
 from tacforce_ros.sim.emulators.base import LOOPBACK, Pacer, require_loopback
 
 FrameSource = Callable[[], tuple[np.ndarray, np.ndarray, float]]
@@ -29,7 +30,7 @@ class XelaServerEmulator:
     """
 
     def __init__(self, frame_source: FrameSource, host: str = LOOPBACK, port: int = 0,
-                 rate_hz: float = 100.0, model: str = 'XR23AHRCPP',
+                 rate_hz: float = RATE_HZ, model: str = 'XR23AHRCPP',
                  log_length: int = 100_000) -> None:
         self.frame_source = frame_source
         self.host = require_loopback(host)

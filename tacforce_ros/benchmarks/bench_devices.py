@@ -17,7 +17,8 @@ from collections.abc import Callable
 
 import numpy as np
 
-from tacforce_ros.devices.allegro import RAD_PER_COUNT, AllegroConfig, AllegroV4Driver
+from tacforce_ros.devices.allegro import AllegroConfig, AllegroV4Driver
+from tacforce_ros.devices.allegro_codec import RAD_PER_COUNT
 from tacforce_ros.devices.netft import NetFtClient, NetFtConfig
 from tacforce_ros.devices.polling import PollingDriver
 from tacforce_ros.devices.xela import XelaClient, XelaConfig

@@ -29,6 +29,7 @@ from tacforce_ros.paths import output_file
 from tacforce_ros.sim import list_scenes, load_scene, make_simulator
 from tacforce_ros.sim.effects import EFFECTS
 from tacforce_ros.sim.scene import calibration_scene_name
+from tacforce_ros.rig import HELD_OUT_PLATE, TRAINING_PLATES
 
 TARGETS = {'calibration': 50.0, 'closed_loop': 10.0, 'closed_loop_with_control': 15.0}
 LOOP_SEQUENCE = 'paper_70s'
@@ -80,7 +81,7 @@ def loop_factors(scene_name: str, hand, seconds: float, repeats: int) -> dict:
     from tacforce_ros.control.command_sequence import ForceSequence
     from tacforce_ros.estimation.model_set import default_model_config, load_model_set
     from tacforce_ros.experiments.closed_loop import SETTLE_SECONDS, run_closed_loop
-    from tacforce_ros.experiments.pipeline import controller_config, tare_frames
+    from tacforce_ros.experiments.settings import controller_config, tare_frames
     from tacforce_ros.hand.kinematics import HandKinematics
 
     kinematics = HandKinematics.for_hand(hand)
@@ -127,7 +128,7 @@ def main(argv: list[str] | None = None) -> int:
     hand = load_hand()
     scenes = args.scenes or [
         calibration_scene_name(array, plate) for array in paper.TABLE_I
-        for plate in (*paper.TRAINING_PLATES, paper.HELD_OUT_PLATE)] + list_scenes()
+        for plate in (*TRAINING_PLATES, HELD_OUT_PLATE)] + list_scenes()
     result = {'seconds': args.seconds, 'loop_seconds': args.loop_seconds,
               'repeats': args.repeats, 'targets': TARGETS, 'load_before': os.getloadavg(),
               'scenes': {}, 'effects': {}}

@@ -16,7 +16,8 @@ into /calibration/sample. Writes JSON and a readable table to --out.
 
     bench_graph --runs 10 --out out/bench_graph
     bench_graph --runs 3 --no-lockstep --out out/bench_graph_free   # free-running, to compare
-    bench_graph --skin magnetic --model out/models/M3-lambda.yaml ...  # after reproduce --skin magnetic
+    # after reproduce --skin magnetic, with a model trained on that skin:
+    bench_graph --skin magnetic --model out/models/M3-lambda.yaml ...
 """
 from __future__ import annotations
 
@@ -28,21 +29,20 @@ from pathlib import Path
 import numpy as np
 
 from tacforce_ros import bagio, results, topics
-from tacforce_ros.bringup.processes import interrupt_on_sigterm
+from tacforce_ros.bringup.processes import interrupt_on_sigterm, read_cpu_report
 from tacforce_ros.control.command_sequence import ForceSequence
 from tacforce_ros.control.force_controller import MODE_HOLD, MODE_SAFE
 from tacforce_ros.estimation.model_set import (ModelConfigError, default_model_config,
                                                load_model_set, model_files)
 from tacforce_ros.experiments import node_path
-from tacforce_ros.experiments.pipeline import (SKINS, Settings, controller_config, skin_scene,
+from tacforce_ros.experiments.settings import (SKINS, Settings, controller_config, skin_scene,
                                                tare_frames)
 from tacforce_ros.hand.description import load_hand
 from tacforce_ros.hand.kinematics import TIP_LINKS, HandKinematics
-from tacforce_ros.nodes.session_plan import SCENE_DONE_MARKER
+from tacforce_ros.bringup.session_plan import SCENE_DONE_MARKER
 from tacforce_ros.paths import output_folder
 from tacforce_ros.sim.closed_loop import FRICTION
 from tacforce_ros.sim.scene import load_scene
-from tacforce_ros.tools.session import CPU_REPORT
 
 LOOP_SCENE = 'closed_loop_spherical'
 CALIBRATION_SCENE = 'calibration_index_tip_spherical'
@@ -81,10 +81,9 @@ def process_cpu(session_dir: Path) -> dict[str, float]:
     """CPU seconds per process of a session (the session tool's report at its end)."""
     log = session_dir / 'session.log'
     for line in log.read_text(errors='replace').splitlines() if log.is_file() else ():
-        if line.startswith(CPU_REPORT):
-            return {name: float(value) for name, value in
-                    (item.split('=') for item in line[len(CPU_REPORT):].strip().split(', ')
-                     if item)}
+        cpu = read_cpu_report(line)
+        if cpu is not None:
+            return cpu
     return {}
 
 

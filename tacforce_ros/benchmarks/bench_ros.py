@@ -35,9 +35,9 @@ from pathlib import Path
 
 from tacforce_ros.estimation.model_set import write_synthetic_model_set
 from tacforce_ros.hand.description import load_hand
-from tacforce_ros.nodes.common import use_realtime_scheduling
+from tacforce_ros.nodes.realtime import use_realtime_scheduling
 from tacforce_ros.nodes.latency_probe import Probe, bench_controller, bench_estimator
-from tacforce_ros.nodes.session_plan import NodeLaunch, params_file
+from tacforce_ros.bringup.session_plan import NodeLaunch, params_file
 from tacforce_ros.paths import output_file
 from tacforce_ros.bringup.processes import (first_exited, interrupt_on_sigterm, start_nodes,
                                            stop_nodes)
@@ -101,7 +101,10 @@ def run_estimator(probe: Probe, hand, args: argparse.Namespace, env: dict, tmp: 
     models = write_synthetic_model_set(tmp / 'models', hand)
     procs = start_nodes([NodeLaunch('estimator', (params_file('estimator'),), {
         'model_config': str(models), 'tare_at_start': False, 'marker_rate_hz': 0.0,
-        'realtime_priority': priority})], tmp / 'logs', env)
+        'realtime_priority': priority,
+        # synthetic models are no calibration of the probe's frames (their spreads are a few
+        # counts): the range check would flag every array, and no wrench would be published
+        'out_of_range': 0.0})], tmp / 'logs', env)
     measured = False
     try:
         if priority > 0:

@@ -29,7 +29,14 @@ from pathlib import Path
 
 from tacforce_ros import results
 from tacforce_ros.bringup.processes import interrupt_on_sigterm
-from tacforce_ros.experiments import pipeline, report
+from tacforce_ros.experiments import calibration_stages as calibration
+from tacforce_ros.experiments import estimation_stages as estimation
+from tacforce_ros.experiments import loop_stages as loop
+from tacforce_ros.experiments import report
+from tacforce_ros.experiments.settings import (CONTROLLERS, PLATES, SKINS, WHOLE_HAND_MODEL,
+                                             Context, Settings)
+from tacforce_ros.experiments.workers import init_worker, load_trace
+from tacforce_ros.rig import HELD_OUT_PLATE
 from tacforce_ros.experiments.cache import StageCache
 from tacforce_ros.experiments.node_path import AGREEMENT_N, AGREEMENT_REASON
 from tacforce_ros.paths import output_folder
@@ -59,15 +66,15 @@ def figures(out: Path, cv: dict, table_i: dict, end_to_end: dict, traces: dict,
             whole_hand: dict) -> list[str]:
     from tacforce_ros.experiments import plots
     from tacforce_ros.hand.description import load_hand
+    from tacforce_ros.hand.figure import hand_errors
     names = [plots.accuracy_vs_time(table_i, end_to_end, out / 'accuracy_vs_time.png').name,
              plots.per_plate_errors(cv, out / 'per_plate_errors.png').name,
-             plots.hand_errors(load_hand(), {a: row['cv']['e_hat_mean']
-                                             for a, row in whole_hand.items()},
-                               f'SIMULATION, {pipeline.WHOLE_HAND_MODEL}: held-out e_hat [N]',
-                               out / 'whole_hand.png').name]
+             hand_errors(load_hand(), {a: row['cv']['e_hat_mean'] for a, row in whole_hand.items()},
+                         f'SIMULATION, {WHOLE_HAND_MODEL}: held-out e_hat [N]',
+                         out / 'whole_hand.png').name]
     by_object: dict[str, dict] = {}
     for (obj, controller), paths in traces.items():
-        by_object.setdefault(obj, {})[controller] = [pipeline.load_trace(p) for p in paths]
+        by_object.setdefault(obj, {})[controller] = [load_trace(p) for p in paths]
     for obj, runs in by_object.items():
         names.append(plots.tracking(runs, f'force tracking, {obj}',
                                     out / f'tracking_{obj}.png').name)
@@ -78,7 +85,7 @@ def figures(out: Path, cv: dict, table_i: dict, end_to_end: dict, traces: dict,
 def workers(jobs: int):
     """The stages' worker processes; stopped at once if the job is (SIGINT, or SIGTERM taken as
     one), where leaving the `with` would wait for each one's current stage."""
-    pool = ProcessPoolExecutor(max_workers=jobs, initializer=pipeline.init_worker)
+    pool = ProcessPoolExecutor(max_workers=jobs, initializer=init_worker)
     try:
         yield pool
     except BaseException:
@@ -89,37 +96,37 @@ def workers(jobs: int):
     pool.shutdown()
 
 
-def run(settings: pipeline.Settings, out: Path, jobs: int) -> dict:
+def run(settings: Settings, out: Path, jobs: int) -> dict:
     from tacforce_ros.experiments.closed_loop import trace_metrics
     started = time.perf_counter()
     load_before = os.getloadavg()
     cache = StageCache(out / 'cache')
     with workers(jobs) as pool:
-        ctx = pipeline.Context(settings=settings, out=out, cache=cache, pool=pool,
+        ctx = Context(settings=settings, out=out, cache=cache, pool=pool,
                                log=lambda line: print(line, file=sys.stderr, flush=True))
-        layout = pipeline.calibration_stage(ctx)
-        cv, models = pipeline.benchmark_stage(ctx, layout)
-        whole_hand = pipeline.whole_hand_stage(ctx, cv)
-        timing = pipeline.timing_stage(ctx, models)
-        online = pipeline.online_stage(ctx, layout, models)
-        end_to_end = pipeline.end_to_end_stage(ctx, layout, models, timing,
-                                               pipeline.node_latency_stage(ctx))
-        traces = pipeline.closed_loop_stage(ctx, models)
-        plain = traces.get((pipeline.HELD_OUT_PLATE, 'M3-lambda'))
+        layout = calibration.calibration_stage(ctx)
+        cv, models = calibration.benchmark_stage(ctx, layout)
+        whole_hand = calibration.whole_hand_stage(ctx, cv)
+        timing = estimation.timing_stage(ctx, models)
+        online = estimation.online_stage(ctx, layout, models)
+        end_to_end = estimation.end_to_end_stage(ctx, layout, models, timing,
+                                               estimation.node_latency_stage(ctx))
+        traces = loop.closed_loop_stage(ctx, models)
+        plain = traces.get((HELD_OUT_PLATE, 'M3-lambda'))
         filtered = None if plain is None else \
-            pipeline.filtered_closed_loop_stage(ctx, models, end_to_end)
-    node = pipeline.node_path_stage(ctx, models)
-    closed = {key: trace_metrics([pipeline.load_trace(p) for p in paths])
+            loop.filtered_closed_loop_stage(ctx, models, end_to_end)
+    node = loop.node_path_stage(ctx, models)
+    closed = {key: trace_metrics([load_trace(p) for p in paths])
               for key, paths in traces.items()}
     filter_effect = None if filtered is None else report.filter_closed_loop(
-        filtered, closed[(pipeline.HELD_OUT_PLATE, 'M3-lambda')],
-        trace_metrics([pipeline.load_trace(p) for p in filtered['traces']]))
+        filtered, closed[(HELD_OUT_PLATE, 'M3-lambda')],
+        trace_metrics([load_trace(p) for p in filtered['traces']]))
     rows = report.table_iii(closed)
     table_i = report.table_i(cv, timing)
     doc = {
         'label': 'SIMULATION: every sim number comes from the simulated hand, not hardware',
-        'settings': dataclasses.asdict(settings), 'plates': list(pipeline.PLATES),
-        'controllers': list(pipeline.CONTROLLERS), 'paths': PATHS,
+        'settings': dataclasses.asdict(settings), 'plates': list(PLATES),
+        'controllers': list(CONTROLLERS), 'paths': PATHS,
         'table_I': table_i, 'online': online,
         'table_II': report.table_ii(online), 'end_to_end': end_to_end, 'table_III': rows,
         'filter_closed_loop': filter_effect,
@@ -153,7 +160,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--jobs', type=int, default=min(2, os.cpu_count() or 1),
                         help='worker processes (default: 2)')
     parser.add_argument('--seed', type=int, default=0, help='base seed of sessions and runs')
-    parser.add_argument('--skin', choices=pipeline.SKINS, default='empirical',
+    parser.add_argument('--skin', choices=SKINS, default='empirical',
                         help='the simulated skin of every scene: empirical (default), or '
                              'magnetic, computed from the taxel\'s physics (docs/SKIN_PHYSICS.md; '
                              'the report then judges the magnetic skin\'s targets)')
@@ -161,7 +168,7 @@ def main(argv: list[str] | None = None) -> int:
     interrupt_on_sigterm()      # its finally blocks stop the processes it started
     if args.jobs < 1:
         parser.error('--jobs must be >= 1')
-    settings = pipeline.Settings.quick() if args.quick else pipeline.Settings()
+    settings = Settings.quick() if args.quick else Settings()
     settings = dataclasses.replace(settings, seed=args.seed, skin=args.skin,
                                    node_path=(settings.node_path or args.node_path)
                                    and not args.no_node_path)

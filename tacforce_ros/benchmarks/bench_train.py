@@ -24,7 +24,8 @@ import numpy as np
 from tacforce_ros.estimation.cross_validation import cross_validate
 from tacforce_ros.estimation.preprocessing import SAMPLE_RATE_HZ
 from tacforce_ros.estimation.registry import PAPER_LABELS, TORCH_KINDS, paper_configurations
-from tacforce_ros.estimation.synthetic import PLATES, synthetic_dataset
+from tacforce_ros.estimation.synthetic import synthetic_dataset
+from tacforce_ros.rig import TRAINING_PLATES as PLATES
 from tacforce_ros.paths import output_folder, write_results
 
 

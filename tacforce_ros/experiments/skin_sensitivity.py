@@ -34,6 +34,7 @@ from tacforce_ros.estimation.m1_rotation_linear import NORMAL_INPUT_NOTE
 from tacforce_ros.experiments import paper_reference as paper
 from tacforce_ros.experiments.skin_targets import targets
 from tacforce_ros.paths import output_folder, write_results
+from tacforce_ros.rig import TRAINING_PLATES
 
 ARRAYS = ('index_tip', 'index_middle')
 LOOP_ARRAY, LOOP_SCENE = 'index_tip', 'closed_loop_spherical'   # the paper's Table III
@@ -123,7 +124,7 @@ def evaluate(variant: dict, arrays: list[str], sessions: int, seconds: float,
     rows, per_plate, per_axis, normal_input, loop = {}, {}, {}, {}, None
     for array in arrays:
         parts = []
-        for plate in paper.TRAINING_PLATES:
+        for plate in TRAINING_PLATES:
             scene = magnetic(calibration_scene_name(array, plate))
             for k in range(sessions):
                 try:
@@ -167,7 +168,7 @@ def closed_loop(hand, kinematics, scene, labels: list[str], configs: dict, X, F,
     from tacforce_ros.estimation.model_set import load_model_set, write_model_config
     from tacforce_ros.estimation.training import fit_bundle
     from tacforce_ros.experiments.closed_loop import run_closed_loop, trace_metrics
-    from tacforce_ros.experiments.pipeline import controller_config
+    from tacforce_ros.experiments.settings import controller_config
 
     sequence = ForceSequence.load('paper_70s')
     open_loop = trace_metrics([run_closed_loop(hand, kinematics, scene, seed,
@@ -265,7 +266,7 @@ def per_plate_table(result: dict) -> list[str]:
     rows = [row for row in result['variants'] if row['name'] == 'values' and row['e_hat']]
     if not rows:
         return []
-    plates = list(paper.TRAINING_PLATES)
+    plates = list(TRAINING_PLATES)
     lines = ['', '## Held-out e_hat [N] per test plate at the values', '',
              '| array | model | seed | ' + ' | '.join(plates) + ' | MAE x / y / z |',
              '|' + '---|' * (len(plates) + 4)]
@@ -285,7 +286,7 @@ def normal_input_table(result: dict) -> list[str]:
     rows = [row for row in result['variants'] if row['e_hat']]
     if not rows:
         return []
-    plates = list(paper.TRAINING_PLATES)
+    plates = list(TRAINING_PLATES)
     lines = ['', "## M1's normal input per newton, by plate", '',
              NORMAL_INPUT_NOTE, '',
              '| variant | seed | array | ' + ' | '.join(plates) + ' |',

@@ -51,7 +51,7 @@ from lifecycle_msgs.msg import Transition
 from tacforce_ros import results
 from tacforce_ros.bringup.processes import executable, interrupt_on_sigterm, start_nodes
 from tacforce_ros.nodes.graph_probe import GraphProbe
-from tacforce_ros.nodes.session_plan import NodeLaunch, SessionArgs, composed, plan
+from tacforce_ros.bringup.session_plan import NodeLaunch, SessionArgs, composed, plan
 from tacforce_ros.paths import output_folder
 
 MANAGED = ('xela_driver', 'ft_bridge', 'allegro_driver')

@@ -1,0 +1,159 @@
+"""Stages of the main job that calibrate: simulated calibration sessions, training sets, the
+leave-one-plate-out benchmark (Table I) and the whole-hand campaign.
+"""
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+
+from tacforce_ros.estimation.cross_validation import cross_validate
+from tacforce_ros.estimation.dataset import concatenate
+from tacforce_ros.estimation.training import fit_bundles, for_deployment
+from tacforce_ros.rig import HELD_OUT_PLATE
+from tacforce_ros.experiments.cache import digest, scene_digest, source_digest
+from tacforce_ros.experiments.calibration_data import simulate_calibration
+from tacforce_ros.hand.description import load_hand
+from tacforce_ros.hand.kinematics import HandKinematics
+from tacforce_ros.sim.scene import calibration_scene_name, session_seed
+from tacforce_ros.experiments.settings import (ARRAYS, PLATES, WHOLE_HAND_MODEL, Context, Settings,
+                                             hand_digest, model_hyper, scene_for)
+from tacforce_ros.experiments.workers import (job_benchmark, job_calibration, job_cross_validation,
+                                            job_training_set, run_units, worker_hand)
+
+
+def calibration_unit(ctx: Context, array: str, plate: str, session: int, seconds: float,
+                     zero_phase_tactile: bool = True) -> tuple[str, tuple | None]:
+    """(dataset path, job unit to run, or None when the cache has it) of one session."""
+    scene = scene_for(ctx, calibration_scene_name(array, plate))
+    seed = session_seed(ctx.settings.seed, array, plate, session)
+    key = digest({'scene': scene_digest(scene), 'seed': seed, 'seconds': seconds,
+                  'code': source_digest(simulate_calibration, load_hand, HandKinematics),
+                  'hand': hand_digest(),
+                  **({} if zero_phase_tactile else {'zero_phase_tactile': False})})
+    path = ctx.cache.path('calibration', key, '.npz')
+    if ctx.cache.lookup('calibration', key, '.npz') is not None:
+        return str(path), None
+    path.parent.mkdir(parents=True, exist_ok=True)
+    return str(path), (str(path), job_calibration,
+                       (scene, seed, seconds, str(path), zero_phase_tactile))
+
+
+def calibration_stage(ctx: Context) -> dict[str, dict[str, list[str]]]:
+    """Simulated sessions: {array: {plate: [dataset paths]}}, training plates + held-out."""
+    s = ctx.settings
+    jobs, layout = [], {}
+    plan = [(a, p, k, s.session_seconds) for a in ARRAYS for p in PLATES
+            for k in range(s.sessions_per_plate)]
+    plan.append(('index_tip', HELD_OUT_PLATE, 0, s.online_seconds))   # online test session
+    for array, plate, session, seconds in plan:
+        path, job = calibration_unit(ctx, array, plate, session, seconds)
+        layout.setdefault(array, {}).setdefault(plate, []).append(path)
+        jobs += [job] if job is not None else []
+    ctx.log(f'stage calibration: {len(plan)} sessions, {len(jobs)} to simulate')
+    run_units(ctx, 'calibration sessions', jobs)
+    return layout
+
+
+def _training_key(paths: list[str], label: str, settings: Settings) -> str:
+    return digest({'data': sorted(Path(p).stem for p in paths),
+                   'model': model_hyper(label, settings),
+                   'static_force': settings.static_force,
+                   'code': source_digest(cross_validate, fit_bundles, for_deployment)})
+
+
+def training_sets(ctx: Context, title: str, sessions: dict[str, list[str]]) -> dict[str, str]:
+    """{array: training set path} from {array: session dataset paths}, made where not cached."""
+    static_force = ctx.settings.static_force
+    sets, jobs = {}, []
+    for array, paths in sessions.items():
+        key = digest({'data': sorted(Path(p).stem for p in paths),
+                      'static_force': static_force, 'code': source_digest(concatenate)})
+        sets[array] = str(ctx.cache.path('training_set', key, '.npz'))
+        if ctx.cache.lookup('training_set', key, '.npz') is None:
+            Path(sets[array]).parent.mkdir(parents=True, exist_ok=True)
+            jobs.append((array, job_training_set, (paths, static_force, sets[array])))
+    run_units(ctx, title, jobs)
+    return sets
+
+
+def benchmark_stage(ctx: Context, layout: dict) -> tuple[dict, dict]:
+    """Table I: leave-one-plate-out CV per array and model; final models on all five plates.
+
+    Returns ({array: {label: cv summary}}, {array: {label: model path}}).
+    """
+    s = ctx.settings
+    sets = training_sets(ctx, 'training sets', {
+        array: [p for plate in PLATES for p in layout[array][plate]] for array in ARRAYS})
+    jobs, cv, models, keys = [], {}, {}, {}
+    for array in ARRAYS:
+        paths = [p for plate in PLATES for p in layout[array][plate]]
+        for label in s.models:
+            kind, hyper = model_hyper(label, s)
+            key = _training_key(paths, label, s)
+            name = f'{array}/{label}'
+            keys[name] = key
+            target = ctx.cache.path('models', key, '.npz')
+            models.setdefault(array, {})[label] = str(target)
+            cached = ctx.cache.load_json('cross_validation', key)
+            if cached is not None and ctx.cache.lookup('models', key, '.npz') is not None:
+                cv.setdefault(array, {})[label] = cached
+                continue
+            target.parent.mkdir(parents=True, exist_ok=True)
+            provenance = {'dataset': f'reproduce cache {key[:24]}', 'date':
+                          time.strftime('%Y-%m-%dT%H:%M:%S%z'), 'seed': s.seed,
+                          'code_version': source_digest(fit_bundles)[:12]}
+            jobs.append((name, job_benchmark, (array, kind, hyper, sets[array], provenance,
+                                               str(target))))
+    ctx.log(f'stage benchmark: {len(jobs)} of {len(ARRAYS) * len(s.models)} cross-validations, '
+            f'each with its final model in the same fit, to run')
+    # Slow (torch) units first, so the pool does not end on one long job.
+    slow = ('M5', 'M4')
+    order = sorted(jobs, key=lambda u: [u[0].endswith(k) for k in slow], reverse=True)
+    for name, value in run_units(ctx, 'benchmark fits', order).items():
+        ctx.cache.store_json('cross_validation', keys[name], value)
+        array, label = name.split('/')
+        cv.setdefault(array, {})[label] = value
+    # Rows in the settings' model order, whatever order the units finished in.
+    return {a: {label: cv[a][label] for label in s.models} for a in ARRAYS}, models
+
+
+def whole_hand_stage(ctx: Context, cv: dict) -> dict:
+    """The whole-hand campaign: every array not in Table I, one session per training plate of
+    `whole_hand_seconds`, M3-lambda leave-one-plate-out; the Table I arrays keep their rows.
+    Returns {array: {'type', 'sessions', 'seconds', 'cv'}} in hand order."""
+    s = ctx.settings
+    hand, _ = worker_hand()
+    others = [a.name for a in hand.arrays if a.name not in ARRAYS]
+    jobs, layout = [], {}
+    for array in others:
+        for plate in PLATES:
+            path, job = calibration_unit(ctx, array, plate, 0, s.whole_hand_seconds)
+            layout.setdefault(array, []).append(path)
+            jobs += [job] if job is not None else []
+    ctx.log(f'stage whole hand: {len(others)} arrays x {len(PLATES)} plates, {len(jobs)} '
+            'sessions to simulate')
+    run_units(ctx, 'whole-hand sessions', jobs)
+    sets = training_sets(ctx, 'whole-hand training sets', layout)
+    kind, hyper = model_hyper(WHOLE_HAND_MODEL, s)
+    results, cv_jobs, keys = {}, [], {}
+    for array, paths in layout.items():
+        keys[array] = _training_key(paths, WHOLE_HAND_MODEL, s)
+        cached = ctx.cache.load_json('cross_validation', keys[array])
+        if cached is None:
+            cv_jobs.append((array, job_cross_validation, (array, kind, hyper, sets[array])))
+        else:
+            results[array] = cached
+    for array, value in run_units(ctx, 'whole-hand cross-validations', cv_jobs).items():
+        ctx.cache.store_json('cross_validation', keys[array], value)
+        results[array] = value
+    rows = {}
+    for array in hand.arrays:
+        if array.name in ARRAYS:
+            rows[array.name] = {'type': array.kind, 'sessions': s.sessions_per_plate,
+                                'seconds': s.session_seconds,
+                                'cv': cv[array.name][WHOLE_HAND_MODEL]}
+        else:
+            rows[array.name] = {'type': array.kind, 'sessions': 1,
+                                'seconds': s.whole_hand_seconds, 'cv': results[array.name]}
+    return rows

@@ -1,0 +1,127 @@
+"""The main job's worker jobs: units (a calibration session, a training set, a cross-validation
+or final fit, a closed-loop run) run in a process pool, each cached on its own, so a changed
+input recomputes only the units whose key it enters.
+"""
+from __future__ import annotations
+
+import sys
+import time
+import warnings
+from concurrent.futures import as_completed
+from typing import Any, Callable
+
+import numpy as np
+from tqdm import tqdm
+
+from tacforce_ros.control.command_sequence import ForceSequence
+from tacforce_ros.estimation.cross_validation import cross_validate
+from tacforce_ros.estimation.dataset import CalibrationDataset, concatenate
+from tacforce_ros.estimation.model_io import save_model
+from tacforce_ros.estimation.model_set import load_model_set
+from tacforce_ros.estimation.preprocessing import SAMPLE_RATE_HZ
+from tacforce_ros.estimation.training import for_deployment
+from tacforce_ros.experiments.cache import atomic_write
+from tacforce_ros.experiments.calibration_data import simulate_calibration
+from tacforce_ros.experiments.closed_loop import ClosedLoopTrace, run_closed_loop
+from tacforce_ros.hand.description import load_hand
+from tacforce_ros.hand.kinematics import HandKinematics
+from tacforce_ros.experiments.settings import Context, controller_config, tare_frames
+
+_WORKER: dict[str, Any] = {}
+
+
+def init_worker() -> None:
+    """Per-process hand and kinematics (loaded once per worker)."""
+
+    warnings.simplefilter('ignore')     # sim warnings repeat per run; the report states effects
+    _WORKER['hand'] = load_hand()
+    _WORKER['kinematics'] = HandKinematics.for_hand(_WORKER['hand'])
+
+
+def worker_hand():
+    if not _WORKER:
+        init_worker()
+    return _WORKER['hand'], _WORKER['kinematics']
+
+
+def job_calibration(scene: str, seed: int, seconds: float, target: str,
+                    zero_phase_tactile: bool = True) -> str:
+    hand, kinematics = worker_hand()
+    dataset = simulate_calibration(hand, kinematics, scene, seed, seconds,
+                                   zero_phase_tactile=zero_phase_tactile)
+    atomic_write(target, dataset.save)
+    return target
+
+
+def job_training_set(paths: list[str], static_force: float, target: str) -> str:
+    """Join the sessions of one array, remove each session's offsets, store uncompressed (the
+    fits of every model load it; compressed session files would be unpacked once per fit)."""
+    dataset = concatenate([CalibrationDataset.load(p) for p in paths])
+    X, F, offset = dataset.without_offsets(force_threshold=static_force)
+    atomic_write(target, lambda tmp: np.savez(tmp, X=X, F=F, plates=dataset.plates.astype(str),
+                                              x_offset=offset))
+    return target
+
+
+def load_training(path: str) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(X, F, plates, x_offset) of a training set written by job_training_set."""
+    with np.load(path, allow_pickle=False) as npz:
+        return npz['X'], npz['F'], npz['plates'], npz['x_offset']
+
+
+def job_cross_validation(array: str, kind: str, hyper: dict, training_set: str) -> dict:
+    hand, _ = worker_hand()
+    X, F, plates, _ = load_training(training_set)
+    return cross_validate(hand.array(array), kind, hyper, X, F, plates).summary()
+
+
+def job_benchmark(array: str, kind: str, hyper: dict, training_set: str, provenance: dict,
+                  target: str) -> dict:
+    """Cross-validation and the model on every plate in one fit (cross_validate(final=True));
+    writes the model to `target` with the cross-validation in its provenance; returns that."""
+    hand, _ = worker_hand()
+    X, F, plates, offset = load_training(training_set)
+    cv = cross_validate(hand.array(array), kind, hyper, X, F, plates, final=True)
+    summary = cv.summary()
+    bundle = for_deployment(cv.final, offset, {
+        **provenance, 'plates': list(dict.fromkeys(plates.tolist())), 'samples': int(X.shape[0]),
+        'metrics': summary})
+    atomic_write(target, lambda tmp: save_model(tmp, bundle))
+    return summary
+
+
+def job_closed_loop(scene: str, seed: int, controller: str, model_config: str | None,
+                    sequence: str, control_rate: float, target: str,
+                    lowpass: tuple[float, int] | None = None) -> str:
+    """`lowpass`: (cut-off Hz, order) of the estimator's causal input low-pass, None: off."""
+    hand, kinematics = worker_hand()
+    models = None if model_config is None else load_model_set(model_config, hand)
+    if lowpass is not None:
+        models.estimator.set_lowpass(lowpass[0], SAMPLE_RATE_HZ, lowpass[1])
+    trace = run_closed_loop(hand, kinematics, scene, seed, controller_config(controller),
+                            ForceSequence.load(sequence), models, control_rate=control_rate,
+                            tare_frames=tare_frames())
+    atomic_write(target, lambda tmp: np.savez(tmp, **trace.arrays()))
+    return target
+
+
+def run_units(ctx: Context, title: str, units: list[tuple[str, Callable, tuple]]
+              ) -> dict[str, Any]:
+    """Submit (name, job, args) units to the pool; tqdm over completions; results by name."""
+    results: dict[str, Any] = {}
+    if not units:
+        return results
+    started = time.perf_counter()
+    futures = {ctx.pool.submit(job, *args): name for name, job, args in units}
+    with tqdm(total=len(futures), desc=title, unit='job', file=sys.stderr) as bar:
+        for future in as_completed(futures):
+            results[futures[future]] = future.result()
+            bar.update(1)
+    ctx.timings[title] = ctx.timings.get(title, 0.0) + time.perf_counter() - started
+    return results
+
+
+def load_trace(path: str):
+    with np.load(path) as npz:
+        return ClosedLoopTrace(**{k: npz[k] for k in ('t', 'f_d', 'f_hat', 'f_tilde')},
+                               transitions=npz['transitions'].tolist())

@@ -95,6 +95,9 @@ class SyncRecorder(TacforceNode):
             raise ParameterError(problem)
         self.writer: CalibrationBagWriter | None = None
         self.sync: ApproximateTimeSynchroniser | None = None
+        # Built now, not by the first recording: that ran inside an executor callback, where a
+        # stop waited for it (up to 1 s on a loaded machine, bench_stop).
+        typestore()
         self._array_name = ''
         self._counts: dict[str, int] = {}
         self._missing_array = 0
@@ -210,6 +213,9 @@ class SyncRecorder(TacforceNode):
         return response
 
     def leave_safe(self) -> None:
+        if self._autostart_timer is not None:   # still waiting for /clock: it will not start now
+            self.destroy_timer(self._autostart_timer)
+            self._autostart_timer = None
         self.stop()
 
     def _flush(self) -> None:

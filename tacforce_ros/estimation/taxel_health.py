@@ -59,11 +59,6 @@ class TaxelHealth:
         self._same = np.empty((n_taxels, 3), dtype=bool)
         self._unchanged = np.empty(n_taxels, dtype=bool)
 
-    def reset(self) -> None:
-        """Forget the past frames (a gap in the stream: a frame after it proves nothing)."""
-        self._last.fill(-1.0)
-        self._still.fill(0)
-
     def check(self, counts: np.ndarray) -> list[TaxelFault]:
         """The faulty taxels of this frame, clipped before frozen; [] when all are healthy."""
         counts = np.asarray(counts)

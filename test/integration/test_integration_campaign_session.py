@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from tacforce_ros.bagio import read_session_metadata
+from tacforce_ros.bagio import load_metadata, read_session_metadata
 from tacforce_ros.hand.description import load_hand
 from tacforce_ros.hand.kinematics import HandKinematics
 from tacforce_ros.recording.campaign import Campaign, CampaignPlan, CoverageLimits
@@ -57,8 +57,12 @@ def test_a_campaign_session_records_what_is_due_while_the_operator_watches(tmp_p
     titles = re.findall(r'ring_middle on edge  \[#*\s*\]\s+(\d+) / 15 s', views)
     assert len(titles) >= 3 and int(titles[-1]) >= 10, views[-2000:]
     assert 'peak force' in views and 'of 8 directions' in views
+    # The view judged every sample the bag holds (how many the recorder synchronised depends
+    # on the machine's load: 1133 of 15 s at rest, 1010 with three busy loops beside it).
     final = re.search(r'ring_middle: (\d+) samples, (.*)', views)
-    assert final and int(final.group(1)) > 1000, views[-2000:]
+    recorded = {t['topic_metadata']['name']: t['message_count'] for t in
+                load_metadata(bags[0])['topics_with_message_count']}['/calibration/sample']
+    assert recorded > 500 and final and int(final.group(1)) == recorded, (recorded, views[-2000:])
 
     # The bag's own verdict (low-passed, resampled) agrees with what the operator last saw.
     hand = load_hand()

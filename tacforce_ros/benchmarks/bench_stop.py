@@ -28,7 +28,8 @@ must stop every process it started.
 
 Writes <out>/bench_stop.json (every stop) and bench_stop.md (per subject: stops, how many ended
 within `--limit` s, the worst, median and 95th percentile, exit codes, and every stop that needed
-SIGKILL or ended otherwise than with exit code 0, with the end of its log in the JSON).
+SIGKILL or ended otherwise than with exit code 0, with the end of its log in the JSON; for
+`session`, the ends of its nodes' logs too).
 """
 from __future__ import annotations
 
@@ -281,7 +282,11 @@ def one_stop(k: int, subject: str, condition: Condition, signum: int, launch: No
         proc = subprocess.Popen(command, stdout=out, stderr=subprocess.STDOUT, env=env,
                                 start_new_session=True)
     try:
-        return _stop_at_random(subject, condition, signum, proc, log, args, graph, rng)
+        row = _stop_at_random(subject, condition, signum, proc, log, args, graph, rng)
+        if subject == 'session' and 'log_tail' in row:     # and why: its nodes' own logs
+            for child in sorted((work / f'session_{k}' / 'logs').glob('*.log')):
+                row['log_tail'] += f'\n--- {child.name}\n' + tail(child, 6)
+        return row
     finally:
         if proc.poll() is None:         # the benchmark itself was interrupted
             proc.send_signal(signal.SIGINT)

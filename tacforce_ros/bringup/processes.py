@@ -74,6 +74,9 @@ def read_cpu_report(line: str) -> dict[str, float] | None:
             (item.split('=') for item in line[len(CPU_REPORT):].strip().split(', ') if item)}
 
 
+SLOW_STOP_S = 1.0      # a node's stop longer than this is named
+
+
 def stop_nodes(procs: list[tuple[str, subprocess.Popen]], grace: float) -> dict[str, int]:
     """SIGINT to every node (reverse start order: the recorder and controllers first, the clock
     source last), wait up to `grace` s in total, then kill what is left. Returns exit codes
@@ -81,15 +84,23 @@ def stop_nodes(procs: list[tuple[str, subprocess.Popen]], grace: float) -> dict[
     for _, proc in reversed(procs):
         if proc.poll() is None:
             proc.send_signal(signal.SIGINT)
-    deadline = time.monotonic() + grace
+    signalled = time.monotonic()
+    deadline = signalled + grace
+    took: dict[int, float] = {}         # when each ended, to name what holds a slow stop up
+    while len(took) < len(procs) and time.monotonic() < deadline:
+        for i, (_, proc) in enumerate(procs):
+            if i not in took and proc.poll() is not None:
+                took[i] = time.monotonic() - signalled
+        time.sleep(0.01)
     for name, proc in procs:
-        try:
-            proc.wait(timeout=max(0.0, deadline - time.monotonic()))
-        except subprocess.TimeoutExpired:
+        if proc.poll() is None:
             print(f'session: {name} did not stop within {grace:g} s; killing it',
                   file=sys.stderr)
             proc.kill()
             proc.wait(timeout=5.0)
+    slow = [f'{procs[i][0]} {t:.2f} s' for i, t in sorted(took.items()) if t > SLOW_STOP_S]
+    if slow:
+        print('session: slow to stop: ' + ', '.join(slow), file=sys.stderr)
     return {name: proc.returncode for name, proc in procs}
 
 

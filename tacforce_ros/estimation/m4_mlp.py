@@ -52,25 +52,13 @@ def mlp_forward(x: np.ndarray, w1: np.ndarray, b1: np.ndarray,
     return relu(x @ w1 + b1) @ w2 + b2
 
 
-def stacked_mlp_gradient(torch: Any, params: dict, buffers: dict, x: torch.Tensor,
-                         mask: torch.Tensor, targets: torch.Tensor, weights: torch.Tensor) -> dict:
-    """Training gradient of k stacked M4 networks (torch_batched.StackedGradient), by hand.
-
-    Why not autograd: a step of 5 networks at bench_train's size (index_tip, 160 000 samples
-    each, batch 256) took 608-676 us by hand against 809-884 us with autograd (four runs each,
-    alternating, one process at a time, 2026-11-25); the two agree to float32 rounding
-    (test_estimation_batched_training).
-    """
-    w1, w2 = params['hidden.weight'], params['output.weight']
-    hidden = torch.baddbmm(params['hidden.bias'][:, None], x, w1.transpose(1, 2)).relu_()
-    d_output = torch.baddbmm(params['output.bias'][:, None], hidden, w2.transpose(1, 2))
-    d_output.sub_(targets).mul_(weights)
-    # ReLU's backward as autograd runs it (zero where the unit is off, at 0 too), one kernel.
-    d_hidden = torch.ops.aten.threshold_backward(torch.bmm(d_output, w2), hidden, 0.0)
-    return {'hidden.weight': torch.bmm(d_hidden.transpose(1, 2), x),
-            'hidden.bias': d_hidden.sum(dim=1),
-            'output.weight': torch.bmm(d_output.transpose(1, 2), hidden),
-            'output.bias': d_output.sum(dim=1)}
+def stacked_mlp_forward(torch: Any, params: dict, buffers: dict, x: torch.Tensor,
+                        mask: torch.Tensor) -> torch.Tensor:
+    """Outputs of k stacked M4 networks (torch_batched.StackedForward)."""
+    hidden = torch.baddbmm(params['hidden.bias'][:, None], x,
+                           params['hidden.weight'].transpose(1, 2)).relu()
+    return torch.baddbmm(params['output.bias'][:, None], hidden,
+                         params['output.weight'].transpose(1, 2))
 
 
 class MLPModel(ForceModel):
@@ -114,7 +102,7 @@ class MLPModel(ForceModel):
         fit_models_stacked(same_kind_models(cls, models), [(X, F) for X, F, _ in data],
                            lambda m: (m.array.n_taxels, m.hidden),
                            lambda m, X: X.reshape(len(X), 3 * m.array.n_taxels),
-                           gradient=stacked_mlp_gradient)
+                           forward=stacked_mlp_forward)
 
     def _set_state(self, arrays: dict[str, np.ndarray]) -> MLPModel:
         self._state = checked_state(arrays, self._state_shapes(), self.kind)

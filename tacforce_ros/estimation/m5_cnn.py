@@ -19,7 +19,6 @@ weights stacked per grid shape so k arrays run as one batched matmul chain.
 """
 from __future__ import annotations
 
-import functools
 from collections import OrderedDict
 from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING, Any, ClassVar
@@ -135,10 +134,12 @@ class CNNModel(ForceModel):
     def fit_many(cls, models: Sequence[ForceModel],
                  data: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray]]) -> None:
         """Models of one padded grid and layer widths train as one stacked network."""
+        from tacforce_ros.estimation.m5_stacked import stacked_cnn_forward
+
         fit_models_stacked(same_kind_models(cls, models), [(X, F) for X, F, _ in data],
                            lambda m: (m.grid.shape, m.channels, m.dense),
                            lambda m, X: m.images(X),
-                           gradient=stacked_cnn_gradient)
+                           forward=stacked_cnn_forward)
 
     def _set_state(self, arrays: dict[str, np.ndarray]) -> CNNModel:
         state = checked_state(arrays, self._state_shapes(), self.kind)
@@ -246,197 +247,6 @@ class CNNModel(ForceModel):
             return out
 
         return forward
-
-
-@functools.lru_cache(maxsize=32)     # cached: read by every training step, never written
-def conv_as_matrix_index(in_shape: tuple[int, int, int], out_channels: int,
-                         kernel: int) -> np.ndarray:
-    """Index that spreads a 'valid' convolution's weights into its dense matrix.
-
-    For channels-last images (H, W, C) flattened, the convolution with weight (O, C, k, k) is the
-    matrix product with a (H*W*C, h*w*O) matrix whose entries are weights or zero; entry e is
-    weight.ravel()[index[e]], or zero where index[e] is weight.size (an appended zero).
-    """
-    H, W, C = in_shape
-    h, w = H - kernel + 1, W - kernel + 1
-    index = np.full((H, W, C, h, w, out_channels), out_channels * C * kernel * kernel)
-    o, c, a, b = np.meshgrid(np.arange(out_channels), np.arange(C), np.arange(kernel),
-                             np.arange(kernel), indexing='ij')
-    flat = np.ravel_multi_index((o, c, a, b), (out_channels, C, kernel, kernel))
-    for i in range(h):
-        for j in range(w):
-            index[i + a, j + b, c, i, j, o] = flat
-    index = index.reshape(H * W * C, h * w * out_channels)
-    return index
-
-
-def stacked_cnn_gradient(torch: Any, params: dict, buffers: dict, x: torch.Tensor,
-                         mask: torch.Tensor, targets: torch.Tensor,
-                         weights: torch.Tensor) -> dict:
-    """Training gradient of k stacked M5 networks (torch_batched.StackedGradient), by hand; the
-    BatchNorm's running statistics are updated as torch's BatchNorm2d updates them in training.
-
-    x (k, B, H, W, 3) channels-last images. On maps this small each 'valid' convolution is
-    cheapest as a batched matmul with its dense (Toeplitz) matrix, gathered from the weights at
-    each step. The first layer, whose input needs no gradient, takes the kernel's rows of the
-    image under each output row as a sample of its own (one matmul) with the small matrix all
-    rows share (its full matrix is three-quarters zeros): 4% off a step against the full matrix
-    (with autograd's backward), and 6% off a gradient against one matmul per row. Per step for
-    5 networks, torch's grouped convolution and im2col with batched matmuls each took longer
-    than the dense matrices. The BatchNorm, which
-    conv3 follows, is folded into conv3's matrix with the batch's statistics (BatchNormFold):
-    the activations are never normalised, and its backward rides on conv3's.
-    Why by hand, not autograd: 5 networks on index_tip, 80 000 samples each, one epoch per fit,
-    the two ways alternating in one process (2026-11-25): 5.38-6.24 ms per step (set-up
-    included) against 6.43-8.74 ms with autograd over the same forward. It agrees with torch's
-    own modules to float32 rounding (test_estimation_batched_training).
-    """
-    k, batch, H, W, C = x.shape
-    y, shape = x.reshape(k, batch, -1), (H, W, C)
-    layers = []
-    for name, kernel in zip(('conv1', 'conv2', 'conv3'), KERNELS):
-        weight = params[f'{name}.weight']                    # (k, O, C, kh, kw)
-        out_channels = weight.shape[1]
-        out_shape = (shape[0] - kernel + 1, shape[1] - kernel + 1, out_channels)
-        padded = torch.cat([weight.reshape(k, -1), weight.new_zeros(k, 1)], dim=1)
-        banded = name == 'conv1'
-        index = torch.as_tensor(conv_as_matrix_index(
-            (kernel, *shape[1:]) if banded else shape, out_channels, kernel), device=x.device)
-        matrix = padded.index_select(1, index.reshape(-1)).view(k, *index.shape)
-        if banded:
-            row = shape[1] * shape[2]
-            layer_input = y.unfold(2, kernel * row, row).reshape(k, -1, kernel * row)
-            bias = params[f'{name}.bias'].repeat(1, out_shape[1])[:, None]
-            y = torch.baddbmm(bias, layer_input, matrix).relu_().view(k, batch, -1)
-        else:
-            layer_input = y
-            bias = params[f'{name}.bias'].repeat(1, out_shape[0] * out_shape[1])[:, None]
-            applied = matrix
-            if name == 'conv3':
-                norm = BatchNormFold(torch, y, mask, shape[2], params, buffers)
-                applied, bias = norm.fold(matrix, bias)
-            y = torch.baddbmm(bias, y, applied).relu_()
-        layers.append((name, layer_input, matrix, index, weight.numel() // k, y))
-        shape = out_shape
-    h, w, c = shape
-    flat = y.view(k, batch, h, w, c).permute(0, 1, 4, 2, 3).reshape(k, batch, -1)   # torch order
-    dense = torch.baddbmm(params['dense.bias'][:, None], flat,
-                          params['dense.weight'].transpose(1, 2)).relu_()
-    d_output = torch.baddbmm(params['output.bias'][:, None], dense,
-                             params['output.weight'].transpose(1, 2))
-    d_output.sub_(targets).mul_(weights)
-    grads = {'output.weight': torch.bmm(d_output.transpose(1, 2), dense),
-             'output.bias': d_output.sum(dim=1)}
-    d_dense = torch.ops.aten.threshold_backward(torch.bmm(d_output, params['output.weight']),
-                                                dense, 0.0)
-    grads['dense.weight'] = torch.bmm(d_dense.transpose(1, 2), flat)
-    grads['dense.bias'] = d_dense.sum(dim=1)
-    d_y = torch.bmm(d_dense, params['dense.weight'])
-    d_y = d_y.view(k, batch, c, h, w).permute(0, 1, 3, 4, 2).reshape(k, batch, -1)
-    for name, layer_input, matrix, index, size, out in reversed(layers):
-        d_z = torch.ops.aten.threshold_backward(d_y, out, 0.0)
-        channels = params[f'{name}.weight'].shape[1]
-        grads[f'{name}.bias'] = d_z.view(k, -1, channels).sum(dim=1)
-        if name == 'conv1':
-            d_matrix = torch.bmm(layer_input.transpose(1, 2),
-                                 d_z.view(k, layer_input.shape[1], -1))
-        elif name == 'conv3':
-            d_matrix, d_y = norm.backward(d_z, matrix, grads)
-        else:
-            d_matrix = torch.bmm(layer_input.transpose(1, 2), d_z)
-            d_y = torch.bmm(d_z, matrix.transpose(1, 2))
-        # The matrix gathered its entries from the weights (and a zero): add them back.
-        d_weight = d_matrix.new_zeros(k, size + 1).index_add_(1, index.reshape(-1),
-                                                              d_matrix.reshape(k, -1))
-        grads[f'{name}.weight'] = d_weight[:, :size].view_as(params[f'{name}.weight'])
-    return grads
-
-
-class BatchNormFold:
-    """Training-mode BatchNorm2d of channels-last y (k, B, cells * C), per network over its
-    real samples, folded into the matmul that follows it: (y * s + t) @ M = y @ (s M) + t @ M,
-    with s = gamma / std and t = beta - mean * s from the batch's statistics. Its backward
-    takes the gradient of that matmul's output (zero on samples that are not real) and needs
-    only small reductions beside the matmul's own products, so the activations are never
-    normalised. The running statistics are updated as torch's (momentum 0.1, unbiased variance).
-    Why: written out on the activations, the batch norm and its backward took 574 of 2705 us
-    of a gradient; folded, the whole gradient took 2252 us (5 networks on index_tip, batch 256,
-    the two alternating in one process, 2026-11-26).
-    """
-
-    def __init__(self, torch: Any, y: torch.Tensor, mask: torch.Tensor, channels: int,
-                 params: dict, buffers: dict) -> None:
-        k, batch = mask.shape
-        self.torch, self.y = torch, y
-        self.cells = y.shape[2] // channels
-        values = y.view(k, batch * self.cells, channels)
-        real = mask.sum(dim=1)
-        self.mask = None if bool(real.min() == batch) else mask
-        if self.mask is None:
-            mean, variance = _mean_and_variance(values, dim=1)
-        else:                            # each network's real samples are its first ones
-            stats = [_mean_and_variance(values[i, :n * self.cells], dim=0) if n
-                     else (values.new_zeros(channels), values.new_ones(channels))
-                     for i, n in enumerate(real.tolist())]
-            mean, variance = (torch.stack(s) for s in zip(*stats))
-        count = (real * self.cells).to(y.dtype)[:, None]
-        moved = (real * self.cells > 1)[:, None]
-        unbiased = variance * count / (count - 1).clamp(min=1)
-        for name, value in (('norm.running_mean', mean), ('norm.running_var', unbiased)):
-            running = buffers[name]
-            running.copy_(torch.where(moved, (1 - BN_MOMENTUM) * running + BN_MOMENTUM * value,
-                                      running))
-        self.mean, self.count = mean, count.clamp(min=1)
-        self.inverse_std = torch.rsqrt(variance + BN_EPS)
-        self.scale = params['norm.weight'] * self.inverse_std
-        shift = params['norm.bias'] - mean * self.scale
-        # s and t per activation (the fold and the backward both read them)
-        self.cell_scale, self.cell_shift = self.per_cell(self.scale), self.per_cell(shift)
-
-    def per_cell(self, value: torch.Tensor) -> torch.Tensor:
-        """(k, C) per channel -> (k, cells * C) in the activations' channels-last order."""
-        return value.repeat(1, self.cells)
-
-    def fold(self, matrix: torch.Tensor, bias: torch.Tensor) -> tuple:
-        """The matmul's matrix and bias with the normalisation folded in."""
-        self.applied = matrix * self.cell_scale[:, :, None]
-        return self.applied, self.torch.baddbmm(bias, self.cell_shift[:, None], matrix)
-
-    def backward(self, d_z: torch.Tensor, matrix: torch.Tensor, grads: dict) -> tuple:
-        """From the folded matmul's output gradient d_z: the gradient of the unfolded matrix and
-        of y; stores the BatchNorm's scale and shift gradients in grads.
-
-        With g = d_z @ M^T the gradient of the normalised activations and x^ = (y - mean) / std:
-        d_beta = sum(g), d_gamma = sum(g * x^), both from sum(d_z) and y^T d_z; then
-        d_y = s g - s (d_beta + x^ d_gamma) / n = d_z @ (s M)^T + a y + b per channel.
-        """
-        torch, k, channels = self.torch, d_z.shape[0], self.mean.shape[1]
-        y_d_z = torch.bmm(self.y.transpose(1, 2), d_z)               # (k, cells * C, outputs)
-        column_sums = d_z.sum(dim=1)
-        d_matrix = (y_d_z * self.cell_scale[:, :, None]
-                    + self.cell_shift[:, :, None] * column_sums[:, None])
-
-        def per_channel(v):
-            return v.view(k, self.cells, channels).sum(dim=1)
-
-        g_sum = per_channel(torch.bmm(column_sums[:, None], matrix.transpose(1, 2))[:, 0])
-        g_y = per_channel((matrix * y_d_z).sum(dim=2))
-        d_gamma = (g_y - self.mean * g_sum) * self.inverse_std
-        grads['norm.weight'], grads['norm.bias'] = d_gamma, g_sum
-        slope = -self.scale * self.inverse_std * d_gamma / self.count
-        offset = -self.scale * g_sum / self.count - slope * self.mean
-        d_y = torch.baddbmm(self.per_cell(offset)[:, None], d_z, self.applied.transpose(1, 2))
-        d_y.addcmul_(self.y, self.per_cell(slope)[:, None])
-        if self.mask is not None:
-            d_y.mul_(self.mask[:, :, None])
-        return d_matrix, d_y
-
-
-def _mean_and_variance(values: torch.Tensor, dim: int) -> tuple:
-    """Mean and biased variance along dim, two passes: torch.var_mean over a non-innermost
-    dimension took 350 us against 30 us for (5, 1024, 12) values (2026-11-26)."""
-    mean = values.mean(dim=dim, keepdim=True)
-    return mean.squeeze(dim), (values - mean).square_().mean(dim=dim)
 
 
 def _cnn_forward(images: np.ndarray, weights: Sequence[np.ndarray]) -> np.ndarray:

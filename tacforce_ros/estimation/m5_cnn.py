@@ -28,7 +28,7 @@ from numpy.lib.stride_tricks import sliding_window_view
 
 from tacforce_ros.estimation.base import ForceModel, ModelNotFittedError, check_inputs
 from tacforce_ros.estimation.m4_mlp import mlp_forward, relu, same_kind_models
-from tacforce_ros.estimation.torch_batched import fit_models_stacked
+from tacforce_ros.estimation.torch_batched import autograd_gradient, fit_models_stacked
 from tacforce_ros.estimation.torch_training import (STATE_DTYPE, TorchTraining, checked_state,
                                                     fit_torch_regressor, load_module_state,
                                                     module_state)
@@ -139,7 +139,7 @@ class CNNModel(ForceModel):
         fit_models_stacked(same_kind_models(cls, models), [(X, F) for X, F, _ in data],
                            lambda m: (m.grid.shape, m.channels, m.dense),
                            lambda m, X: m.images(X),
-                           forward=stacked_cnn_forward)
+                           gradient=autograd_gradient(stacked_cnn_forward))
 
     def _set_state(self, arrays: dict[str, np.ndarray]) -> CNNModel:
         state = checked_state(arrays, self._state_shapes(), self.kind)

@@ -2,21 +2,17 @@
 
 The folds of a cross-validation, the arrays of a campaign and the repeats of a search are tiny
 networks on same-shaped data; trained one at a time, each step is dominated by per-operation
-overhead, not arithmetic. Here one step runs all k: the architecture's forward over weights
-stacked on a leading model axis (batched matmuls, StackedForward), autograd's backward and
-torch's Adam, which keeps one parameter tensor per network so that each has its own step count.
-Why autograd, not gradients written by hand: the hand-derived backward passes this replaced were
-1.2-1.4x faster per step (5 networks on index_tip, batch 256, the two ways alternating in one
-process: M4 608-676 against 809-884 us, M5 5.38-6.24 against 6.43-8.74 ms), which does not pay
-for a second derivation to keep right beside every change of the forward.
+overhead, not arithmetic. Here one step runs all k: a batched forward and backward over weights
+stacked on a leading model axis (batched matmuls), then one Adam update. The architecture brings
+its gradient (StackedGradient): autograd's over its stacked forward (autograd_gradient), or one
+written by hand where a measurement beside it shows that it pays (M4's).
 
 Each network keeps what one-at-a-time training (torch_training.fit_torch_regressor) gives it: its
 initial weights (built under its own seed), its shuffling generator, its minibatches (the short
 last batch of an epoch included), its Adam moments and step count. A network whose epoch has no
-batch left at a step is masked out: no loss, no Adam step (its gradient is dropped, which Adam
-skips), no BatchNorm statistics. The result equals one-at-a-time training up to float32
-rounding: the batched kernels add in another order, and those differences grow slowly over the
-steps (test_estimation_batched_training measures it).
+batch left at a step is masked out: no loss, no Adam step, no BatchNorm statistics. The result
+equals one-at-a-time training up to float32 rounding: the batched kernels add in another order,
+and those differences grow slowly over the steps (test_estimation_batched_training measures it).
 
 Torch is imported inside the functions, as in torch_training.
 """
@@ -35,24 +31,50 @@ from tacforce_ros.estimation.torch_training import (SKIPPED_TORCH_STATE, STATE_D
 if TYPE_CHECKING:
     import torch
 
+# torch.optim.Adam's defaults, which the one-at-a-time fit uses.
+ADAM_BETAS = (0.9, 0.999)
+ADAM_EPS = 1e-8
+
+
+class StackedGradient(Protocol):
+    def __call__(self, torch: Any, params: dict[str, torch.Tensor],
+                 buffers: dict[str, torch.Tensor], x: torch.Tensor, mask: torch.Tensor,
+                 targets: torch.Tensor, weights: torch.Tensor) -> dict[str, torch.Tensor]:
+        """Gradient, per parameter of params, of sum(weights * (f(x) - targets) ** 2) / 2 for
+        the k stacked networks f in training mode: x (k, B, ...), mask (k, B) bool of real
+        samples, targets (k, B, 3), weights (k, B, 1), zero where mask is False.
+
+        params and buffers are the modules' state_dict entries stacked on a leading k axis; a
+        layer with statistics (BatchNorm) updates its buffers in place from the real samples.
+        """
+
 
 class StackedForward(Protocol):
     def __call__(self, torch: Any, params: dict[str, torch.Tensor],
                  buffers: dict[str, torch.Tensor], x: torch.Tensor,
                  mask: torch.Tensor) -> torch.Tensor:
-        """Outputs (k, B, 3) of the k stacked networks in training mode: x (k, B, ...), mask
-        (k, B) bool of real samples (each network's real samples are its first ones).
+        """Outputs (k, B, 3) of the k stacked networks in training mode, for StackedGradient's
+        x and mask; a layer with statistics computes them over the real samples and updates its
+        buffers in place, outside autograd."""
 
-        params and buffers are the modules' state_dict entries stacked on a leading k axis
-        (autograd tracks params); a layer with statistics (BatchNorm) computes them over the
-        real samples and updates its buffers in place, outside autograd.
-        """
+
+def autograd_gradient(forward: StackedForward) -> StackedGradient:
+    """The StackedGradient of a stacked forward, by autograd."""
+    def gradient(torch: Any, params: dict, buffers: dict, x: torch.Tensor, mask: torch.Tensor,
+                 targets: torch.Tensor, weights: torch.Tensor) -> dict:
+        leaves = {name: value.detach().requires_grad_(True) for name, value in params.items()}
+        error = forward(torch, leaves, buffers, x, mask) - targets
+        loss = error.square().mul(weights).sum() / 2
+        return dict(zip(leaves, torch.autograd.grad(loss, list(leaves.values()))))
+
+    gradient.by_autograd = True
+    return gradient
 
 
 def fit_models_stacked(models: Sequence[Any], data: Sequence[tuple[np.ndarray, np.ndarray]],
                        architecture: Callable[[Any], Hashable],
                        network_inputs: Callable[[Any, np.ndarray], np.ndarray],
-                       forward: StackedForward) -> None:
+                       gradient: StackedGradient) -> None:
     """Fit models[i] (M4 or M5) on data[i] = (X, F), stacking those of one architecture and
     training settings; a model alone in its group trains one at a time (model.fit).
 
@@ -73,7 +95,7 @@ def fit_models_stacked(models: Sequence[Any], data: Sequence[tuple[np.ndarray, n
                              [network_inputs(models[i], X).astype(np.float32)
                               for i, X in zip(rows, checked)],
                              [np.asarray(data[i][1], dtype=np.float64) for i in rows],
-                             [models[i].training for i in rows], forward)
+                             [models[i].training for i in rows], gradient)
         for i, state in zip(rows, states):
             models[i]._set_state(state)
 
@@ -81,12 +103,12 @@ def fit_models_stacked(models: Sequence[Any], data: Sequence[tuple[np.ndarray, n
 def fit_stacked(builds: Sequence[Callable[[Any], torch.nn.Module]],
                 inputs: Sequence[np.ndarray], targets: Sequence[np.ndarray],
                 trainings: Sequence[TorchTraining],
-                forward: StackedForward) -> list[dict[str, np.ndarray]]:
+                gradient: StackedGradient) -> list[dict[str, np.ndarray]]:
     """Train build_i(torch) on (inputs_i, targets_i) with Adam + MSE, all k in one loop.
 
     Every build must give the same architecture, every input the same per-sample shape, and every
     training the same epochs, batch size, learning rate, threads and device (seeds may differ).
-    forward is the architecture's. Returns each network's state as
+    gradient is the architecture's. Returns each network's state as
     torch_training.module_state would.
     """
     import torch
@@ -110,7 +132,8 @@ def fit_stacked(builds: Sequence[Callable[[Any], torch.nn.Module]],
                 torch.manual_seed(training.seed)
                 modules.append(build(torch).to(torch.float32))
         weights = _StackedWeights(torch, modules, device)
-        adam = torch.optim.Adam(weights.leaves, lr=learning_rate, foreach=True)
+        params = weights.params()       # views: Adam updates them in place
+        adam = _MaskedAdam(torch, weights.flat, learning_rate)
         shuffles = [torch.Generator().manual_seed(t.seed) for t in trainings]   # on the CPU
         sizes = np.array([len(x) for x in inputs])
         feature_shape, width = np.shape(inputs[0])[1:], int(np.prod(np.shape(inputs[0])[1:]))
@@ -129,62 +152,104 @@ def fit_stacked(builds: Sequence[Callable[[Any], torch.nn.Module]],
         real = real.to(device)
 
         def sample_weights(counts: np.ndarray) -> torch.Tensor:
-            # Each network's loss is torch's MSELoss over its real samples: the mean of the
-            # squared errors of its outputs x real samples.
-            return (1.0 / torch.from_numpy(outputs * np.maximum(counts, 1.0)).float())[
+            # Each network's loss is torch's MSELoss over its real samples: the gradient's
+            # weights are 2 / (outputs * real samples) (the 2 of StackedGradient's / 2).
+            return (2.0 / torch.from_numpy(outputs * np.maximum(counts, 1.0)).float())[
                 :, None, None].to(device)
 
         full_weights = sample_weights(np.full(k, batch_size))
-        for _ in range(epochs):
-            order = torch.zeros((k, steps * batch_size), dtype=torch.long)
-            for i, (size, shuffle) in enumerate(zip(sizes, shuffles)):
-                order[i, :size] = torch.randperm(int(size), generator=shuffle)
-            order = (order + first_rows).to(device)
-            for start in range(0, steps * batch_size, batch_size):
-                counts = np.clip(sizes - start, 0, batch_size)
-                mask = real[:, start:start + batch_size]
-                batch = samples.index_select(0, order[:, start:start + batch_size].reshape(-1))
-                batch = batch.view(k, batch_size, width + outputs)
-                x = batch[..., :width].view(k, batch_size, *feature_shape)
-                step_weights = full_weights
-                if counts.min() < batch_size:
-                    step_weights = sample_weights(counts) * mask[..., None]
-                error = forward(torch, weights.params(), weights.buffers, x, mask) \
-                    - batch[..., width:]
-                # The networks share no weight, so each one's gradient is its own loss's.
-                error.square().mul(step_weights).sum().backward()
-                for i in np.flatnonzero(counts == 0):
-                    weights.leaves[i].grad = None       # its epoch is over: Adam skips it
-                adam.step()
-                adam.zero_grad(set_to_none=True)
+        # A gradient by hand leaves autograd nothing to track: inference mode drops its
+        # per-operation bookkeeping (a hand-written M5 gradient 2070 -> 1872 us against no mode,
+        # best of 6).
+        with torch.inference_mode(not getattr(gradient, 'by_autograd', False)):
+            for _ in range(epochs):
+                order = torch.zeros((k, steps * batch_size), dtype=torch.long)
+                for i, (size, shuffle) in enumerate(zip(sizes, shuffles)):
+                    order[i, :size] = torch.randperm(int(size), generator=shuffle)
+                order = (order + first_rows).to(device)
+                for start in range(0, steps * batch_size, batch_size):
+                    counts = np.clip(sizes - start, 0, batch_size)
+                    mask = real[:, start:start + batch_size]
+                    batch = samples.index_select(0, order[:, start:start + batch_size].reshape(-1))
+                    batch = batch.view(k, batch_size, width + outputs)
+                    x = batch[..., :width].view(k, batch_size, *feature_shape)
+                    step_weights = full_weights
+                    if counts.min() < batch_size:
+                        step_weights = sample_weights(counts) * mask[..., None]
+                    grads = gradient(torch, params, weights.buffers, x, mask, batch[..., width:],
+                                     step_weights)
+                    adam.step(torch.cat([grads[name].reshape(k, -1) for name in weights.shapes],
+                                        dim=1), counts > 0)
         return weights.states()
 
 
 class _StackedWeights:
-    """The k modules' parameters as one flat leaf tensor per network (each its own Adam step
-    count), stacked at each step into the per-parameter (k, ...) views the forward reads; their
-    buffers stacked (k, ...)."""
+    """The k modules' parameters as one (k, P) tensor (one Adam update for all), their buffers
+    stacked (k, ...), and the per-parameter views the gradient reads."""
 
     def __init__(self, torch: Any, modules: Sequence[torch.nn.Module],
                  device: torch.device) -> None:
-        self.torch, self.k = torch, len(modules)
+        self.k = len(modules)
         states = [m.state_dict() for m in modules]
         parameter_names = [name for name, _ in modules[0].named_parameters()]
         self.shapes = {name: tuple(states[0][name].shape) for name in parameter_names}
-        self.leaves = [torch.cat([s[name].reshape(-1) for name in parameter_names]).to(device)
-                       .requires_grad_(True) for s in states]
+        self.flat = torch.cat([torch.stack([s[name].reshape(-1) for s in states])
+                               for name in parameter_names], dim=1).to(device)
         self.buffers = {name: torch.stack([s[name] for s in states]).to(device)
                         for name, _ in modules[0].named_buffers()
                         if not name.endswith(SKIPPED_TORCH_STATE)}
 
     def params(self) -> dict[str, torch.Tensor]:
         sizes = [int(np.prod(shape)) for shape in self.shapes.values()]
-        flat = self.torch.stack(self.leaves)
         return {name: part.view(self.k, *shape) for (name, shape), part
-                in zip(self.shapes.items(), flat.split(sizes, dim=1))}
+                in zip(self.shapes.items(), self.flat.split(sizes, dim=1))}
 
     def states(self) -> list[dict[str, np.ndarray]]:
-        with self.torch.no_grad():
-            tensors = {**self.params(), **self.buffers}
+        tensors = {**self.params(), **self.buffers}
         return [{state_name(name): value[i].cpu().numpy().astype(STATE_DTYPE)
                  for name, value in tensors.items()} for i in range(self.k)]
+
+
+class _MaskedAdam:
+    """torch.optim.Adam's update (no weight decay, no amsgrad) on the rows of a (k, P) tensor,
+    with a step count per row; rows not active at a step are left untouched.
+
+    Why not torch.optim.Adam: it keeps one step count per parameter tensor, and the k networks in
+    one tensor end their epochs at different steps, so each needs its own count and its own
+    skipped steps. (torch's Adam over one parameter tensor per network, stacked at each step,
+    made a step of 5 M4 networks 901-928 us against 633-678 us with this.)
+    test_estimation_batched_training checks the result against torch's Adam.
+    """
+
+    def __init__(self, torch: Any, flat: torch.Tensor, learning_rate: float) -> None:
+        self.torch, self.flat, self.learning_rate = torch, flat, learning_rate
+        self.first = torch.zeros_like(flat, requires_grad=False)
+        self.second = torch.zeros_like(flat, requires_grad=False)
+        self.steps = np.zeros(flat.shape[0], dtype=np.int64)
+
+    def step(self, gradient: torch.Tensor, active: np.ndarray) -> None:
+        """One update of the rows where `active` (k,) is True, from their (k, P) gradient."""
+        torch = self.torch
+        beta1, beta2 = ADAM_BETAS
+        self.steps += active
+        if active.all():
+            rows, steps = None, self.steps
+            param, first, second, grad = self.flat, self.first, self.second, gradient
+        else:
+            rows = torch.from_numpy(np.flatnonzero(active)).to(self.flat.device)
+            steps = self.steps[active]
+            param, first, second = self.flat[rows], self.first[rows], self.second[rows]
+            grad = gradient[rows]
+        first.lerp_(grad, 1 - beta1)
+        second.mul_(beta2).addcmul_(grad, grad, value=1 - beta2)
+        # Bias corrections in float64, then float32, as Adam's python-float scalars are.
+        step_size = torch.from_numpy(self.learning_rate / (1 - beta1 ** steps)).float().to(
+            self.flat.device)
+        correction2 = torch.from_numpy(np.sqrt(1 - beta2 ** steps)).float().to(
+            self.flat.device)
+        denominator = second.sqrt().div_(correction2[:, None]).add_(ADAM_EPS)
+        param.sub_(first.div(denominator).mul_(step_size[:, None]))
+        if rows is not None:
+            self.flat.index_copy_(0, rows, param)
+            self.first.index_copy_(0, rows, first)
+            self.second.index_copy_(0, rows, second)

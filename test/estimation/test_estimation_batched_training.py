@@ -8,10 +8,10 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from tacforce_ros.estimation.cross_validation import cross_validate
-from tacforce_ros.estimation.m4_mlp import MLPModel, stacked_mlp_forward
+from tacforce_ros.estimation.m4_mlp import MLPModel, stacked_mlp_gradient
 from tacforce_ros.estimation.m5_cnn import CNNModel
 from tacforce_ros.estimation.m5_stacked import conv_as_matrix_index, stacked_cnn_forward
-from tacforce_ros.estimation.torch_batched import fit_stacked
+from tacforce_ros.estimation.torch_batched import autograd_gradient, fit_stacked
 from tacforce_ros.estimation.torch_training import TorchTraining
 from tacforce_ros.estimation.training import fit_bundle
 from tacforce_ros.hand.description import load_hand
@@ -140,37 +140,48 @@ def test_networks_trained_together_must_share_their_optimiser_settings():
                     [TorchTraining(epochs=1), TorchTraining(epochs=2)], lambda *a: None)
 
 
-def stacked(modules, names):
-    states = [m.state_dict() for m in modules]
-    return {name: torch.stack([s[name] for s in states]).clone() for name in names}
-
-
 @settings(max_examples=20, deadline=None)
 @given(k=st.integers(1, 4), batch=st.integers(1, 20), hidden=st.integers(1, 8),
        seed=st.integers(0, 2 ** 16))
-def test_the_stacked_mlp_forward_is_torchs_modules(k, batch, hidden, seed):
-    modules = []
-    for i in range(k):
-        torch.manual_seed(seed + i)
-        modules.append(MLPModel(PHALANX, hidden=hidden)._build(torch))
-    x = torch.as_tensor(np.random.default_rng(seed).standard_normal(
-        (k, batch, 3 * PHALANX.n_taxels)), dtype=torch.float32)
-    params = stacked(modules, [name for name, _ in modules[0].named_parameters()])
+def test_the_hand_written_mlp_gradient_is_autograds(k, batch, hidden, seed):
+    """Weighted squared error with some samples weighted zero (not real), and hidden units
+    below their ReLU threshold (biases drawn around zero)."""
+    import torch
+
+    rng = np.random.default_rng(seed)
+    n_in = 9
+
+    def tensor(*shape):
+        return torch.as_tensor(rng.standard_normal(shape), dtype=torch.float32)
+
+    params = {'hidden.weight': tensor(k, hidden, n_in), 'hidden.bias': tensor(k, hidden),
+              'output.weight': tensor(k, 3, hidden), 'output.bias': tensor(k, 3)}
+    x, targets = tensor(k, batch, n_in), tensor(k, batch, 3)
+    weights = torch.as_tensor(rng.uniform(0, 1, (k, batch, 1)) * (rng.uniform(size=(k, batch, 1))
+                                                                   > 0.3), dtype=torch.float32)
     with torch.no_grad():
-        out = stacked_mlp_forward(torch, params, {}, x, torch.ones(k, batch, dtype=torch.bool))
-        for i, module in enumerate(modules):
-            np.testing.assert_allclose(out[i].numpy(), module(x[i]).numpy(), rtol=1e-5,
-                                       atol=1e-6)
+        by_hand = stacked_mlp_gradient(torch, params, {}, x, weights[..., 0] > 0, targets,
+                                       weights)
+    leaves = {name: value.clone().requires_grad_(True) for name, value in params.items()}
+    hidden_out = torch.relu(x @ leaves['hidden.weight'].transpose(1, 2)
+                            + leaves['hidden.bias'][:, None])
+    output = hidden_out @ leaves['output.weight'].transpose(1, 2) + leaves['output.bias'][:, None]
+    ((weights * (output - targets) ** 2).sum() / 2).backward()
+    for name, leaf in leaves.items():
+        np.testing.assert_allclose(by_hand[name].numpy(), leaf.grad.numpy(), rtol=1e-5,
+                                   atol=1e-5, err_msg=name)
 
 
 @settings(max_examples=10, deadline=None)
 @given(real=st.lists(st.integers(0, 9), min_size=1, max_size=3), seed=st.integers(0, 2 ** 16),
        phalanx=st.booleans())
-def test_the_stacked_cnn_forward_is_torchs_modules(real, seed, phalanx):
-    """Each network against its own torch module in training mode on its real samples (the
-    batch holds 9, the rest not real): outputs, BatchNorm statistics, and autograd's gradient of
-    the masked loss fit_stacked forms against MSELoss's. A network with none (its epoch over)
-    gets no gradient and keeps its statistics."""
+def test_the_stacked_cnn_gradient_is_torchs_modules(real, seed, phalanx):
+    """Each network's gradient (autograd's over the stacked forward, with the BatchNorm folded)
+    and BatchNorm statistics against its own torch module in training mode with MSELoss on its
+    real samples; the batch holds 9 samples, the rest not real. A network with none (its epoch
+    over) gets no gradient and keeps its statistics."""
+    import torch
+
     array = PHALANX if phalanx else TIP
     rng = np.random.default_rng(seed)
     batch, k = 9, len(real)
@@ -182,28 +193,28 @@ def test_the_stacked_cnn_forward_is_torchs_modules(real, seed, phalanx):
     x = torch.as_tensor(images, dtype=torch.float32).view(k, batch, *images.shape[1:])
     targets = torch.as_tensor(rng.standard_normal((k, batch, 3)), dtype=torch.float32)
     mask = torch.as_tensor(np.arange(batch)[None] < np.array(real)[:, None])
-    weights = (mask / (3.0 * torch.as_tensor(real, dtype=torch.float32).clamp(min=1))[:, None])[
+    weights = (mask / (1.5 * torch.as_tensor(real, dtype=torch.float32).clamp(min=1))[:, None])[
         ..., None]
-    params = {name: value.requires_grad_(True) for name, value in stacked(
-        modules, [name for name, _ in modules[0].named_parameters()]).items()}
-    buffers = stacked(modules, ('norm.running_mean', 'norm.running_var'))
+    states = [m.state_dict() for m in modules]
+    params = {name: torch.stack([s[name] for s in states]).clone()
+              for name, _ in modules[0].named_parameters()}
+    buffers = {name: torch.stack([s[name] for s in states]).clone()
+               for name in ('norm.running_mean', 'norm.running_var')}
     before = {name: value.clone() for name, value in buffers.items()}
-    out = stacked_cnn_forward(torch, params, buffers, x, mask)
-    ((out - targets).square() * weights).sum().backward()
+    stacked = autograd_gradient(stacked_cnn_forward)(torch, params, buffers, x, mask, targets,
+                                                     weights)
     for i, module in enumerate(modules):
         n = real[i]
         if n == 0:
-            for name, value in params.items():
-                assert not value.grad[i].any(), name
+            for name in stacked:
+                assert not stacked[name][i].any(), name
             for name in buffers:
                 assert torch.equal(buffers[name][i], before[name][i]), name
             continue
         prediction = module(x[i, :n].permute(0, 3, 1, 2))
-        np.testing.assert_allclose(out[i, :n].detach().numpy(), prediction.detach().numpy(),
-                                   rtol=1e-4, atol=1e-5)
         torch.nn.functional.mse_loss(prediction, targets[i, :n]).backward()
         for name, parameter in module.named_parameters():
-            np.testing.assert_allclose(params[name].grad[i].numpy(), parameter.grad.numpy(),
+            np.testing.assert_allclose(stacked[name][i].numpy(), parameter.grad.numpy(),
                                        rtol=1e-4, atol=1e-5, err_msg=name)
         for name in buffers:
             np.testing.assert_allclose(buffers[name][i].numpy(),

@@ -60,7 +60,7 @@ def stacked_mlp_gradient(torch: Any, params: dict, buffers: dict, x: torch.Tenso
     index_tip (batch 256, two rounds alternating in one process, load 1): 633-678 us by hand with
     the masked Adam against 986-1025 us with autograd and 1225-1324 us with autograd and torch's
     Adam; `bench_train --models M4 M5 --samples 100000`, one after the other (code 30156d1 by
-    hand, a0816eb with autograd and torch's Adam): the five folds together in 10.8 s against
+    hand, 38cbb82 with autograd and torch's Adam): the five folds together in 10.8 s against
     31.4 s, at equal held-out e_hat (0.0379 N both). The two agree to float32 rounding
     (test_estimation_batched_training).
     """

@@ -13,6 +13,7 @@ A new array in the samples, or stamps that go back (a new session), starts a new
 from __future__ import annotations
 
 import sys
+import time
 
 import numpy as np
 from rclpy.clock import Clock, ClockType
@@ -33,6 +34,7 @@ from tacforce_ros.topics import TOPIC_SAMPLE, relative
 # kinematics) catches up instead of judging fewer samples than the bag holds (the default depth
 # 10 lost 16 of 1010 on 2 cores with three busy loops beside the session).
 SAMPLE_DEPTH = 200
+DRAIN_S = 0.5           # the most a stop waits for queued samples (a stop must take < 2 s)
 
 
 class CoverageViewNode(TacforceNode):
@@ -116,6 +118,15 @@ class CoverageViewNode(TacforceNode):
         self.drawn_lines = text.count('\n') + 1
 
     def leave_safe(self) -> None:
+        # Stopped with the session, right after the recorder's last samples: those already
+        # received are judged first (until the queue is empty, DRAIN_S at most).
+        executor = self.executor
+        deadline = time.monotonic() + DRAIN_S
+        while executor is not None and time.monotonic() < deadline:
+            before = 0 if self.live is None else self.live.samples
+            executor.spin_once(timeout_sec=0.02)
+            if (0 if self.live is None else self.live.samples) == before:
+                break
         self.drawn_samples = -1
         self._draw()        # the session as it ended
         coverage = None if self.live is None else self.live.coverage()

@@ -57,12 +57,16 @@ def test_a_campaign_session_records_what_is_due_while_the_operator_watches(tmp_p
     titles = re.findall(r'ring_middle on edge  \[#*\s*\]\s+(\d+) / 15 s', views)
     assert len(titles) >= 3 and int(titles[-1]) >= 10, views[-2000:]
     assert 'peak force' in views and 'of 8 directions' in views
-    # The view judged every sample the bag holds (how many the recorder synchronised depends
-    # on the machine's load: 1133 of 15 s at rest, 1010 with three busy loops beside it).
+    # The view judged the samples the bag holds (how many the recorder synchronised depends on
+    # the machine's load: 1133 of 15 s at rest, 1010 with three busy loops beside it) but those
+    # it could not see: it is a late joiner to a volatile topic (its first samples may come
+    # before its subscription matches) and it is stopped with the recorder. Missed, with three
+    # busy loops beside the session: 14 of 1121 (with a queue of 10 it lost about 2 % more).
     final = re.search(r'ring_middle: (\d+) samples, (.*)', views)
     recorded = {t['topic_metadata']['name']: t['message_count'] for t in
                 load_metadata(bags[0])['topics_with_message_count']}['/calibration/sample']
-    assert recorded > 500 and final and int(final.group(1)) == recorded, (recorded, views[-2000:])
+    assert recorded > 500 and final and 0.95 * recorded <= int(final.group(1)) <= recorded, (
+        recorded, views[-2000:])
 
     # The bag's own verdict (low-passed, resampled) agrees with what the operator last saw.
     hand = load_hand()

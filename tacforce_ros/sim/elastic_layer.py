@@ -29,6 +29,16 @@ K_PER_PERIOD = 16         # quadrature points per Bessel period at the table's f
 R_MAX = 12.0              # x h
 R_STEPS_PER_DEPTH = 10    # table points per depth of the shallowest field point
 R_CHUNK = 64              # radii per block of Bessel factors (bounds the memory)
+_PARTS = ('a', 'b', 'c', 'nz', 'nr')
+# The response to unit loads from sums of a table times a direction factor (row: table * 5 +
+# factor, factors 1, cos, sin, cos 2t, sin 2t; column: force axis * 3 + displacement axis), as
+# `displacement` writes it: Fx -> (a - b cos2, -b sin2, c cos), Fy -> (-b sin2, a + b cos2,
+# c sin), Fz -> (nr cos, nr sin, nz).
+_RESPONSE = np.zeros((25, 9))
+for _row, _column, _sign in ((0, 0, 1), (8, 0, -1), (9, 1, -1), (11, 2, 1),
+                             (9, 3, -1), (0, 4, 1), (8, 4, 1), (12, 5, 1),
+                             (21, 6, 1), (22, 7, 1), (15, 8, 1)):
+    _RESPONSE[_row, _column] = _sign
 
 
 def _love_terms(k: np.ndarray, z: np.ndarray, h: float, poisson: float,
@@ -124,36 +134,82 @@ class BondedLayer:
                                  0.0)                          # J2 by recurrence
             for name, (order, integrand) in integrands.items():
                 self.tables[name][:, block] = (bessel[order] @ (weights * integrand)).T
+        # For interpolation by one gather (np.take, 3x faster than fancy indexing here): per
+        # table the values and the step to the next radius, over (depth, radius) pairs.
+        stacked = np.stack([self.tables[name] for name in _PARTS])        # (5, depths, radii)
+        step = np.zeros_like(stacked)
+        step[..., :-1] = np.diff(stacked, axis=-1)
+        self._knots = np.concatenate([stacked, step]).reshape(2 * len(_PARTS), -1)
+
+    def _lookup(self, lateral: np.ndarray) -> tuple[np.ndarray, ...]:
+        """From surface points at `lateral` (n, ..., 2) m off each field point's foot: the
+        tables at their distances (`_tables_at`) and cos, sin of the direction from the load to
+        the field point."""
+        if lateral.shape[0] != self.depths.size:
+            raise ValueError(f'BondedLayer: {lateral.shape[0]} field points given, '
+                             f'{self.depths.size} tabulated')
+        dx, dy = -lateral[..., 0], -lateral[..., 1]
+        r = np.sqrt(dx * dx + dy * dy)
+        safe = np.maximum(r, 1e-300)
+        return (self._tables_at(r), np.where(r > 0, dx / safe, 1.0),
+                np.where(r > 0, dy / safe, 0.0))
+
+    def _tables_at(self, r: np.ndarray) -> np.ndarray:
+        """(5, n, ...): the tables (a, b, c, nz, nr) of each of the n depths interpolated at the
+        distances r (n, ...) m; zero beyond the table's reach."""
+        position = r / self.r_step
+        index = np.minimum(position.astype(np.intp), self.radii.size - 2)
+        frac = position - index       # beyond the last radius, zeroed below
+        flat = index + (self.radii.size * np.arange(self.depths.size)).reshape(
+            (-1,) + (1,) * (r.ndim - 1))
+        knots = np.take(self._knots, flat, axis=1)
+        values = knots[:len(_PARTS)] + frac * knots[len(_PARTS):]
+        if r.max(initial=0.0) > self.radii[-1]:
+            values *= r <= self.radii[-1]
+        return values
 
     def displacement(self, lateral: np.ndarray, force: np.ndarray) -> np.ndarray:
         """(n, ..., 3) m: displacement relative to the base at each of the n depths, from surface
         point loads `force` (..., 3) N (broadcast to (n, ..., 3)) at `lateral` (n, ..., 2) m from
         the field point's foot (both in the frame with z into the material); zero beyond the
         table's reach."""
-        lateral = np.asarray(lateral, np.float64)
+        values, cos, sin = self._lookup(np.asarray(lateral, np.float64))
         force = np.asarray(force, np.float64)
-        if lateral.shape[0] != self.depths.size:
-            raise ValueError(f'BondedLayer: {lateral.shape[0]} field points given, '
-                             f'{self.depths.size} tabulated')
-        # From the load to the field point.
-        dx, dy = -lateral[..., 0], -lateral[..., 1]
-        r = np.sqrt(dx * dx + dy * dy)
-        position = r / self.r_step
-        index = np.minimum(position.astype(np.intp), self.radii.size - 2)
-        frac = np.clip(position - index, 0.0, 1.0)
-        inside = r <= self.radii[-1]
-        rows = np.arange(self.depths.size).reshape((-1,) + (1,) * (r.ndim - 1))
-
-        def at(name: str) -> np.ndarray:
-            table = self.tables[name]
-            value = table[rows, index] * (1 - frac) + table[rows, index + 1] * frac
-            return np.where(inside, value, 0.0)
-        safe = np.maximum(r, 1e-300)
-        cos, sin = np.where(r > 0, dx / safe, 1.0), np.where(r > 0, dy / safe, 0.0)
         cos2, sin2 = cos * cos - sin * sin, 2 * sin * cos
-        a, b, c, nz, nr = (at(name) for name in ('a', 'b', 'c', 'nz', 'nr'))
+        a, b, c, nz, nr = values
         fx, fy, fz = force[..., 0], force[..., 1], force[..., 2]
         ux = fx * (a - b * cos2) - fy * b * sin2 + fz * nr * cos
         uy = -fx * b * sin2 + fy * (a + b * cos2) + fz * nr * sin
         uz = (fx * cos + fy * sin) * c + fz * nz
         return np.stack([ux, uy, uz], axis=-1)
+
+    def unit_response(self, lateral: np.ndarray, shares: np.ndarray) -> np.ndarray:
+        """(n, 3, 3) m/N: displacement at each depth (last axis) per unit force along each axis
+        (middle axis) spread over surface points at `lateral` (n, k, 2) by `shares` (k,):
+        `displacement` with a unit load along each axis, summed over the points, in one pass
+        (the magnetic skin's step computes this every frame)."""
+        lateral = np.asarray(lateral, np.float64)
+        return self._unit_response(*self._lookup(lateral), np.asarray(shares, np.float64))
+
+    def unit_response_at(self, distance: np.ndarray, cos: np.ndarray, sin: np.ndarray,
+                         shares: np.ndarray) -> np.ndarray:
+        """`unit_response` of points at `distance` (n, k) m from each field point's foot, seen
+        from the load in the direction (cos, sin) (n, k)."""
+        if distance.shape[0] != self.depths.size:
+            raise ValueError(f'BondedLayer: {distance.shape[0]} field points given, '
+                             f'{self.depths.size} tabulated')
+        return self._unit_response(self._tables_at(distance), cos, sin,
+                                   np.asarray(shares, np.float64))
+
+    def _unit_response(self, values: np.ndarray, cos: np.ndarray, sin: np.ndarray,
+                       shares: np.ndarray) -> np.ndarray:
+        # Per depth, the tables times [1, cos, sin, cos 2t, sin 2t] summed over the points
+        # with their shares: one (5, k) @ (k, 5) product, of which 8 entries make the response.
+        n, k = cos.shape
+        trig = np.empty((n, k, 5))
+        trig[..., 0] = 1.0
+        trig[..., 1], trig[..., 2] = cos, sin
+        trig[..., 3] = cos * cos - sin * sin
+        trig[..., 4] = 2.0 * sin * cos
+        sums = np.matmul((values * shares).transpose(1, 0, 2), trig).reshape(n, 25)
+        return (sums @ _RESPONSE).reshape(n, 3, 3)

@@ -46,5 +46,7 @@ class Play:
 
     def __call__(self, value: np.ndarray) -> np.ndarray:
         half = self.relative * np.abs(value) + self.width
-        np.clip(self._output, value - half, value + half, out=self._output)
+        # np.clip, without its wrapper's ~15 us (the magnetic skin calls this every frame)
+        np.minimum(np.maximum(self._output, value - half, out=self._output), value + half,
+                   out=self._output)
         return self._output.copy()

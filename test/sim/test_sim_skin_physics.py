@@ -158,6 +158,25 @@ def test_skin_curvature_of_a_sphere_a_cylinder_and_a_plane():
     np.testing.assert_allclose(k, 0.0, atol=1e-12)
 
 
+
+def test_skin_curvature_by_normal_equations_is_least_squares_and_a_line_of_taxels_falls_back():
+    """The closed-form 2 x 2 solve gives lstsq's fit; taxels on a line (a rank-1 design) get
+    lstsq's minimum-norm fit instead of a division by a vanishing determinant."""
+    positions, normals = _sphere(0.0135, n=30, seed=3)
+    top = np.array([0.0, 0.0, 1.0])
+    basis = np.stack(phys.tangent_basis(top))
+    offset, turn = (positions - 0.0135 * top) @ basis.T, (normals - top) @ basis.T
+    weight = np.sqrt(np.exp(-0.5 * np.sum(offset ** 2, axis=1) / 0.004 ** 2))[:, None]
+    fit, *_ = np.linalg.lstsq(weight * offset, weight * turn, rcond=None)
+    np.testing.assert_allclose(phys.skin_curvature(positions, normals, 0.0135 * top, top, 0.004),
+                               0.5 * (fit + fit.T), rtol=0.0, atol=1e-9 / 0.0135)
+    angle = np.linspace(-0.3, 0.3, 7)           # taxels along one meridian of the sphere
+    line_n = np.column_stack([np.sin(angle), np.zeros(7), np.cos(angle)])
+    k = phys.skin_curvature(0.0135 * line_n, line_n, 0.0135 * top, top, reach=0.004)
+    assert np.all(np.isfinite(k))
+    along = basis @ np.array([1.0, 0.0, 0.0])   # the line's direction in the tangent basis
+    assert along @ k @ along == pytest.approx(1 / 0.0135, rel=0.02)
+
 def test_creep_and_play():
     creep = Creep(share=0.2, tau=1.0)
     creep.reset((1,), dt=0.01)
@@ -283,3 +302,21 @@ def test_a_scene_with_the_magnetic_skin_and_chip_effects_runs(hand):
     sim = make_simulator(dataclasses.replace(scene, effects=effects), hand, seed=0)
     counts = np.array([sim.step().taxel_counts for _ in range(300)]).astype(float)
     assert counts.min() >= 0 and counts.max() <= 65535
+
+
+def test_the_magnetic_skin_reads_as_before_it_was_made_faster(tmp_path):
+    """Every plate on a curved and a flat array, and the closed-loop press, against the
+    readings the code before the speed-up wrote (test/sim/skin_reference.py, from 9d82c4b):
+    within one count, the readout's rounding of float counts that differ in their last bits
+    (sums taken in another order, the column's stretch in closed form instead of by Newton), and
+    in at most 1 % of the readings (at 2026-11-28's speed-up: none)."""
+    from skin_reference import REFERENCE, readings
+    reference = np.load(REFERENCE)
+    now = readings(tmp_path)
+    assert sorted(now) == sorted(reference.files)
+    for case in reference.files:
+        assert now[case].shape == reference[case].shape, case
+        off = np.abs(now[case].astype(np.int64) - reference[case].astype(np.int64))
+        assert off.max() <= 1, f'{case}: {off.max()} counts from the reference'
+        # A Young's modulus 0.1 % off moves 4-20 % of a case's readings, by up to 5 counts.
+        assert np.mean(off > 0) <= 0.01, f'{case}: {np.mean(off > 0):.1%} of readings moved'

@@ -18,6 +18,7 @@ as before.
 """
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from typing import ClassVar
 
@@ -46,6 +47,14 @@ PLACEMENT_ITERATIONS = 20
 ESTIMATES = ('magnet_diameter', 'magnet_thickness', 'layer_thickness', 'youngs_modulus', 'poisson',
              'sensitivity_xy', 'sensitivity_z', 'play_relative', 'play_width',
              'creep_share', 'creep_time_constant')
+
+
+@functools.lru_cache(maxsize=64)
+def bonded_layer(thickness: float, shear_modulus: float, poisson: float,
+                 depths: bytes) -> BondedLayer:
+    """The layer of an array, by its magnets' depths (float64 bytes): tabulated once per
+    process (0.2-0.4 s each), not again with every simulator of a main job's worker."""
+    return BondedLayer(thickness, shear_modulus, poisson, np.frombuffer(depths, np.float64))
 
 
 class SkinPlacementError(ValueError):
@@ -82,7 +91,6 @@ class MagneticSkin(Effect):
         self.creep = Creep(self.creep_share, self.creep_time_constant)
         self.play = Play(self.play_relative, self.play_width)
         self._patch = phys.elliptic_patch()
-        self._layers: dict[bytes, BondedLayer] = {}     # per array, by its magnets' depths
 
     # -- the hand: where each magnet sits ------------------------------------------------------
 
@@ -164,7 +172,7 @@ class MagneticSkin(Effect):
         position = np.column_stack([self.lateral[rows] + displacement[:, :2],
                                     squeezed + 0.5 * self.magnet_thickness])
         counts = self.field(position) / self._sensitivity
-        return CHIP_ZERO + np.clip(counts, -CHIP_RANGE, CHIP_RANGE)
+        return CHIP_ZERO + np.minimum(np.maximum(counts, -CHIP_RANGE), CHIP_RANGE)   # np.clip
 
     # -- a session -------------------------------------------------------------------------------
 
@@ -178,27 +186,23 @@ class MagneticSkin(Effect):
             (self._positions[:, None] - self._positions[None]) ** 2, axis=-1))
             + np.eye(array.n_taxels)))
         depth = self.layer_thickness - self.height[self._rows]
-        key = depth.tobytes()
-        if key not in self._layers:
-            self._layers[key] = BondedLayer(self.layer_thickness, self.shear_modulus,
-                                            self.poisson, depth)
-        self._layer = self._layers[key]
+        self._layer = bonded_layer(self.layer_thickness, self.shear_modulus, self.poisson,
+                                   depth.tobytes())
         self.creep.reset((array.n_taxels, 3), ctx.dt)
         self.play.reset((array.n_taxels, 3))
-        self._location_key = b''
+        self._location_key, self._location_plate = b'', None
         ctx.idle_counts = self.rest_counts
 
     def _location(self, contact, plate) -> None:
         """Per contact location (the operator holds one through a press): the principal
         relative curvatures and their directions, and the array's footprint along them."""
-        key = (contact.point.tobytes() + contact.normal.tobytes() + contact.axis.tobytes()
-               + repr(plate).encode())
-        if key == self._location_key:
+        key = (contact.point.tobytes() + contact.normal.tobytes() + contact.axis.tobytes())
+        if key == self._location_key and plate is self._location_plate:
             return
-        self._location_key = key
+        self._location_key, self._location_plate = key, plate
         t1, t2 = phys.tangent_basis(contact.normal)
         skin = phys.skin_curvature(self._positions, self._normals, contact.point,
-                                   contact.normal, reach=self._pitch)
+                                   contact.normal, reach=self._pitch, basis=np.stack([t1, t2]))
         if plate.shape == 'sphere':
             indenter = np.eye(2) / plate.radius
         elif plate.shape == 'cylinder':
@@ -224,31 +228,29 @@ class MagneticSkin(Effect):
         along = (self._positions - contact.point) @ self._axes.T
         self._footprint = (along.min(axis=0) - 0.5 * self._pitch,
                            along.max(axis=0) + 0.5 * self._pitch)
-        self._point = contact.point
+        # Contact point and principal directions in each taxel's frame (_unit_influence).
+        self._local_offset = np.einsum('nji,nj->ni', self._rotations,
+                                       self._positions - contact.point)       # (n, 3)
+        self._local_axes = np.einsum('nji,dj->ndi', self._rotations, self._axes)   # (n, 2, 3)
         self._layouts()
 
-    def _influence(self, points: np.ndarray, forces: np.ndarray) -> np.ndarray:
-        """Magnet displacements relative to their chips (half-space frame, z into the skin)
-        from loads `forces` (broadcast to (n, k, ..., 3), each taxel's frame) at `points`
-        (k, 2) about the contact point: (n, k, ..., 3). Each taxel sees the skin about it as a
-        flat layer: a load point sits at its 3-D distance, in the direction it has in the
-        taxel's tangent plane (a press at the fingertip's apex loads a taxel on its side partly
-        in shear, and from as far as it is)."""
-        sources = self._point + points @ self._axes                       # (k, 3) in {S0}
-        offset = np.einsum('nji,nkj->nki', self._rotations,
-                           self._positions[:, None, :] - sources[None])    # (n, k, 3)
-        planar = np.sqrt(np.sum(offset[..., :2] ** 2, axis=-1, keepdims=True))
-        distance = np.sqrt(np.sum(offset ** 2, axis=-1, keepdims=True))
-        lateral = offset[..., :2] * (distance / np.maximum(planar, 1e-12))
-        extra = forces.ndim - 3       # axes of `forces` beyond (n, k, 3)
-        lateral = lateral.reshape(lateral.shape[:2] + (1,) * extra + (2,))
-        return self._layer.displacement(lateral, forces)
-
     def _unit_influence(self, points: np.ndarray, shares: np.ndarray) -> np.ndarray:
-        """(n, 3, 3): displacement per unit load (force axis, then displacement axis) of loads
-        spread over `points` by `shares`."""
-        unit = np.broadcast_to(np.eye(3), (1, 1, 3, 3))
-        return np.einsum('k,nkfd->nfd', shares, self._influence(points, unit))
+        """(n, 3, 3): magnet displacements relative to their chips (half-space frame, z into
+        the skin) per unit load (force axis, then displacement axis) spread over `points` (k, 2)
+        about the contact point by `shares` (k,). Each taxel sees the skin about it as a flat
+        layer: a load point sits at its 3-D distance, in the direction it has in the taxel's
+        tangent plane (a press at the fingertip's apex loads a taxel on its side partly in
+        shear, and from as far as it is)."""
+        # From each load point to each taxel, in the taxel's frame: R_n^T (p_n - c - P_k axes).
+        offset = self._local_offset[:, None, :] - points @ self._local_axes   # (n, k, 3)
+        ox, oy, oz = offset[..., 0], offset[..., 1], offset[..., 2]
+        planar2 = ox * ox + oy * oy
+        distance = np.sqrt(planar2 + oz * oz)
+        planar = np.sqrt(planar2)
+        ahead = planar > 1e-12
+        inverse = np.where(ahead, -1.0 / np.where(ahead, planar, 1.0), 0.0)
+        return self._layer.unit_response_at(distance, np.where(ahead, ox * inverse, 1.0),
+                                            oy * inverse, shares)
 
     def _layouts(self) -> None:
         """Per location, the loads that do not change with the force, integrated once: a flat

@@ -134,7 +134,10 @@ def skin_targets_section(checks: list[dict] | None) -> list[str]:
              '(docs/SKIN_PHYSICS.md; `skin_sensitivity` judges them over several seeds).', '',
              '| target | sim | met |', '|---|---|---|']
             + [f"| {c['target']} | {cell(c['values'][0], digits=2)} | "
-               f"**{'met' if c['met'] else 'NOT met'}** |" for c in checks] + [''])
+               f"**{'met' if c['met'] else 'NOT met'}** |" for c in checks] + ['']
+            + [f"* Not met, {c['target']}: {c['why_missed']}." for c in checks
+               if not c['met'] and c.get('why_missed')]
+            + ([''] if any(not c['met'] and c.get('why_missed') for c in checks) else []))
 
 
 def best_cutoffs(end_to_end: dict) -> dict[str, float | None]:
@@ -260,7 +263,7 @@ def whole_hand_section(rows: dict, settings: dict) -> list[str]:
 
 def markdown(doc: dict) -> str:
     s, run = doc['settings'], doc['run']
-    lines = ['# Reproduction of the paper\'s experiments — SIMULATION', '',
+    lines = [f"# Reproduction of the paper's experiments — SIMULATION, {s['skin']} skin", '',
              f"**All numbers in the \"sim\" columns come from the simulated hand "
              f"(tacforce_ros.sim), not from hardware.** The \"paper\" columns are the published "
              f"values (tacforce_ros/experiments/paper_reference.py). Generated {run['date']}, "

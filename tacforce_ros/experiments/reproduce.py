@@ -125,6 +125,7 @@ def run(settings: Settings, out: Path, jobs: int) -> dict:
     table_i = report.table_i(cv, timing)
     doc = {
         'label': 'SIMULATION: every sim number comes from the simulated hand, not hardware',
+        'skin': settings.skin,
         'settings': dataclasses.asdict(settings), 'plates': list(PLATES),
         'controllers': list(CONTROLLERS), 'paths': PATHS,
         'table_I': table_i, 'online': online,

@@ -14,6 +14,20 @@ ORIENTATION_ABOVE = 1.5         # curved M1, M2 over M3-lambda: at least 50 % ab
 FLAT_SPREAD = 1.25              # flat M1, M2, M3: within 25 % of each other
 LOOP_REDUCTION, LOOP_TRACK = 0.70, 0.1   # closed loop: e~ cut by 70 %, e_track below 0.1 N
 
+# Why this skin misses a target when it does, in one sentence (docs/SKIN_PHYSICS.md, the
+# sections named, has the measurements).
+WHY_MISSED = {
+    'flat_spread': 'the layer keeps its volume, so the flat array\'s summed normal counts per '
+                   'newton change sign from plate to plate and M1 and M2, which sum them, err '
+                   'more than M3 on the four broad plates (docs/SKIN_PHYSICS.md, "Why M1 errs '
+                   'on the flat array")',
+    'loop_reduction': 'the loop holds one spot at about 1 N, where a model fitted on the five '
+                      'training plates reads the normal force 0.9-1.7 times, depending on where '
+                      'its linear compromise over the stiffening column lands; the loop follows '
+                      'that estimate (docs/SKIN_PHYSICS.md, "Why the closed loop differs so '
+                      'much between seeds")',
+}
+
 
 def targets(result: dict) -> list[dict]:
     """The targets on the values rows: [{'target', 'values' (one per seed, None where the
@@ -22,10 +36,11 @@ def targets(result: dict) -> list[dict]:
     models = set(result['models'])
     checks = []
 
-    def check(label, measure, passes):
+    def check(label, measure, passes, why=None):
         values = [measure(row) for row in rows]
         checks.append({'target': label, 'values': values,
-                       'met': sum(v is not None and passes(v) for v in values)})
+                       'met': sum(v is not None and passes(v) for v in values),
+                       **({'why_missed': why} if why else {})})
 
     def ratio(array, model, over):
         return lambda row: row['e_hat'][array][model] / row['e_hat'][array][over]
@@ -49,13 +64,13 @@ def targets(result: dict) -> list[dict]:
         check(f'{FLAT} M1, M2, M3 largest over smallest <= {FLAT_SPREAD}',
               lambda row: (max(row['e_hat'][FLAT][m] for m in ('M1', 'M2', 'M3'))
                            / min(row['e_hat'][FLAT][m] for m in ('M1', 'M2', 'M3'))),
-              lambda v: v <= FLAT_SPREAD)
+              lambda v: v <= FLAT_SPREAD, WHY_MISSED['flat_spread'])
     loops = [label for row in rows for label in (row.get('closed_loop') or {})
              if label != 'open_loop']
     for label in dict.fromkeys(loops):
         check(f'closed loop {label}: e~ reduction >= {LOOP_REDUCTION:.0%}',
               lambda row, m=label: (row.get('closed_loop') or {}).get(m, {}).get('reduction'),
-              lambda v: v >= LOOP_REDUCTION)
+              lambda v: v >= LOOP_REDUCTION, WHY_MISSED['loop_reduction'])
         check(f'closed loop {label}: e_track < {LOOP_TRACK} N',
               lambda row, m=label: (row.get('closed_loop') or {}).get(m, {}).get('e_track'),
               lambda v: v < LOOP_TRACK)

@@ -195,6 +195,10 @@ def test_a_magnetic_skin_report_judges_the_skins_targets_on_its_own_tables():
     lines = report.skin_targets_section(list(checks.values()))
     assert "| index_tip M5 over M3-lambda <= 0.85 | 0.90 | **NOT met** |" in lines
     assert "| closed loop M3-lambda: e~ reduction >= 70% | 0.75 | **met** |" in lines
+    # A missed target whose cause is known says it in a sentence; a met one says nothing more.
+    spread = [line for line in lines if line.startswith('* Not met, index_middle M1, M2, M3')]
+    assert len(spread) == 1 and 'keeps its volume' in spread[0]
+    assert not any(line.startswith('* Not met, closed loop') for line in lines)
     assert report.skin_targets_section(None) == []       # the empirical skin: no section
 
 

@@ -1,15 +1,17 @@
 """Reference readings of the magnetic skin, kept to show that making it faster left what it
 computes as it was.
 
-`python test/sim/skin_reference.py OUT.npz` writes them: the pressed array's counts as the
-readout sends them (uint16) in calibration sessions of a curved and a flat array on every plate,
-and in the closed-loop scene with the finger pressed by a constant torque. The file beside this
+`python test/sim/skin_reference.py OUT.npz` writes them: the pressed array's counts (uint16) in
+calibration sessions of a curved and a flat array on every plate, and in the closed-loop scene
+with the finger pressed by a constant torque; without the effects that act on the chip's counts
+(noise, temperature drift, crosstalk: not what this checks). The file beside this
 one, data/magnetic_skin_reference.npz, was written by the code of 9d82c4b, before the speed-up
 (run from a checkout of it: `PYTHONPATH=<checkout> python test/sim/skin_reference.py ...`);
 test_sim_skin_physics.py compares today's readings with it.
 """
 from __future__ import annotations
 
+import dataclasses
 import sys
 import warnings
 from pathlib import Path
@@ -26,14 +28,20 @@ SEED = 0
 REFERENCE = Path(__file__).parent / 'data' / 'magnetic_skin_reference.npz'
 
 
-def magnetic_scene(folder: Path, name: str) -> str:
-    """The shipped scene `name` on the magnetic skin (a scene file extending it, as the main
-    job writes one)."""
+CHIP_EFFECTS = ('taxel_noise', 'temperature_drift', 'crosstalk')
+
+
+def magnetic_scene(folder: Path, name: str):
+    """The shipped scene `name` on the magnetic skin, without CHIP_EFFECTS."""
+    from tacforce_ros.sim import load_scene
     from tacforce_ros.sim.effects.magnetic_skin import magnetic_skin_overlay
     path = folder / f'{name}_magnetic.yaml'
     path.write_text(yaml.safe_dump({'extends': name, 'effects': magnetic_skin_overlay()},
                                    sort_keys=False))
-    return str(path)
+    scene = load_scene(str(path))
+    return dataclasses.replace(scene, effects={name: params for name, params in
+                                               scene.effects.items()
+                                               if name not in CHIP_EFFECTS})
 
 
 def _frames(sim, rows, seconds: float, torque=None) -> np.ndarray:

@@ -318,5 +318,5 @@ def test_the_magnetic_skin_reads_as_before_it_was_made_faster(tmp_path):
         assert now[case].shape == reference[case].shape, case
         off = np.abs(now[case].astype(np.int64) - reference[case].astype(np.int64))
         assert off.max() <= 1, f'{case}: {off.max()} counts from the reference'
-        # A Young's modulus 0.1 % off moves 4-20 % of a case's readings, by up to 5 counts.
+        # A Young's modulus 0.1 % off moves 4-21 % of a case's readings, by up to 5 counts.
         assert np.mean(off > 0) <= 0.01, f'{case}: {np.mean(off > 0):.1%} of readings moved'

@@ -22,10 +22,11 @@ WHY_MISSED = {
                    'more than M3 on the four broad plates (docs/SKIN_PHYSICS.md, "Why M1 errs '
                    'on the flat array")',
     'loop_reduction': 'the loop holds one spot at about 1 N, where a model fitted on the five '
-                      'training plates reads the normal force 0.9-1.7 times, depending on where '
-                      'its linear compromise over the stiffening column lands; the loop follows '
-                      'that estimate (docs/SKIN_PHYSICS.md, "Why the closed loop differs so '
-                      'much between seeds")',
+                      'training plates reads the normal force 0.9-1.7 times (the column under '
+                      'the magnet stiffens with the force, and where the fit lands at that spot '
+                      'and force depends on the sessions drawn); the loop follows that estimate '
+                      '(docs/SKIN_PHYSICS.md, "Why the closed loop differs so much between '
+                      'seeds")',
 }
 
 

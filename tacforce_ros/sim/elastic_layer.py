@@ -183,18 +183,13 @@ class BondedLayer:
         uz = (fx * cos + fy * sin) * c + fz * nz
         return np.stack([ux, uy, uz], axis=-1)
 
-    def unit_response(self, lateral: np.ndarray, shares: np.ndarray) -> np.ndarray:
-        """(n, 3, 3) m/N: displacement at each depth (last axis) per unit force along each axis
-        (middle axis) spread over surface points at `lateral` (n, k, 2) by `shares` (k,):
-        `displacement` with a unit load along each axis, summed over the points, in one pass
-        (the magnetic skin's step computes this every frame)."""
-        lateral = np.asarray(lateral, np.float64)
-        return self._unit_response(*self._lookup(lateral), np.asarray(shares, np.float64))
-
     def unit_response_at(self, distance: np.ndarray, cos: np.ndarray, sin: np.ndarray,
                          shares: np.ndarray) -> np.ndarray:
-        """`unit_response` of points at `distance` (n, k) m from each field point's foot, seen
-        from the load in the direction (cos, sin) (n, k)."""
+        """(n, 3, 3) m/N: displacement at each depth (last axis) per unit force along each axis
+        (middle axis) spread by `shares` (k,) over surface points at `distance` (n, k) m from
+        each field point's foot, seen from the load in the direction (cos, sin) (n, k):
+        `displacement` with a unit load along each axis, summed over the points, in one pass
+        (the magnetic skin's step computes this every frame)."""
         if distance.shape[0] != self.depths.size:
             raise ValueError(f'BondedLayer: {distance.shape[0]} field points given, '
                              f'{self.depths.size} tabulated')

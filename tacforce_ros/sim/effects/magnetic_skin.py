@@ -201,8 +201,9 @@ class MagneticSkin(Effect):
             return
         self._location_key, self._location_plate = key, plate
         t1, t2 = phys.tangent_basis(contact.normal)
+        basis = np.stack([t1, t2])
         skin = phys.skin_curvature(self._positions, self._normals, contact.point,
-                                   contact.normal, reach=self._pitch, basis=np.stack([t1, t2]))
+                                   contact.normal, reach=self._pitch, basis=basis)
         if plate.shape == 'sphere':
             indenter = np.eye(2) / plate.radius
         elif plate.shape == 'cylinder':
@@ -223,7 +224,7 @@ class MagneticSkin(Effect):
                              'cylinder': (np.inf, plate.radius)}.get(plate.shape,
                                                                      (np.inf, np.inf))
         self._curvatures = np.maximum(curvature, 0.0)
-        self._axes = axes.T @ np.stack([t1, t2])                    # (2, 3) principal directions
+        self._axes = axes.T @ basis                                 # (2, 3) principal directions
         # Footprint of the array along the principal directions, half a pitch beyond its taxels.
         along = (self._positions - contact.point) @ self._axes.T
         self._footprint = (along.min(axis=0) - 0.5 * self._pitch,

@@ -270,7 +270,10 @@ def markdown(doc: dict) -> str:
              f"code {run['code_version']}, wall time {run['wall_seconds']:.0f} s on "
              f"{run['machine']['cpus']} CPUs with {run['machine']['jobs']} workers (load average "
              f"{run['machine']['load_before'][0]:.1f} before, "
-             f"{run['machine']['load_after'][0]:.1f} after).", '',
+             f"{run['machine']['load_after'][0]:.1f} after; a bare MuJoCo step of the hand "
+             f"model took {run['machine']['mujoco_step_us'][0]:.1f} us at the start, "
+             f"{run['machine']['mujoco_step_us'][1]:.1f} us at the end: the machine's speed, "
+             f"against which to read the wall time).", '',
              '## Sizes of this run', '',
              f"* calibration: {s['sessions_per_plate']} session(s) x {s['session_seconds']:g} s "
              f"per plate and array (paper: 4 x 100 s), plates {', '.join(doc['plates'])}; "

@@ -96,10 +96,31 @@ def workers(jobs: int):
     pool.shutdown()
 
 
+def physics_step_us(steps: int = 2000, repeats: int = 3) -> float:
+    """Wall us of one bare MuJoCo step of the closed-loop hand model, best of `repeats`: how
+    fast the machine ran at the start and end of a run, so wall times taken on a shared machine
+    can be compared (bench_sim sets the simulator's step against the same bare step)."""
+    import mujoco
+
+    from tacforce_ros.hand.description import load_hand
+    from tacforce_ros.sim import load_scene, make_simulator
+    sim = make_simulator(load_scene('closed_loop_spherical'), load_hand(), seed=0)
+    best = float('inf')
+    for _ in range(repeats):
+        data = mujoco.MjData(sim.model)
+        data.qpos[:] = sim.data.qpos
+        start = time.perf_counter()
+        for _ in range(steps):
+            mujoco.mj_step(sim.model, data)
+        best = min(best, time.perf_counter() - start)
+    return 1e6 * best / steps
+
+
 def run(settings: Settings, out: Path, jobs: int) -> dict:
     from tacforce_ros.experiments.closed_loop import trace_metrics
     started = time.perf_counter()
     load_before = os.getloadavg()
+    step_before = physics_step_us()
     cache = StageCache(out / 'cache')
     with workers(jobs) as pool:
         ctx = Context(settings=settings, out=out, cache=cache, pool=pool,
@@ -142,7 +163,8 @@ def run(settings: Settings, out: Path, jobs: int) -> dict:
                   'wall_seconds': time.perf_counter() - started, 'stage_seconds': ctx.timings,
                   'cache': {'hits': cache.hits, 'misses': cache.misses},
                   'machine': {'cpus': os.cpu_count(), 'jobs': jobs, 'load_before': load_before,
-                              'load_after': os.getloadavg()}}
+                              'load_after': os.getloadavg(),
+                              'mujoco_step_us': [step_before, physics_step_us()]}}
     return doc
 
 

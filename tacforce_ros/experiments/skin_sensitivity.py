@@ -38,7 +38,7 @@ from tacforce_ros.rig import TRAINING_PLATES
 
 ARRAYS = ('index_tip', 'index_middle')
 LOOP_ARRAY, LOOP_SCENE = 'index_tip', 'closed_loop_spherical'   # the paper's Table III
-NOISE = ('taxel_noise', 'sigma')           # counts: an estimate too (sim/effects/taxel_noise.py)
+NOISE = 'taxel_noise.scale'     # the chip noise times a factor (sim/effects/taxel_noise.py)
 POISSON_LIMIT = 0.499
 
 
@@ -59,7 +59,8 @@ def skin_setting(text: str) -> tuple[str, float | tuple[float, ...]]:
     if len(numbers) != shape:
         raise argparse.ArgumentTypeError(f'{name} takes {shape} comma-separated number(s), not '
                                          f'{value!r}')
-    if not all(math.isfinite(v) and v >= 0.0 for v in numbers):
+    signed = name == 'readout_offset_xy'        # counts either way; the rest are magnitudes
+    if not all(math.isfinite(v) and (signed or v >= 0.0) for v in numbers):
         raise argparse.ArgumentTypeError(f'{text!r}: the value must be finite and >= 0')
     if name == 'poisson' and not 0.0 < numbers[0] <= POISSON_LIMIT:
         raise argparse.ArgumentTypeError(f'poisson must lie in (0, {POISSON_LIMIT}], not '
@@ -80,7 +81,7 @@ def variants(factors: list[float], params: list[str], seeds: list[int],
         for factor in factors:
             row = {'name': f'{param} x{factor:g}', 'seed': seeds[0], 'skin': dict(settings),
                    'noise': 1.0}
-            if param == 'taxel_noise.sigma':
+            if param == NOISE:
                 row['noise'] = factor
             else:
                 value = getattr(nominal, param) * factor
@@ -93,8 +94,6 @@ def evaluate(variant: dict, arrays: list[str], sessions: int, seconds: float,
              models: list[str], epochs: int, loop_models: list[str]) -> dict:
     """Table I rows of one variant: {array: {label: e_hat}}, the closed loop of `loop_models`
     (trained on the fingertip's sessions) and the seconds it took."""
-    import numpy as np
-
     from tacforce_ros.estimation.cross_validation import cross_validate
     from tacforce_ros.estimation.dataset import concatenate
     from tacforce_ros.estimation.m1_rotation_linear import normal_input_per_newton
@@ -110,10 +109,10 @@ def evaluate(variant: dict, arrays: list[str], sessions: int, seconds: float,
     def magnetic(name: str):
         scene = load_scene(name)
         effects = with_magnetic_skin(scene.effects, **variant['skin'])
-        if NOISE[0] in effects and variant['noise'] != 1.0:
-            sigma = np.asarray(effects[NOISE[0]].get(NOISE[1], _noise_sigma()))
-            effects[NOISE[0]] = {**effects[NOISE[0]],
-                                 NOISE[1]: tuple(float(v) for v in sigma * variant['noise'])}
+        noise = effects.get('taxel_noise')
+        if noise is not None and variant['noise'] != 1.0:
+            effects['taxel_noise'] = {**noise,
+                                      'scale': noise.get('scale', 1.0) * variant['noise']}
         return dataclasses.replace(scene, effects=effects)
 
     started = time.perf_counter()
@@ -194,11 +193,6 @@ def closed_loop(hand, kinematics, scene, labels: list[str], configs: dict, X, F,
                              'estimate_gain': closed['estimate_gain'],
                              'reduction': 1.0 - closed['e_tilde_mean'] / result['open_loop']}
     return result
-
-
-def _noise_sigma():
-    from tacforce_ros.sim.effects.taxel_noise import TaxelNoise
-    return TaxelNoise().sigma
 
 
 def table(result: dict) -> str:
@@ -311,8 +305,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--models', nargs='+', default=['M1', 'M2', 'M3', 'M3-lambda'],
                         choices=PAPER_LABELS)
     parser.add_argument('--epochs', type=int, default=40, help='M4/M5 epochs (paper: 40)')
-    parser.add_argument('--params', nargs='*', default=[*ESTIMATES, 'taxel_noise.sigma'],
-                        choices=[*ESTIMATES, 'taxel_noise.sigma'],
+    parser.add_argument('--params', nargs='*', default=[*ESTIMATES, NOISE],
+                        choices=[*ESTIMATES, NOISE],
                         help='estimates to vary (none: the values only)')
     parser.add_argument('--factors', nargs='+', type=float, default=[0.5, 1.5])
     parser.add_argument('--closed-loop', nargs='*', default=['M3-lambda', 'M4'],

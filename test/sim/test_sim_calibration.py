@@ -67,6 +67,25 @@ def test_counts_saturate_inside_16_bits(hand):
     assert peaks[0] < peaks[1] < 37600 + SPAN[2] * 1.5 + 50
 
 
+def test_taxels_at_rest_are_as_noisy_as_the_public_recordings_of_a_real_skin(run_scene, hand):
+    """Each taxel's rms at rest, in whole counts, spreads over the taxels as in imanlab's uSkin
+    recordings (median 1.0 / 0.9 / 3.1, 90th percentile 1.9 / 1.7 / 7.6 counts on X / Y / Z),
+    and a taxel keeps its level from session to session: it is the hand's."""
+    rest = np.setdiff1d(np.arange(hand.n_taxels), hand.array('index_tip').flat_indices)
+    levels = []
+    for seed in (1, 2):
+        counts = stack(run_scene(TIP, effects={'taxel_noise': {}}, steps=2000, seed=seed),
+                       'taxel_counts')[:, rest].astype(float)
+        assert np.all(counts == np.rint(counts))
+        levels.append(np.std(counts, axis=0))                  # (taxels, 3)
+    median, p90 = np.median(levels[0], axis=0), np.percentile(levels[0], 90, axis=0)
+    np.testing.assert_allclose(median, (1.0, 0.9, 3.1), rtol=0.12)
+    np.testing.assert_allclose(p90, (1.9, 1.7, 7.6), rtol=0.2)
+    # Below about half a count the rounding, not the noise, sets what a channel shows.
+    audible = levels[0] > 0.5
+    np.testing.assert_allclose(levels[1][audible], levels[0][audible], rtol=0.15)
+
+
 # effect -> (fields it must change, fields it must leave alone)
 EFFECT_FIELDS = {
     'taxel_variation': ({'taxel_counts'}, {'temperatures', 'ft_wrench', 'true_force'}),

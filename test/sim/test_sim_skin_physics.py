@@ -232,6 +232,24 @@ def test_a_magnet_is_placed_where_its_field_reads_the_rest_value(skin):
     np.testing.assert_allclose(placed_lateral, lateral, rtol=0, atol=1e-9 * height.max())
 
 
+def test_a_readout_offset_shifts_x_and_y_as_imanlabs_modules_rest_and_clips_at_16_bits(run_scene):
+    """imanlab's public 4x4 modules rest near X 48,800 and Y 16,400: the same hand with that
+    readout offset reads the same counts shifted on X and Y (Z untouched); readings pushed past
+    either end of the 16-bit range clip there instead of wrapping. The magnets do not move."""
+    name = 'calibration_index_tip_edge'
+    plain = stack(run_scene(name, effects=MAGNETIC, steps=400, seed=2), 'taxel_counts')
+    for offset in ((16032.0, -16368.0), (32000.0, -32000.0)):
+        shifted = stack(run_scene(name, effects={'magnetic_skin': {'readout_offset_xy': offset}},
+                                  steps=400, seed=2), 'taxel_counts')
+        expected = plain.astype(float) + np.array([*offset, 0.0])
+        np.testing.assert_array_equal(shifted, np.clip(expected, 0, 65535))
+        if offset[0] == 16032.0:
+            assert 48300 < np.median(shifted[..., 0]) < 49300
+            assert 15900 < np.median(shifted[..., 1]) < 16900
+        else:
+            assert (shifted[..., 0] == 65535).any() and (shifted[..., 1] == 0).any()
+
+
 def test_a_placement_that_does_not_converge_is_refused_with_the_reason(skin, monkeypatch):
     """The error skin_sensitivity reports as an infeasible variant, not a crash."""
     effect, _, _ = skin()

@@ -91,13 +91,13 @@ def test_skin_sensitivity_varies_each_estimate_and_writes_its_table(tmp_path):
     out = tmp_path / 'out'
     assert skin_sensitivity.main(['--out', str(out), '--arrays', 'index_middle', '--seconds',
                                   '15', '--models', 'M3', 'M3-lambda', '--params', 'poisson',
-                                  'taxel_noise.sigma', '--factors', '0.5', '1.5',
+                                  'taxel_noise.scale', '--factors', '0.5', '1.5',
                                   '--closed-loop', '--seeds', '3', '4', '--jobs', '1',
                                   '--set', 'play_width=2e-06']) == 0
     result = json.loads((out / 'skin_sensitivity.json').read_text())
     names = [(v['name'], v['seed']) for v in result['variants']]
     assert names == [('values', 3), ('values', 4), ('poisson x0.5', 3), ('poisson x1.5', 3),
-                     ('taxel_noise.sigma x0.5', 3), ('taxel_noise.sigma x1.5', 3)]
+                     ('taxel_noise.scale x0.5', 3), ('taxel_noise.scale x1.5', 3)]
     # --set holds in every row, variants included
     assert result['variants'][3]['skin'] == {'poisson': skin_sensitivity.POISSON_LIMIT,
                                              'play_width': 2e-06}

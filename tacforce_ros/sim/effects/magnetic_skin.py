@@ -76,6 +76,10 @@ class MagneticSkin(Effect):
     sensitivity_z: float = 4.840e-6         # T per count, same setting
     rest_z_range: tuple[float, float] = (33600.0, 37600.0)   # counts at rest (PROTOCOLS.md)
     rest_xy_spread: float = 1350.0          # counts, +/- about mid-scale at rest (PROTOCOLS.md)
+    # Counts the readout adds to X and Y, the same on every taxel: 0 as XELA's recordings of the
+    # Allegro skin rest (PROTOCOLS.md); the public 4x4 modules of imanlab's recordings rest near
+    # +16,032 / -16,368 (docs/SKIN_PHYSICS.md). Readings still clip at 0 and 65,535.
+    readout_offset_xy: tuple[float, float] = (0.0, 0.0)
     # Play on the displacement: uSkin's loop is 10 % of its normal force range (Tomo 2018); a
     # half-width of 5 % of the displacement is our estimate of what gives it, beside creep.
     play_relative: float = 0.05
@@ -88,6 +92,7 @@ class MagneticSkin(Effect):
         self.contact_modulus = self.youngs_modulus / (1.0 - self.poisson ** 2)
         self._sensitivity = np.array([self.sensitivity_xy, self.sensitivity_xy,
                                       self.sensitivity_z])
+        self._zero = CHIP_ZERO + np.array([*self.readout_offset_xy, 0.0])
         self.creep = Creep(self.creep_share, self.creep_time_constant)
         self.play = Play(self.play_relative, self.play_width)
         self._patch = phys.elliptic_patch()
@@ -172,7 +177,7 @@ class MagneticSkin(Effect):
         position = np.column_stack([self.lateral[rows] + displacement[:, :2],
                                     squeezed + 0.5 * self.magnet_thickness])
         counts = self.field(position) / self._sensitivity
-        return CHIP_ZERO + np.minimum(np.maximum(counts, -CHIP_RANGE), CHIP_RANGE)   # np.clip
+        return self._zero + np.minimum(np.maximum(counts, -CHIP_RANGE), CHIP_RANGE)   # np.clip
 
     # -- a session -------------------------------------------------------------------------------
 

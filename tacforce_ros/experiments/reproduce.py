@@ -183,10 +183,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--jobs', type=int, default=min(2, os.cpu_count() or 1),
                         help='worker processes (default: 2)')
     parser.add_argument('--seed', type=int, default=0, help='base seed of sessions and runs')
-    parser.add_argument('--skin', choices=SKINS, default='empirical',
-                        help='the simulated skin of every scene: empirical (default), or '
-                             'magnetic, computed from the taxel\'s physics (docs/SKIN_PHYSICS.md; '
-                             'the report then judges the magnetic skin\'s targets)')
+    parser.add_argument('--skin', choices=SKINS, default=Settings.skin,
+                        help='the simulated skin of every scene: magnetic (default), computed '
+                             'from the taxel\'s physics (docs/SKIN_PHYSICS.md; the report judges '
+                             'its targets), or empirical, the fitted response (faster)')
     args = parser.parse_args(argv)
     interrupt_on_sigterm()      # its finally blocks stop the processes it started
     if args.jobs < 1:

@@ -61,7 +61,7 @@ class Settings:
     # the paper's session length, a quarter of its data, for the budget (the Table I arrays
     # have the paper's sizes).
     whole_hand_seconds: float = 100.0
-    skin: str = 'empirical'              # SKINS: every scene of the run on this skin
+    skin: str = 'magnetic'               # SKINS: every scene of the run on this skin
 
     @classmethod
     def quick(cls) -> Settings:

@@ -144,10 +144,13 @@ def test_the_closed_loop_filter_comparison_is_reported(runs):
 
 def test_report_holds_every_stage_and_labels_it_simulation(runs):
     _, doc, md, _ = runs
-    assert 'SIMULATION' in md.splitlines()[0]
-    # The default skin is the empirical one, whose run judges none of the magnetic skin's targets.
-    assert doc['settings']['skin'] == 'empirical' and doc['skin_targets'] is None
-    assert '* skin: empirical' in md and "The magnetic skin's targets" not in md
+    assert 'SIMULATION' in md.splitlines()[0] and 'magnetic skin' in md.splitlines()[0]
+    # The default skin is the magnetic one, and the run judges its targets on its own tables.
+    assert doc['skin'] == doc['settings']['skin'] == 'magnetic'
+    assert '* skin: magnetic' in md and "## The magnetic skin's targets on this run" in md
+    judged = {c['target'] for c in doc['skin_targets']}
+    assert 'index_tip M4 over M3-lambda <= 0.85' in judged
+    assert 'closed loop M3-lambda: e~ reduction >= 70%' in judged
     assert set(doc['table_I']) == {'index_tip', 'index_middle'}
     assert all(len(rows) == len(doc['settings']['models']) for rows in doc['table_I'].values())
     objects, controllers = doc['settings']['objects'], doc['controllers']

@@ -45,7 +45,7 @@ class SimSample:
         return ft_counts(self.ft_wrench)
 
 
-# Net F/T defaults (PROTOCOLS.md section 3): counts per N and per N m.
+# Net F/T defaults (docs/PROTOCOLS.md section 3): counts per N and per N m.
 COUNTS_PER_FORCE = 1e6
 COUNTS_PER_TORQUE = 1e6
 _COUNTS_SCALE = np.array([COUNTS_PER_FORCE] * 3 + [COUNTS_PER_TORQUE] * 3)

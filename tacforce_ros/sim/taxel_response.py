@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-# Rest values: X/Y near mid-scale, Z about 33,600-37,600 (PROTOCOLS.md section 1, XELA
+# Rest values: X/Y near mid-scale, Z about 33,600-37,600 (docs/PROTOCOLS.md section 1, XELA
 # replayer ranges); Z rises up to ~+10,085 counts above baseline and XELA warns against more
 # than 3 N normal per cell, so the Z span is ~10,000 counts reached near 3 N. Shear sensitivity
 # about half the normal one (Tomo et al. 2018, uSkin); slopes are our estimates.

@@ -15,7 +15,7 @@ from tacforce_ros.rig import FINGERS
 HAND = load_hand()
 KIN = HandKinematics.for_hand(HAND)
 URDF_TEXT = HAND.urdf_path.read_text()
-# Joint limits as written in the URDF (PROTOCOLS.md section 2), Allegro order.
+# Joint limits as written in the URDF (docs/PROTOCOLS.md section 2), Allegro order.
 LOWER, UPPER = np.array([[float(v) for v in re.search(
     rf'<joint name="joint_{i}.0" type="revolute">.*?lower="([-\d.]+)" upper="([-\d.]+)"',
     URDF_TEXT, re.S).groups()] for i in range(16)]).T

@@ -74,11 +74,11 @@ class MagneticSkin(Effect):
     poisson: float = 0.49                   # estimate (near-incompressible silicone)
     sensitivity_xy: float = 3.004e-6        # T per count, MLX90393 RES 2, GAIN_SEL 0 (estimate)
     sensitivity_z: float = 4.840e-6         # T per count, same setting
-    rest_z_range: tuple[float, float] = (33600.0, 37600.0)   # counts at rest (PROTOCOLS.md)
-    rest_xy_spread: float = 1350.0          # counts, +/- about mid-scale at rest (PROTOCOLS.md)
-    # Counts the readout adds to X and Y, the same on every taxel: 0 as XELA's recordings of the
-    # Allegro skin rest (PROTOCOLS.md); the public 4x4 modules of imanlab's recordings rest near
-    # +16,032 / -16,368 (docs/SKIN_PHYSICS.md). Readings still clip at 0 and 65,535.
+    rest_z_range: tuple[float, float] = (33600.0, 37600.0)   # counts at rest (docs/PROTOCOLS.md)
+    rest_xy_spread: float = 1350.0          # counts, +/- mid-scale at rest (docs/PROTOCOLS.md)
+    # Counts the readout adds to X and Y, the same on every taxel: 0 as XELA's recordings of
+    # the Allegro skin rest (docs/PROTOCOLS.md); the public 4x4 modules of imanlab's recordings
+    # rest near +16,032 / -16,368 (docs/SKIN_PHYSICS.md). Readings still clip at 0 and 65,535.
     readout_offset_xy: tuple[float, float] = (0.0, 0.0)
     # Play on the displacement: uSkin's loop is 10 % of its normal force range (Tomo 2018); a
     # half-width of 5 % of the displacement is our estimate of what gives it, beside creep.
@@ -145,7 +145,7 @@ class MagneticSkin(Effect):
 
     def draw_hand(self, rng: np.random.Generator, ctx) -> None:
         """Where each magnet sits: at the place whose field reads a rest value drawn from the
-        measured ranges (PROTOCOLS.md), so a taxel's gain follows from its height as on the
+        measured ranges (docs/PROTOCOLS.md), so a taxel's gain follows from its height as on the
         real skin."""
         n = ctx.n_taxels
         rest = np.column_stack([

@@ -13,7 +13,7 @@ from tacforce_ros.sim.taxel_response import CHIP_ZERO
 class TaxelVariation(Effect):
     name = 'taxel_variation'
     # Rest spread: X/Y within about +/-1350 counts of mid-scale, Z between ~33,600 and ~37,600
-    # (PROTOCOLS.md section 1). Gain spread and coupling are our estimates (magnet placement,
+    # (docs/PROTOCOLS.md section 1). Gain spread and coupling are our estimates (magnet placement,
     # elastomer thickness tolerances).
     baseline_xy_spread: float = 1350.0   # counts, uniform +/-
     baseline_z_range: tuple[float, float] = (33600.0, 37600.0)

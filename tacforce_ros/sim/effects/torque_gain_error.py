@@ -11,7 +11,7 @@ from tacforce_ros.sim.effects import Effect
 @dataclass
 class TorqueGainError(Effect):
     name = 'torque_gain_error'
-    # The V4 driver maps torque to PWM with one nominal factor (1200 PWM/N m, PROTOCOLS.md
+    # The V4 driver maps torque to PWM with one nominal factor (1200 PWM/N m, docs/PROTOCOLS.md
     # section 2): a voltage, not a current, command. The torque it yields scales with the
     # winding resistance (copper +0.39 %/K: a warm hand delivers 8-15 % less), with the motor
     # constant's tolerance (+/-10 %, usual for small DC motors) and with each joint's gear

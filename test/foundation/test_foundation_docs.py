@@ -14,7 +14,7 @@ POINTING_AWAY = re.compile(
     r'outside (the|this) (repository|repo|project)|not in (the|this) (repository|repo)'
     r'|ROS2_ON_THIS_MACHINE|ARCHITECTURE\.md|\.\./shared|\bissues? #?\d+|\btasks? \d+\b',
     re.IGNORECASE)
-OWN_DOCUMENT = re.compile(r'(?<![\w/.])([A-Z][A-Z0-9_]+\.md)')
+OWN_DOCUMENT = re.compile(r'(?<![\w/.])((?:docs/)?[A-Z][A-Z0-9_]+\.md)')
 
 
 def tracked_text_files() -> list[Path]:

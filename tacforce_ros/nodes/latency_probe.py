@@ -17,6 +17,7 @@ from tacforce_msgs.msg import ControllerState, ForceEstimateArray, TactileHand
 
 from tacforce_ros.nodes.qos import publisher_qos
 from tacforce_ros.nodes.messages import tactile_hand
+from tacforce_ros.rig import RATE_HZ
 from tacforce_ros.topics import (TOPIC_CONTROLLER_STATE, TOPIC_ESTIMATES, TOPIC_TACTILE,
                                  array_wrench_topic)
 
@@ -80,7 +81,7 @@ def bench_estimator(probe: Probe, hand, rates: list[float], seconds: float, pid:
     node = probe.node
     publisher = node.create_publisher(TactileHand, TOPIC_TACTILE, publisher_qos(TOPIC_TACTILE))
     n_arrays = len(hand.arrays)
-    depth = int(max(rates + [100.0]) * max(seconds, latency_seconds)) + 100
+    depth = int(max(rates + [RATE_HZ]) * max(seconds, latency_seconds)) + 100
     # frame stamp -> [(reception, source) ns of each wrench]; estimate stamps as received
     wrenches: dict[int, list[tuple[int, int]]] = {}
     estimates: list[int] = []
@@ -125,23 +126,23 @@ def bench_estimator(probe: Probe, hand, rates: list[float], seconds: float, pid:
         if time.monotonic() > deadline:
             raise RuntimeError(
                 f'the estimator published no estimate within {WARM_UP_TIMEOUT_S:.0f} s of '
-                f'frames at 100 Hz; {TOPIC_TACTILE} matched '
+                f'frames at {RATE_HZ:g} Hz; {TOPIC_TACTILE} matched '
                 f'{publisher.get_subscription_count()} subscription(s), {TOPIC_ESTIMATES} '
                 f'{node.count_publishers(TOPIC_ESTIMATES)} publisher(s)')
-        send(10, 100.0)
-    send(100, 100.0)        # a second, steady, so start-up work is over before timing
+        send(10, RATE_HZ)
+    send(int(RATE_HZ), RATE_HZ)     # a second, steady, so start-up work is over before timing
     probe.spin_for(0.5)
     wrenches.clear()
     estimates.clear()
     cpu = _cpu_seconds(pid)
-    sent = send(int(100.0 * latency_seconds), 100.0)
+    sent = send(int(RATE_HZ * latency_seconds), RATE_HZ)
     cpu = _cpu_seconds(pid) - cpu
     probe.spin_for(1.0)
     complete = [(s, wrenches[s]) for s in sent if len(wrenches.get(s, ())) == n_arrays]
     ms = 1e-6
     latency = _percentiles([(max(r for r, _ in w) - s) * ms for s, w in complete])
     latency.update(
-        frames=len(sent), complete=len(complete), rate_hz=100.0,
+        frames=len(sent), complete=len(complete), rate_hz=RATE_HZ,
         cpu_ms_per_frame=cpu * 1e3 / len(sent),
         # frame stamp -> first wrench leaves the estimator: transport in, wake-up, decode,
         # estimate; first -> last wrench leaves: the 18 publishes

@@ -16,7 +16,7 @@ into /calibration/sample. Writes JSON and a readable table to --out.
 
     bench_graph --runs 10 --out out/bench_graph
     bench_graph --runs 3 --no-lockstep --out out/bench_graph_free   # free-running, to compare
-    # after reproduce --skin magnetic, with a model trained on that skin:
+    # after `reproduce` (its default, magnetic skin), with the model it trained on that skin:
     bench_graph --skin magnetic --model out/models/M3-lambda.yaml ...
 """
 from __future__ import annotations
@@ -481,8 +481,9 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument('--lockstep', action=argparse.BooleanOptionalAction, default=True,
                         help='sessions in lockstep (default) or free-running at real time')
     parser.add_argument('--skin', choices=SKINS, default='empirical',
-                        help='the simulated skin of every session (default empirical; magnetic '
-                        'needs a --model trained on it, e.g. `reproduce --skin magnetic`\'s)')
+                        help='the simulated skin of every session (default empirical, the '
+                        'skin the shipped models were trained on; magnetic needs a --model '
+                        'trained on it, e.g. `reproduce`\'s out/models/M3-lambda.yaml)')
     parser.add_argument('--out', type=output_folder, default='out/bench_graph',
                         help='folder for bench_graph.json and bench_graph.md')
     parser.add_argument('--sessions', type=output_folder, default='out/bench_graph',

@@ -170,9 +170,13 @@ def test_a_magnetic_skin_run_simulates_each_scene_on_the_magnetic_skin(tmp_path,
 
 
 def test_a_magnetic_skin_report_judges_the_skins_targets_on_its_own_tables():
+    plates = ('button', 'flat', 'fillet', 'convex', 'edge')
+    per_plate = {'M3-lambda': (0.60, 0.20, 0.25, 0.20, 0.25), 'M5': (0.81, 0.14, 0.15, 0.12, 0.13)}
+
     def table_i(errors):
-        return {array: {label: {'sim': {'e_hat': e}} for label, e in zip(
-            ('M1', 'M2', 'M3', 'M3-lambda', 'M3-lambda-cv', 'M4', 'M5'), row)}
+        return {array: {label: {'sim': {'e_hat': e, 'per_plate': [
+            {'test_plate': p, 'e_hat_mean': v} for p, v in zip(plates, per_plate.get(label, ()))]}}
+            for label, e in zip(('M1', 'M2', 'M3', 'M3-lambda', 'M3-lambda-cv', 'M4', 'M5'), row)}
             for array, row in errors.items()}
     errors = {'index_tip': (0.60, 0.50, 0.30, 0.30, 0.29, 0.24, 0.27),
               'index_middle': (0.45, 0.30, 0.28, 0.28, 0.28, 0.20, 0.21)}
@@ -199,6 +203,12 @@ def test_a_magnetic_skin_report_judges_the_skins_targets_on_its_own_tables():
     spread = [line for line in lines if line.startswith('* Not met, index_middle M1, M2, M3')]
     assert len(spread) == 1 and 'keeps its volume' in spread[0]
     assert not any(line.startswith('* Not met, closed loop') for line in lines)
+    # A network behind its margin: on which held-out plates it loses to M3-lambda, and by how much.
+    network = [line for line in lines if line.startswith('* Not met, index_tip M5')]
+    assert network == ['* Not met, index_tip M5 over M3-lambda <= 0.85: held out, M5 errs 1.35 '
+                       'times as much as M3-lambda on the button plate, 0.52-0.70 times as much '
+                       'on the other 4 plate(s) (per_plate_errors.png); the button plate is also '
+                       'where it errs most (0.81 N), so it weighs most in the mean.']
     assert report.skin_targets_section(None) == []       # the empirical skin: no section
 
 

@@ -28,3 +28,15 @@ def time_interleaved(calls: dict[tuple[str, str], Callable[[], object]], repeats
                 record(time.perf_counter_ns() - start)
     return {key: {'median_us': float(np.median(v) / 1e3),
                   'p99_us': float(np.percentile(v, 99) / 1e3)} for key, v in samples.items()}
+
+
+def bare_mujoco_seconds(model, qpos: np.ndarray, steps: int) -> float:
+    """Wall seconds of `steps` bare MuJoCo steps (mj_step) from `qpos`: the physics alone, against
+    which the simulator's own cost, and a machine's speed, are read."""
+    import mujoco
+    data = mujoco.MjData(model)
+    data.qpos[:] = qpos
+    start = time.perf_counter()
+    for _ in range(steps):
+        mujoco.mj_step(model, data)
+    return time.perf_counter() - start

@@ -30,6 +30,7 @@ from tacforce_ros.sim import list_scenes, load_scene, make_simulator
 from tacforce_ros.sim.effects import EFFECTS
 from tacforce_ros.sim.scene import calibration_scene_name
 from tacforce_ros.rig import HELD_OUT_PLATE, TRAINING_PLATES
+from tacforce_ros.timing import bare_mujoco_seconds
 
 TARGETS = {'calibration': 50.0, 'closed_loop': 10.0, 'closed_loop_with_control': 15.0}
 LOOP_SEQUENCE = 'paper_70s'
@@ -76,8 +77,6 @@ def realtime_factors(scenes, hand, seconds: float, repeats: int) -> list[float]:
 def loop_factors(scene_name: str, hand, seconds: float, repeats: int) -> dict:
     """The scene with estimator and controller in the loop (experiments.closed_loop, as the main
     job runs it) and bare mj_step passes of its model, interleaved; best of `repeats`."""
-    import mujoco
-
     from tacforce_ros.control.command_sequence import ForceSequence
     from tacforce_ros.estimation.model_set import default_model_config, load_model_set
     from tacforce_ros.experiments.closed_loop import SETTLE_SECONDS, run_closed_loop
@@ -98,12 +97,7 @@ def loop_factors(scene_name: str, hand, seconds: float, repeats: int) -> dict:
         run_closed_loop(hand, kinematics, scene_name, 0, config, sequence, models,
                         tare_frames=tare_frames())
         best_loop = min(best_loop, time.perf_counter() - start)
-        data = mujoco.MjData(sim.model)
-        data.qpos[:] = sim.data.qpos
-        start = time.perf_counter()
-        for _ in range(steps):
-            mujoco.mj_step(sim.model, data)
-        best_bare = min(best_bare, time.perf_counter() - start)
+        best_bare = min(best_bare, bare_mujoco_seconds(sim.model, sim.data.qpos, steps))
     simulated = steps * sim.dt
     return {'simulated_seconds': simulated, 'physics_steps': steps,
             'realtime_factor': simulated / best_loop,

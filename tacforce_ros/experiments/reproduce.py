@@ -100,19 +100,11 @@ def physics_step_us(steps: int = 2000, repeats: int = 3) -> float:
     """Wall us of one bare MuJoCo step of the closed-loop hand model, best of `repeats`: how
     fast the machine ran at the start and end of a run, so wall times taken on a shared machine
     can be compared (bench_sim sets the simulator's step against the same bare step)."""
-    import mujoco
-
     from tacforce_ros.hand.description import load_hand
     from tacforce_ros.sim import load_scene, make_simulator
+    from tacforce_ros.timing import bare_mujoco_seconds
     sim = make_simulator(load_scene('closed_loop_spherical'), load_hand(), seed=0)
-    best = float('inf')
-    for _ in range(repeats):
-        data = mujoco.MjData(sim.model)
-        data.qpos[:] = sim.data.qpos
-        start = time.perf_counter()
-        for _ in range(steps):
-            mujoco.mj_step(sim.model, data)
-        best = min(best, time.perf_counter() - start)
+    best = min(bare_mujoco_seconds(sim.model, sim.data.qpos, steps) for _ in range(repeats))
     return 1e6 * best / steps
 
 

@@ -10,10 +10,11 @@ import pytest
 REPO = Path(__file__).resolve().parents[2]
 TEXT = ('.py', '.md', '.yaml', '.yml', '.urdf', '.xml', '.txt', '.cfg', '.toml', '.sh', '.msg',
         '.action', '.srv', '.ini')
+# Written with character classes so that this file does not match itself.
 POINTING_AWAY = re.compile(
-    r'outside (the|this) (repository|repo|project)|not in (the|this) (repository|repo)'
-    r'|ROS2_ON_THIS_MACHINE|ARCHITECTURE\.md|\.\./shared|\bissues? #?\d+|\btasks? \d+\b',
-    re.IGNORECASE)
+    r'outside (the|this) (repositor[y]|repo|project)|not in (the|this) (repositor[y]|repo)'
+    r'|ROS2_ON_THIS_MACHIN[E]|ARCHITECTUR[E]\.md|\.\.[/]shared|\bissue[s]? #?\d+'
+    r'|\btask[s]? \d+\b', re.IGNORECASE)
 OWN_DOCUMENT = re.compile(r'(?<![\w/.])((?:docs/)?[A-Z][A-Z0-9_]+\.md)')
 
 
@@ -31,8 +32,6 @@ def tracked_text_files() -> list[Path]:
 def test_nothing_points_outside_the_repository_or_to_an_issue():
     found = []
     for path in tracked_text_files():
-        if path == Path(__file__).resolve():
-            continue
         # Whitespace joined: a phrase broken over two lines is still found.
         flat = re.sub(r'\s+', ' ', path.read_text(errors='replace'))
         found += [f'{path.relative_to(REPO)}: ...{flat[max(0, m.start() - 40):m.end() + 20]}...'

@@ -125,9 +125,10 @@ def skin_targets(table_i: dict, rows: list[dict], seed: int) -> list[dict]:
         'e_hat': {array: {label: row['sim']['e_hat'] for label, row in by_model.items()}
                   for array, by_model in table_i.items()}}]})
     for check in checks:
-        words = check['target'].split()
-        if not check['met'] and words[2:4] == ['over', 'M3-lambda'] and words[-2] == '<=':
-            check['why_missed'] = plates_against_linear(table_i[words[0]], words[1])
+        network = check.get('below_linear')
+        if network is not None and not check['met']:
+            check['why_missed'] = plates_against_linear(table_i[network['array']],
+                                                        network['model'])
     return checks
 
 

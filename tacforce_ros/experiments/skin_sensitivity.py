@@ -61,7 +61,8 @@ def skin_setting(text: str) -> tuple[str, float | tuple[float, ...]]:
                                          f'{value!r}')
     signed = name == 'readout_offset_xy'        # counts either way; the rest are magnitudes
     if not all(math.isfinite(v) and (signed or v >= 0.0) for v in numbers):
-        raise argparse.ArgumentTypeError(f'{text!r}: the value must be finite and >= 0')
+        raise argparse.ArgumentTypeError(
+            f'{text!r}: the value must be finite{"" if signed else " and >= 0"}')
     if name == 'poisson' and not 0.0 < numbers[0] <= POISSON_LIMIT:
         raise argparse.ArgumentTypeError(f'poisson must lie in (0, {POISSON_LIMIT}], not '
                                          f'{value}')

@@ -37,11 +37,12 @@ def targets(result: dict) -> list[dict]:
     models = set(result['models'])
     checks = []
 
-    def check(label, measure, passes, why=None):
+    def check(label, measure, passes, why=None, **about):
+        """`about`: what the target compares (array, model), for a report that explains it."""
         values = [measure(row) for row in rows]
         checks.append({'target': label, 'values': values,
                        'met': sum(v is not None and passes(v) for v in values),
-                       **({'why_missed': why} if why else {})})
+                       **({'why_missed': why} if why else {}), **about})
 
     def ratio(array, model, over):
         return lambda row: row['e_hat'][array][model] / row['e_hat'][array][over]
@@ -56,7 +57,8 @@ def targets(result: dict) -> list[dict]:
             continue
         for model in sorted(models & {'M4', 'M5'}):
             check(f'{array} {model} over M3-lambda <= {NONLINEAR_BELOW}',
-                  ratio(array, model, 'M3-lambda'), lambda v: v <= NONLINEAR_BELOW)
+                  ratio(array, model, 'M3-lambda'), lambda v: v <= NONLINEAR_BELOW,
+                  below_linear={'array': array, 'model': model})
         if array == CURVED:
             for model in sorted(models & {'M1', 'M2'}):
                 check(f'{array} {model} over M3-lambda >= {ORIENTATION_ABOVE}',

@@ -177,11 +177,18 @@ def test_skin_sensitivity_refuses_an_array_without_a_table_i_row(tmp_path, capsy
     ('poisson=0.4,0.45', 'poisson takes 1 comma-separated number(s)'),
     ('layer_thickness=nan', 'the value must be finite and >= 0'),
     ('youngs_modulus=-1', 'the value must be finite and >= 0'),
+    ('readout_offset_xy=16032,inf', "'readout_offset_xy=16032,inf': the value must be finite"),
     ('poisson=0.5', 'poisson must lie in (0, 0.499]')])
 def test_skin_sensitivity_refuses_a_setting_it_cannot_apply(setting, message):
     from tacforce_ros.experiments.skin_sensitivity import skin_setting
     with pytest.raises(argparse.ArgumentTypeError, match=re.escape(message)):
         skin_setting(setting)
+
+
+def test_a_readout_offset_may_be_negative_as_counts_either_way():
+    from tacforce_ros.experiments.skin_sensitivity import skin_setting
+    assert skin_setting('readout_offset_xy=16032,-16368') == ('readout_offset_xy',
+                                                             (16032.0, -16368.0))
 
 
 def test_skin_sensitivity_refuses_a_parameter_set_twice(tmp_path, capsys):

@@ -20,6 +20,7 @@ TOOLS = {
     # The main job and its study (tacforce_ros/experiments/): the runtime never imports them.
     'reproduce': 'experiments.reproduce',   # the paper's experiments in simulation + report
     'skin_sensitivity': 'experiments.skin_sensitivity',  # Table I per skin estimate +/-
+    'compare_reports': 'experiments.compare_reports',    # two main-job reports, figure by figure
     # Benchmarks (tacforce_ros/benchmarks/): the runtime never imports them.
     'bench': 'benchmarks.bench',            # accuracy vs inference time of M1-M5, M3-lambda
     'bench_devices': 'benchmarks.bench_devices',    # driver latency and rates over loopback

@@ -23,6 +23,7 @@ from tacforce_ros.devices.netft import NetFtClient, NetFtConfig
 from tacforce_ros.devices.polling import PollingDriver
 from tacforce_ros.devices.xela import XelaClient, XelaConfig
 from tacforce_ros.hand.description import load_hand
+from tacforce_ros.rig import RATE_HZ
 from tacforce_ros.paths import output_file
 from tacforce_ros.sim.emulators.allegro import AllegroEmulator
 from tacforce_ros.sim.emulators.netft import NetFtEmulator
@@ -136,7 +137,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument('--duration', type=float, default=5.0,
                         help='seconds per device, from its first sample')
     parser.add_argument('--devices', nargs='+', choices=DEVICES, default=list(DEVICES))
-    parser.add_argument('--xela-rate', type=float, default=100.0, help='XELA frames/s')
+    parser.add_argument('--xela-rate', type=float, default=RATE_HZ, help='XELA frames/s')
     parser.add_argument('--rdt-rate', type=float, default=1000.0, help='RDT records/s')
     parser.add_argument('--allegro-period-ms', type=int, default=3,
                         help='FINGER_POSE period (3 ms = 333 Hz x 4 frames)')

@@ -33,12 +33,14 @@ import tempfile
 from collections.abc import Callable
 from pathlib import Path
 
+from tacforce_ros.devices.allegro import MAX_JOINT_RATE_HZ
 from tacforce_ros.estimation.model_set import write_synthetic_model_set
 from tacforce_ros.hand.description import load_hand
 from tacforce_ros.nodes.realtime import use_realtime_scheduling
 from tacforce_ros.nodes.latency_probe import Probe, bench_controller, bench_estimator
 from tacforce_ros.bringup.session_plan import NodeLaunch, params_file
 from tacforce_ros.paths import output_file
+from tacforce_ros.rig import RATE_HZ
 from tacforce_ros.bringup.processes import (first_exited, interrupt_on_sigterm, start_nodes,
                                            stop_nodes)
 
@@ -131,7 +133,7 @@ def run_estimator(probe: Probe, hand, args: argparse.Namespace, env: dict, tmp: 
 def run_controller(probe: Probe, args: argparse.Namespace, env: dict, tmp: Path) -> list[dict]:
     out = []
     xela, netft, can = args.ports
-    for rate in (100.0, 1000.0 / 3.0):
+    for rate in (RATE_HZ, MAX_JOINT_RATE_HZ):     # the frame rate; the hand's fastest stream
         procs = start_nodes([
             NodeLaunch('sim_world', (params_file('sim_world'),), {
                 'publish_clock': False, 'lockstep': False, 'xela_port': xela,

@@ -40,9 +40,12 @@ def leaves(value: Any, path: str = '') -> Iterator[tuple[str, Any]]:
         for key, item in value.items():
             yield from leaves(item, f'{path}/{key}' if path else str(key))
     elif isinstance(value, list):
-        rows = all(isinstance(item, dict) for item in value) and value
-        for index, item in enumerate(value):
-            yield from leaves(item, f'{path}[{_row_name(item, index) if rows else index}]')
+        names = [str(index) for index in range(len(value))]
+        if value and all(isinstance(item, dict) for item in value):
+            named = [_row_name(item, index) for index, item in enumerate(value)]
+            names = named if len(set(named)) == len(named) else names   # a name twice: by place
+        for name, item in zip(names, value):
+            yield from leaves(item, f'{path}[{name}]')
     else:
         yield path, value
 

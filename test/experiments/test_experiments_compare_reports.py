@@ -57,6 +57,16 @@ def test_rows_are_paired_by_their_names_not_their_order():
     assert only['after'] == []
 
 
+def test_rows_that_share_a_name_are_paired_by_place_not_merged():
+    before, after = report(), report()
+    for rows, e_tilde in ((before['table_III'], (0.15, 0.20)), (after['table_III'], (0.15, 0.25))):
+        for row, value in zip(rows, e_tilde):
+            row['controller'] = 'M4'
+            row['sim']['e_tilde'] = value
+    moved = compare(before, after)['differ']
+    assert [d['figure'] for d in moved] == ['table_III[1]/sim/e_tilde']
+
+
 def test_the_tool_writes_its_files_and_exits_1_on_a_difference(tmp_path, capsys):
     before, after = tmp_path / 'a.json', tmp_path / 'b.json'
     before.write_text(json.dumps(report()))

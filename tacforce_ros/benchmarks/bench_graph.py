@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from tacforce_ros import bagio, results, topics
-from tacforce_ros.bringup.processes import interrupt_on_sigterm, read_cpu_report
+from tacforce_ros.bringup.processes import interrupt_on_sigterm, read_cpu_report, unclean_exits
 from tacforce_ros.control.command_sequence import ForceSequence
 from tacforce_ros.control.force_controller import MODE_HOLD, MODE_SAFE
 from tacforce_ros.estimation.model_set import (ModelConfigError, default_model_config,
@@ -258,7 +258,7 @@ def driver_kill_run(k: int, args, out: Path) -> dict:
             'crash': {'node': DRIVER_KILL[0], 'at_wall_s': DRIVER_KILL[1],
                       'down_wall_s': DRIVER_KILL[2]},
             **driver_kill_metrics(trace.t, trace.f_d, trace.f_hat, trace.f_tilde, joints),
-            'bag': str(bag)}
+            'exit_codes': node_path.session_exit_codes(session_dir), 'bag': str(bag)}
 
 
 def crash_run(k: int, args, kinematics, out: Path) -> dict:
@@ -274,7 +274,8 @@ def crash_run(k: int, args, kinematics, out: Path) -> dict:
     return {'run': k, 'seed': seed, 'sequence': FAULT_SEQUENCE,
             'crash': {'node': CRASH[0], 'at_wall_s': CRASH[1], 'down_wall_s': CRASH[2]},
             'achieved_real_time_factor': achieved_factor(session_dir),
-            **crash_report(bag, kinematics, sequence), 'bag': str(bag)}
+            **crash_report(bag, kinematics, sequence),
+            'exit_codes': node_path.session_exit_codes(session_dir), 'bag': str(bag)}
 
 
 def crash_report(bag: Path, kinematics, sequence) -> dict:
@@ -311,7 +312,8 @@ def closed_loop_run(k: int, args, hand, kinematics, sequence, out: Path,
             'e_track': {'node': node['e_track_mean'], 'direct': direct_m['e_track_mean']},
             'e_tilde_difference': compared['difference_n'],
             'e_track_difference': compared.get('e_track_difference_n'),
-            'watchdog': watchdog_ticks(bag), 'streams': stream_counts(bag), 'bag': str(bag)}
+            'watchdog': watchdog_ticks(bag), 'streams': stream_counts(bag),
+            'exit_codes': compared['exit_codes'], 'bag': str(bag)}
 
 
 def calibration_run(args, hand, kinematics, out: Path) -> dict:
@@ -332,7 +334,8 @@ def calibration_run(args, hand, kinematics, out: Path) -> dict:
             'tactile_frames_paired': samples / frames if frames else 0.0,
             'e_hat': {'node': compared['node']['e_hat_mean'],
                       'direct': compared['direct']['e_hat_mean']},
-            'e_hat_difference': compared['difference_n'], 'streams': streams, 'bag': str(bag)}
+            'e_hat_difference': compared['difference_n'], 'streams': streams,
+            'exit_codes': node_path.session_exit_codes(session_dir), 'bag': str(bag)}
 
 
 def summary(runs: list[dict]) -> dict:
@@ -457,7 +460,20 @@ def table(result: dict) -> str:
     for d in result.get('driver_kill_runs', []):
         lines += _part(f'driver kill {d["run"]} (seed {d["seed"]}, {FAULT_SEQUENCE}, '
                        'free-running)', d, _driver_kill_text)
+    lines += ['', 'nodes that did not end cleanly when their session stopped them: '
+              + (', '.join(unclean_stops(result)) or 'none')]
     return '\n'.join(lines)
+
+
+def unclean_stops(result: dict) -> list[str]:
+    """Each node, of every session of a result, that ended otherwise than as asked."""
+    sessions = [(f'closed loop {r["run"]}{" composed" if r["composed"] else ""}', r)
+                for r in result['closed_loop'] + result['closed_loop_composed']]
+    sessions += [('calibration', result['calibration'])] if result.get('calibration') else []
+    sessions += [(f'fault run {f["run"]}', f) for f in result.get('fault_runs', [])]
+    sessions += [(f'driver kill {d["run"]}', d) for d in result.get('driver_kill_runs', [])]
+    return [f'{name}: {node} exit code {code}' for name, run in sessions
+            for node, code in unclean_exits(run.get('exit_codes', {})).items()]
 
 
 def main(argv: list[str] | None = None) -> None:

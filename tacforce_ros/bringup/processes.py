@@ -58,6 +58,7 @@ def cpu_seconds(pid: int) -> float | None:
 
 
 CPU_REPORT = 'session: CPU seconds per process:'
+EXIT_CODES_REPORT = 'exit codes'    # then name=code, ... (negative: killed by that signal)
 
 
 def cpu_report(cpu: dict[str, float | None]) -> str:
@@ -72,6 +73,27 @@ def read_cpu_report(line: str) -> dict[str, float] | None:
         return None
     return {name: float(value) for name, value in
             (item.split('=') for item in line[len(CPU_REPORT):].strip().split(', ') if item)}
+
+
+def exit_codes_report(codes: dict[str, int]) -> str:
+    """How a session's processes ended, as its last status line says it (stop_nodes' codes)."""
+    return f'{EXIT_CODES_REPORT} ' + ', '.join(f'{name}={code}' for name, code in codes.items())
+
+
+def read_exit_codes(line: str) -> dict[str, int] | None:
+    """The codes of a line holding exit_codes_report(); None for any other line."""
+    at = line.find(EXIT_CODES_REPORT + ' ')
+    if at < 0:
+        return None
+    return {name: int(code) for name, code in
+            (item.split('=') for item in line[at + len(EXIT_CODES_REPORT):].strip().split(', ')
+             if item)}
+
+
+def unclean_exits(codes: dict[str, int]) -> dict[str, int]:
+    """The processes that did not end as asked: any code but 0, or the SIGINT a node gets when
+    it is stopped while Python itself is still starting (before any of its code ran)."""
+    return {name: code for name, code in codes.items() if code not in (0, -signal.SIGINT)}
 
 
 SLOW_STOP_S = 1.0      # a node's stop longer than this is named

@@ -140,6 +140,7 @@ def node_path_stage(ctx: Context, models: dict) -> dict:
         result['calibration'] = node_path.compare_calibration(
             bag, hand, kinematics, calibration_scene, load_scene(calibration_scene).seed, model,
             s.static_force)
+        result['calibration']['exit_codes'] = node_path.session_exit_codes(work / 'calibration')
         sequence = ForceSequence.load(s.sequence)
         ctx.log(f'stage node path: closed-loop run ({sequence.duration:g} s + start-up, '
                 'simulated)')

@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from tacforce_ros.bringup.processes import executable, run_to_end
+from tacforce_ros.bringup.processes import executable, read_exit_codes, run_to_end
 from tacforce_ros.control.force_controller import MODE_HOLD, MODE_SAFE
 from tacforce_ros.estimation.metrics import error_stats
 from tacforce_ros.estimation.model_set import load_model_set
@@ -129,6 +129,18 @@ def run_session(mode: str, scene: str, plate: str, out: Path, sim_duration: floa
     return bags[-1]
 
 
+def session_exit_codes(session_dir: Path) -> dict[str, int]:
+    """How each node of a session run by run_session ended (its log's last status line; 0:
+    cleanly, negative: killed by that signal, e.g. -9 when it did not stop within the session's
+    grace); empty when the log has none."""
+    log = session_dir / 'session.log'
+    for line in reversed(log.read_text(errors='replace').splitlines() if log.is_file() else []):
+        codes = read_exit_codes(line)
+        if codes is not None:
+            return codes
+    return {}
+
+
 def closed_loop_against_direct(hand: HandDescription, kinematics: HandKinematics, scene: str,
                                plate: str, seed: int, model_config: Path, sequence, out: Path,
                                controller, tare_frames: int, control_rate: float = RATE_HZ,
@@ -144,7 +156,9 @@ def closed_loop_against_direct(hand: HandDescription, kinematics: HandKinematics
                       closed_loop_session_seconds(sequence.duration), model_config, seed=seed,
                       lockstep=lockstep, compose=compose, sequence=sequence.source)
     trace, offset = node_trace(bag, sequence, tare_frames)
-    return compare_closed_loop(trace, direct, offset), trace, direct, bag
+    compared = compare_closed_loop(trace, direct, offset)
+    compared['exit_codes'] = session_exit_codes(out)
+    return compared, trace, direct, bag
 
 
 def bag_check(bag: Path) -> dict:

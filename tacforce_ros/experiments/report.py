@@ -10,6 +10,7 @@ import math
 import statistics
 from typing import Any
 
+from tacforce_ros.bringup.processes import unclean_exits
 from tacforce_ros.experiments import paper_reference as paper
 from tacforce_ros.experiments.skin_targets import LOOP_REDUCTION, LOOP_TRACK, targets
 from tacforce_ros.hand.description import ARRAY_KIND_TITLES
@@ -288,6 +289,54 @@ def whole_hand_section(rows: dict, settings: dict) -> list[str]:
     return lines + ['']
 
 
+def node_path_section(node: dict, tolerance_reason: str) -> list[str]:
+    """The node graph's runs against the direct path: both checks, and how every node of
+    their sessions ended."""
+    lines = ['## Node graph against direct path', '']
+    if not node.get('ran'):
+        lines += [f"**The node path did not run**: {node.get('reason', 'unknown')}. Every "
+                  f"result above comes from the direct (in-process) path.", '']
+    else:
+        cal, loop = node['calibration'], node['closed_loop']
+        lines += ['| check | node graph | direct | difference | tolerance | agree |',
+                  '|---|---|---|---|---|---|',
+                  f"| calibration session: M3λ e_hat [N] | "
+                  f"{cell(cal['node']['e_hat_mean'], digits=3)}"
+                  f" | {cell(cal['direct']['e_hat_mean'], digits=3)} | "
+                  f"{cell(cal['difference_n'], digits=3)} | {cell(cal['tolerance_n'], digits=3)} | "
+                  f"{'yes' if cal['agree'] else 'NO'} |",
+                  f"| closed loop (1)-M3λ, one run: e~ [N] | "
+                  f"{cell(loop['node']['e_tilde_mean'], digits=3)} | "
+                  f"{cell(loop['direct']['e_tilde_mean'], digits=3)} | "
+                  f"{cell(loop['difference_n'], digits=3)} | {cell(loop['tolerance_n'], digits=3)}"
+                  f" | {'yes' if loop['difference_n'] <= loop['tolerance_n'] else 'NO'} |"]
+        if 'e_track_difference_n' in loop:
+            track, track_tolerance = loop['e_track_difference_n'], loop['e_track_tolerance_n']
+            lines += [f"| closed loop (1)-M3λ, one run: e_track [N] | "
+                      f"{cell(loop['node']['e_track_mean'], digits=3)} | "
+                      f"{cell(loop['direct']['e_track_mean'], digits=3)} | "
+                      f"{cell(track, digits=3)} | {cell(track_tolerance, digits=3)} | "
+                      f"{'yes' if track <= track_tolerance else 'NO'} |"]
+        lines += ['', f"Tolerance: {tolerance_reason}", '']
+        if all('exit_codes' in node[part] for part in ('calibration', 'closed_loop')):
+            unclean = [(name, unclean_exits(node[part]['exit_codes'])) for part, name in
+                       (('calibration', 'calibration'), ('closed_loop', 'closed-loop'))]
+            lines += ['Every node of both sessions ended cleanly when its session stopped it: '
+                      + ('yes' if not any(codes for _, codes in unclean) else 'NO: ' + '; '.join(
+                          f'{part} session ' + ', '.join(f'{name} exit code {code}'
+                                                         for name, code in codes.items())
+                          for part, codes in unclean if codes)
+                         + f" (negative: killed by that signal; logs in {node.get('work_dir')})"),
+                      '']
+        bag = node.get('closed_loop_bag')
+        if bag is not None:
+            lines += [f"The closed-loop run's bag: {bag['files']} MCAP file(s), "
+                      f"{bag['messages']} messages; messages per topic by its metadata.yaml, "
+                      "rosbags and Foxglove's mcap reader agree: "
+                      f"{'yes' if bag['agree'] else 'NO: ' + str(bag['counts'])}", '']
+    return lines
+
+
 def markdown(doc: dict) -> str:
     s, run = doc['settings'], doc['run']
     lines = [f"# Reproduction of the paper's experiments — SIMULATION, {s['skin']} skin", '',
@@ -396,40 +445,7 @@ def markdown(doc: dict) -> str:
                   'plate', '']
 
     lines += skin_targets_section(doc['skin_targets'])
-    lines += ['## Node graph against direct path', '']
-    node = doc['node_path']
-    if not node.get('ran'):
-        lines += [f"**The node path did not run**: {node.get('reason', 'unknown')}. Every "
-                  f"result above comes from the direct (in-process) path.", '']
-    else:
-        cal, loop = node['calibration'], node['closed_loop']
-        lines += ['| check | node graph | direct | difference | tolerance | agree |',
-                  '|---|---|---|---|---|---|',
-                  f"| calibration session: M3λ e_hat [N] | "
-                  f"{cell(cal['node']['e_hat_mean'], digits=3)}"
-                  f" | {cell(cal['direct']['e_hat_mean'], digits=3)} | "
-                  f"{cell(cal['difference_n'], digits=3)} | {cell(cal['tolerance_n'], digits=3)} | "
-                  f"{'yes' if cal['agree'] else 'NO'} |",
-                  f"| closed loop (1)-M3λ, one run: e~ [N] | "
-                  f"{cell(loop['node']['e_tilde_mean'], digits=3)} | "
-                  f"{cell(loop['direct']['e_tilde_mean'], digits=3)} | "
-                  f"{cell(loop['difference_n'], digits=3)} | {cell(loop['tolerance_n'], digits=3)}"
-                  f" | {'yes' if loop['difference_n'] <= loop['tolerance_n'] else 'NO'} |"]
-        if 'e_track_difference_n' in loop:
-            track, track_tolerance = loop['e_track_difference_n'], loop['e_track_tolerance_n']
-            lines += [f"| closed loop (1)-M3λ, one run: e_track [N] | "
-                      f"{cell(loop['node']['e_track_mean'], digits=3)} | "
-                      f"{cell(loop['direct']['e_track_mean'], digits=3)} | "
-                      f"{cell(track, digits=3)} | {cell(track_tolerance, digits=3)} | "
-                      f"{'yes' if track <= track_tolerance else 'NO'} |"]
-        lines += ['', f"Tolerance: {doc['node_tolerance_reason']}", '']
-        bag = node.get('closed_loop_bag')
-        if bag is not None:
-            lines += [f"The closed-loop run's bag: {bag['files']} MCAP file(s), "
-                      f"{bag['messages']} messages; messages per topic by its metadata.yaml, "
-                      "rosbags and Foxglove's mcap reader agree: "
-                      f"{'yes' if bag['agree'] else 'NO: ' + str(bag['counts'])}", '']
-
+    lines += node_path_section(doc['node_path'], doc['node_tolerance_reason'])
     lines += ['## Figures', ''] + [f'* [{name}]({name})' for name in doc['figures']] + ['']
     lines += ['## Stage wall times [s]', '', '| stage | s |', '|---|---|']
     lines += [f'| {k} | {v:.1f} |' for k, v in run['stage_seconds'].items()] + ['']

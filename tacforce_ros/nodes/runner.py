@@ -7,6 +7,7 @@ imported defensively.
 from __future__ import annotations
 
 import argparse
+import faulthandler
 import os
 import signal
 import sys
@@ -23,6 +24,27 @@ from tacforce_ros.nodes.parameters import ParameterError, unmatched_params_files
 EXIT_OK = 0
 EXIT_FAILURE = 1          # an unexpected exception while running
 EXIT_BAD_PARAMETERS = 2   # refused at start-up: the log names each bad parameter
+EXIT_STOP_STUCK = 1       # faulthandler's own exit code (see STOP_LIMIT_S)
+
+# The longest a stop may take, from the end of spinning to the end of ROS teardown. Leaving a
+# device safe is bounded (its link's timeouts, a polling thread joined within 5 s), and the
+# teardown after it takes a few ms (nodes/entry.py); yet twice an allegro_driver that had closed
+# its link (its last log line) did not end within the 10 s `session` gives (a fresh clone's
+# suite; a main job's closed-loop session at 0.3x real time), with no trace of where it was.
+# Past this limit the stacks of every thread go to the node's log and the process ends with
+# EXIT_STOP_STUCK: the hang is named, and the stop is not left to SIGKILL (session's 10 s,
+# ros2 launch's SIGTERM at 5 s and SIGKILL at 10 s).
+STOP_LIMIT_S = 8.0
+
+
+def _watch_stop() -> bool:
+    """Arm the stop's watchdog (faulthandler's C thread: it fires even while the stop holds
+    the GIL). False where stderr is no file (a node run inside a test's captured output)."""
+    try:
+        faulthandler.dump_traceback_later(STOP_LIMIT_S, exit=True, file=sys.stderr)
+    except (AttributeError, OSError, ValueError):   # io.UnsupportedOperation is an OSError
+        return False
+    return True
 
 
 def _init_without_rclpy_signal_handlers(args: Sequence[str] | None) -> None:
@@ -140,6 +162,7 @@ def run_nodes(parts: Sequence[tuple[type[TacforceNode], Sequence[str] | None]],
             logger.fatal(f'stopped by an error: {type(exc).__name__}: {exc}')
             code = EXIT_FAILURE
     finally:
+        watched = _watch_stop()
         try:
             for node in reversed(nodes):
                 try:
@@ -153,4 +176,6 @@ def run_nodes(parts: Sequence[tuple[type[TacforceNode], Sequence[str] | None]],
             for node in nodes:
                 node.destroy_node()
             rclpy.try_shutdown()
+            if watched:
+                faulthandler.cancel_dump_traceback_later()
     return code

@@ -34,8 +34,9 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from tacforce_ros.bringup.processes import (cpu_report, cpu_seconds, first_exited, start_nodes,
-                                           stop_nodes)
+from tacforce_ros.bringup.processes import (cpu_report, cpu_seconds, exit_codes_report,
+                                           first_exited, start_nodes, stop_nodes,
+                                           unclean_exits)
 from tacforce_ros.bringup.session_plan import (CAN_PORT, MODES, NETFT_PORT, SCENE_DONE_MARKER,
                                              SESSION_SCENE_ENDED, XELA_PORT, NodeLaunch,
                                              PlanError, SessionArgs, campaign_session, plan)
@@ -160,14 +161,11 @@ def run(args: SessionArgs, duration: float | None, grace: float,
             signal.signal(sig, handler)
     out = Path(args.out)
     bags = sorted(p for p in out.iterdir() if p.is_dir() and p.name != 'logs')
-    print(f'session {args.mode}: stopped after {time.monotonic() - started:.1f} s; exit codes '
-          + ', '.join(f'{n}={c}' for n, c in codes.items()))
+    print(f'session {args.mode}: stopped after {time.monotonic() - started:.1f} s; '
+          + exit_codes_report(codes))
     print('bags:' + ''.join(f'\n  {p.resolve()}' for p in bags) if bags else
           f'no bag in {out.resolve()}')
-    # A node stopped while Python itself was still starting (before any of the node's code ran,
-    # a few tenths of a second at most) ends by the SIGINT it was sent: stopped, as asked.
-    return 0 if exited_early is None and all(c in (0, -signal.SIGINT)
-                                             for c in codes.values()) else 1
+    return 0 if exited_early is None and not unclean_exits(codes) else 1
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -365,3 +365,26 @@ def test_the_closed_loop_on_another_fingertip_tracks_its_estimate(hand, kinemati
     with pytest.raises(ValueError, match='presses the ring finger, the controller drives the'):
         run_closed_loop(hand, kinematics, closed_loop_scene_name('ring_tip', 'spherical'), 0,
                         controller_config('M3-lambda'), sequence, models)
+
+
+def test_the_report_names_a_node_that_did_not_end_cleanly_in_the_node_graph_sessions():
+    """The node path's sessions' exit codes: a node killed at the stop (-9) is named, one stopped
+    while Python was starting (-2) is not; a result from before they were recorded says
+    nothing of them."""
+    from tacforce_ros.experiments.report import node_path_section
+    check = {'node': {'e_hat_mean': 0.2}, 'direct': {'e_hat_mean': 0.21}, 'difference_n': 0.01,
+             'tolerance_n': 0.05, 'agree': True}
+    loop = {'node': {'e_tilde_mean': 0.15}, 'direct': {'e_tilde_mean': 0.16},
+            'difference_n': 0.01, 'tolerance_n': 0.08}
+    node = {'ran': True, 'work_dir': '/w', 'calibration': dict(check),
+            'closed_loop': dict(loop)}
+    assert not any('ended cleanly' in line for line in node_path_section(node, 'why'))
+    node['calibration']['exit_codes'] = {'sim_world': 0, 'estimator': -2}
+    node['closed_loop']['exit_codes'] = {'sim_world': 0, 'allegro_driver': 0}
+    assert ('Every node of both sessions ended cleanly when its session stopped it: yes'
+            in node_path_section(node, 'why'))
+    node['closed_loop']['exit_codes']['allegro_driver'] = -9
+    text = '\n'.join(node_path_section(node, 'why'))
+    assert ('ended cleanly when its session stopped it: NO: closed-loop session allegro_driver '
+            'exit code -9 (negative: killed by that signal; logs in /w)') in text, text
+    assert 'estimator' not in text

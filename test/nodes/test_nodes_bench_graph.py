@@ -163,12 +163,16 @@ def test_session_figures_are_read_from_its_log_and_tabled_side_by_side(tmp_path)
     tabled next to the run of the same seed with one process per node."""
     from tacforce_ros.benchmarks.bench_graph import process_cpu, session_seconds, summary, table
     from tacforce_ros.bringup.processes import CPU_REPORT
+    from tacforce_ros.experiments.node_path import session_exit_codes
     (tmp_path / 'session.log').write_text(
         'session closed_loop: started sim_world, tacforce_container\n'
         f'{CPU_REPORT} sim_world=16.6, tacforce_container=30.6\n'
-        'session closed_loop: stopped after 34.7 s; exit codes sim_world=0\n')
+        'session closed_loop: stopped after 34.7 s; exit codes sim_world=0, '
+        'tacforce_container=-9\n')
     assert session_seconds(tmp_path) == 34.7
     assert process_cpu(tmp_path) == {'sim_world': 16.6, 'tacforce_container': 30.6}
+    assert session_exit_codes(tmp_path) == {'sim_world': 0, 'tacforce_container': -9}
+    assert session_exit_codes(tmp_path / 'none') == {}
 
     def run(composed, cpu):
         return {'run': 0, 'seed': 0, 'composed': composed, 'session_wall_s': 35.0, 'cpu_s': cpu,
@@ -178,7 +182,9 @@ def test_session_figures_are_read_from_its_log_and_tabled_side_by_side(tmp_path)
                 'watchdog': {'ticks': 8000, 'safe': 0, 'hold_after_engaging': 0},
                 'streams': {}}
     separate = run(False, {'sim_world': 16.0, 'estimator': 3.0, 'allegro_driver': 10.0})
+    separate['exit_codes'] = {'sim_world': 0, 'allegro_driver': -9, 'estimator': -2}
     composed = run(True, {'sim_world': 17.0, 'tacforce_container': 30.0})
+    composed['exit_codes'] = {'sim_world': 0, 'tacforce_container': 0}
     result = {'lockstep': True, 'sequence': 'paper_70s', 'model': 'm.yaml', 'skin': 'magnetic',
               'closed_loop': [separate], 'closed_loop_composed': [composed],
               'summary': summary([separate]), 'summary_composed': summary([composed]),
@@ -190,6 +196,9 @@ def test_session_figures_are_read_from_its_log_and_tabled_side_by_side(tmp_path)
     assert '| 0 | 0 | one per node |' in text and '| 0 | 0 | one (composed) |' in text
     assert '| 13 / 16 |' in text and '| 30 / 17 |' in text
     assert 'composed in one process: agree' in text and '1 of 1' in text
+    # A node killed at the stop is named; one stopped while Python was starting (-2) is not.
+    assert ('did not end cleanly when their session stopped them: closed loop 0: '
+            'allegro_driver exit code -9\n' in text + '\n'), text
 
 
 def test_driver_kill_metrics_read_the_press_while_the_driver_was_down_and_after():

@@ -125,6 +125,46 @@ def test_an_ended_lifecycle_driver_leaves_the_ros_graph():
             driver.stop()
 
 
+# A node whose stop never ends (its leave_safe blocks), run as a process the way the node
+# executables run (nodes/entry.py around run_node).
+STUCK_NODE = """
+import time
+from tacforce_ros.nodes import entry
+from tacforce_ros.nodes.node_base import TacforceNode
+from tacforce_ros.nodes.runner import run_node
+
+class Stuck(TacforceNode):
+    NODE_NAME = 'stuck_at_stop'
+    def on_built(self):
+        self.get_logger().info('built')
+    def leave_safe(self):
+        time.sleep(600)         # a stop that hangs
+
+import sys, types
+sys.modules['tacforce_ros.nodes.stuck'] = types.SimpleNamespace(
+    main=lambda: sys.exit(run_node(Stuck, ['stuck'])))
+entry.run('stuck')
+"""
+
+
+def test_a_stop_that_hangs_is_ended_with_every_thread_s_stack():
+    """Past runner.STOP_LIMIT_S the stop's watchdog writes where each thread was and ends the
+    process with EXIT_STOP_STUCK, before `session` (10 s) or ros2 launch would kill it."""
+    from tacforce_ros.nodes.runner import EXIT_STOP_STUCK, STOP_LIMIT_S
+    node = OutputLines(start([sys.executable, '-c', STUCK_NODE], DOMAIN, start_new_session=True))
+    try:
+        assert node.wait_for('built', READY_S) is not None, node.text()
+        node.proc.send_signal(signal.SIGINT)
+        signalled = time.monotonic()
+        code = node.proc.wait(timeout=STOP_LIMIT_S + 20.0)
+        took = time.monotonic() - signalled
+    finally:
+        output = node.stop()
+    assert code == EXIT_STOP_STUCK, output
+    assert took >= STOP_LIMIT_S - 0.5, took
+    assert 'Timeout' in output and 'in leave_safe' in output, output
+
+
 def test_every_node_executable_starts_through_the_entry_module():
     """setup.py installs each node's executable through nodes/entry.py (the prompt stop while
     loading, the prompt end after), and each entry runs that node's module."""

@@ -141,6 +141,14 @@ class ForceControllerConfig:
                                    'joint states older than this are stale (s)')
     ramp_time: float = _param(_shipped('ramp_time'), 'time to ramp to the hold (or zero torque) '
                               'once a stream is stale (s)')
+    approach_speed: float = _param(
+        _shipped('approach_speed'), 'guarded approach: speed of the position target toward q_d '
+        'while a fresh estimate shows no touch yet, its largest joint (rad/s)')
+    blind_speed: float = _param(
+        _shipped('blind_speed'), 'guarded approach: that speed with no fresh estimate to feel '
+        'the touch by (open loop: all the way to q_d) (rad/s; at most approach_speed)')
+    touch_force: float = _param(_shipped('touch_force'), 'guarded approach: a fresh estimate '
+                                'this large is the touch; the target stops there (N)')
 
     def __post_init__(self) -> None:
         if self.finger not in FINGERS:
@@ -154,11 +162,15 @@ class ForceControllerConfig:
                 raise ControllerConfigError(f'{name}: gains must be >= 0, got {list(values)}')
             object.__setattr__(self, name, tuple(float(v) for v in values))
         for name in ('torque_cap', 'integral_rate_limit', 'integral_limit', 'estimate_timeout',
-                     'joints_timeout', 'ramp_time'):
+                     'joints_timeout', 'ramp_time', 'approach_speed', 'blind_speed',
+                     'touch_force'):
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and np.isfinite(value) and value > 0):
                 raise ControllerConfigError(f'{name}: {value!r} must be a positive number')
             object.__setattr__(self, name, float(value))
+        if self.blind_speed > self.approach_speed:
+            raise ControllerConfigError(f'blind_speed: {self.blind_speed:g} rad/s is faster than '
+                                        f'approach_speed ({self.approach_speed:g} rad/s)')
 
     @property
     def joint_torque_limits(self) -> np.ndarray:

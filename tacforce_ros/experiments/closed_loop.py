@@ -88,8 +88,8 @@ def run_closed_loop(hand: HandDescription, kinematics: HandKinematics,
     `settle_seconds` (gravity compensation and the PD of the law, no force terms); over the last
     `tare_frames` tactile frames of that hold the F/T sensor is zeroed (its mean is the bias the
     Net F/T's bias command removes) and the estimator is tared (the model's own tare comes from
-    other sessions). Then the controller runs the sequence from t = 0, its q_d bringing the
-    fingertip into contact.
+    other sessions). Then the controller runs the sequence from t = 0, its guarded approach
+    bringing the fingertip into contact (control/approach.py).
     """
     session = FingerSession(config, kinematics)
     if models is None and not session.controller.open_loop:
@@ -175,7 +175,8 @@ def run_closed_loop(hand: HandDescription, kinematics: HandKinematics,
 def trace_metrics(traces: list[ClosedLoopTrace],
                   window: tuple[float, float] = METRIC_WINDOW) -> dict:
     """The paper's Table III metrics over `window`, pooled over the repeats (mean and std over
-    samples), plus the spread of the per-repeat means of e~.
+    samples), plus the spread of the per-repeat means of e~, and the worst first touch of the
+    repeats (its peak in N, and that peak over the first force commanded: first_touch).
 
     e_r, e_hat: estimate vs F/T; e_track: desired vs estimate; e~: desired vs F/T. Metrics that
     need the estimate are None when the runs had none (open loop).
@@ -191,6 +192,11 @@ def trace_metrics(traces: list[ClosedLoopTrace],
               'e_tilde_per_run': per_run, 'estimate_coverage': 0.0,
               'e_r_mean': None, 'e_r_std': None, 'e_hat_mean': None, 'e_hat_std': None,
               'e_track_mean': None, 'e_track_std': None, 'estimate_gain': None}
+    touches = [first_touch(tr) for tr in traces]
+    peaks = [t['peak_n'] for t in touches if t['peak_n'] is not None]
+    ratios = [t['ratio'] for t in touches if t['ratio'] is not None]
+    result.update(first_touch_peak_n=max(peaks) if peaks else None,
+                  first_touch_ratio=max(ratios) if ratios else None)
     have = np.all(np.isfinite(f_hat), axis=1)
     if have.any():
         estimate = error_stats(f_tilde[have], f_hat[have])
@@ -201,6 +207,21 @@ def trace_metrics(traces: list[ClosedLoopTrace],
                       e_track_mean=tracking.e_hat_mean, e_track_std=tracking.e_hat_std,
                       estimate_gain=estimate_gain(f_tilde[have], f_hat[have]))
     return result
+
+
+def first_touch(trace: ClosedLoopTrace) -> dict:
+    """The fingertip's first touch: the largest |f~| before the sequence first commands a force,
+    over the first force it holds (|f_d| where it first stays the same from one tick to the
+    next after that; the paper sequence's 1 N after its ramp). None where the sequence never
+    holds a force, or the run starts in contact (no tick before the command)."""
+    nonzero = np.any(trace.f_d != 0.0, axis=1)
+    held = nonzero[1:] & np.all(trace.f_d[1:] == trace.f_d[:-1], axis=1)
+    if not nonzero.any() or not held.any() or not nonzero.argmax():
+        return {'peak_n': None, 'command_n': None, 'ratio': None}
+    before = trace.t < trace.t[nonzero.argmax()]
+    peak = float(np.linalg.norm(trace.f_tilde[before], axis=1).max())
+    command = float(np.linalg.norm(trace.f_d[1:][held.argmax()]))
+    return {'peak_n': peak, 'command_n': command, 'ratio': peak / command}
 
 
 def estimate_gain(f_tilde: np.ndarray, f_hat: np.ndarray, least: float = 0.1

@@ -90,7 +90,9 @@ def table_iii(closed: dict[tuple[str, str], dict]) -> list[dict]:
                              'e_hat': m['e_hat_mean'], 'e_hat_std': m['e_hat_std'],
                              'e_track': m['e_track_mean'], 'e_track_std': m['e_track_std'],
                              'e_tilde': m['e_tilde_mean'], 'e_tilde_std': m['e_tilde_std'],
-                             'e_tilde_per_run': m['e_tilde_per_run'], 'runs': m['runs']},
+                             'e_tilde_per_run': m['e_tilde_per_run'], 'runs': m['runs'],
+                             'first_touch_peak_n': m.get('first_touch_peak_n'),
+                             'first_touch_ratio': m.get('first_touch_ratio')},
                      'paper': paper.TABLE_III.get((obj, controller))})
     return rows
 
@@ -411,11 +413,14 @@ def markdown(doc: dict) -> str:
               '(1) spherical plate, (2) foam brick, (3) softball, (4) abrasive sponge, '
               '(5) bleach cleanser. Mean ± std over the samples of all runs in t = 16..70 s. '
               'Each run starts clear of the plate; the F/T sensor is zeroed and the estimator '
-              'tared there before the controller brings the fingertip into contact '
-              '(experiments/closed_loop.py).', '',
+              'tared there before the controller brings the fingertip into contact by its '
+              'guarded approach (experiments/closed_loop.py, control/approach.py). First '
+              'touch: the largest |f~| before the first force command, and that over the first '
+              'force commanded (the worst run; not in the paper).', '',
               '| Exp. | e_r [%] sim | e_r [%] paper | e_hat [N] sim | e_hat [N] paper '
-              '| e_track [N] sim | e_track [N] paper | e~ [N] sim | e~ [N] paper |',
-              '|---|---|---|---|---|---|---|---|---|']
+              '| e_track [N] sim | e_track [N] paper | e~ [N] sim | e~ [N] paper '
+              '| first touch [N] | over command |',
+              '|---|---|---|---|---|---|---|---|---|---|---|']
     for row in doc['table_III']:
         sim, ref = row['sim'], row['paper'] or {}
         lines.append('| ' + ' | '.join(
@@ -423,7 +428,8 @@ def markdown(doc: dict) -> str:
             + _sim_paper(sim['e_r_percent'], sim['e_r_std_percent'], _pair(ref, 'e_r'), 2)
             + _sim_paper(sim['e_hat'], sim['e_hat_std'], _pair(ref, 'e_hat'), 2)
             + _sim_paper(sim['e_track'], sim['e_track_std'], _pair(ref, 'e_track'), 2)
-            + _sim_paper(sim['e_tilde'], sim['e_tilde_std'], _pair(ref, 'e_tilde'), 2)) + ' |')
+            + _sim_paper(sim['e_tilde'], sim['e_tilde_std'], _pair(ref, 'e_tilde'), 2)
+            + [cell(sim.get('first_touch_peak_n')), cell(sim.get('first_touch_ratio'))]) + ' |')
     lines.append('')
 
     lines += filter_closed_loop_section(doc['filter_closed_loop'])

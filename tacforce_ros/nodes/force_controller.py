@@ -15,7 +15,9 @@ The controller engages on the first desired force once (closed loop) a valid est
 arrived, i.e. once the estimator has tared: until then the finger holds the pose it had at the
 first tick with the law's own PD and gravity terms and no force terms (k_i = 0, q_d = that pose,
 reported as mode "hold"), so a session starts as a lab run does: clear of the plate, the
-estimator tared, then q_d brings the tip into contact. The watchdog ramps the force terms to the
+estimator tared, then the guarded approach (control/approach.py) brings the tip into contact:
+the P term's target moves toward q_d at a bounded speed and stops where the estimate first shows
+the touch, and the force command waits for it. The watchdog ramps the force terms to the
 contact hold when the estimate goes stale and fades the last command to zero torque when the
 joint stream does; every tick is published as tacforce_msgs/ControllerState on
 /force_controller/state, and every change of mode or of its cause is logged once.

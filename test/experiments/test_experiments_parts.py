@@ -280,6 +280,46 @@ def test_an_estimator_outage_keeps_the_press_and_tracking_returns(hand, kinemati
     assert error[(run.t >= 7.5)].mean() < 0.05
 
 
+def test_the_guarded_approach_brings_the_tip_on_the_plate_without_an_impact(hand, kinematics):
+    """The paper sequence's start (f_d = 0, then a ramp to 1 N): the fingertip, engaged clear of
+    the plate, touches it and force control takes over from the touch; the first touch stays
+    within 1.25 times the first force commanded (a step of q_d flung it on at 3.7 N) and the
+    command is followed after. The open loop, blind, closes slowly on to q_d."""
+    from tacforce_ros.estimation.model_set import default_model_config, load_model_set
+    from tacforce_ros.experiments.closed_loop import first_touch
+    sequence = ForceSequence.from_mapping({'frame_id': 'ft_sensor', 'segments': [
+        {'duration': 6.0, 'force': [0.0, 0.0, 0.0]},
+        {'duration': 1.0, 'force': [0.0, 0.0, -1.0], 'shape': 'ramp'},
+        {'duration': 3.0, 'force': [0.0, 0.0, -1.0]}]})
+    models = load_model_set(default_model_config(hand), hand)
+    run = run_closed_loop(hand, kinematics, 'closed_loop_spherical', 0,
+                          controller_config('M3-lambda'), sequence, models)
+    touch = first_touch(run)
+    assert touch['command_n'] == pytest.approx(1.0) and 0.1 < touch['peak_n'], touch
+    assert touch['ratio'] <= 1.25, touch
+    assert any('touched: |f_hat|' in line for line in run.transitions), run.transitions
+    assert abs(run.f_tilde[run.t >= 9.0, 2].mean() + 1.0) < 0.1
+    with warnings.catch_warnings():
+        warnings.simplefilter('ignore')
+        blind = run_closed_loop(hand, kinematics, 'closed_loop_spherical', 0,
+                                controller_config('open_loop'), sequence, None)
+    assert first_touch(blind)['ratio'] <= 1.25
+    assert any('approaching q_d blind' in line for line in blind.transitions)
+
+
+def test_first_touch_is_read_before_the_first_command_against_the_first_force_held():
+    from tacforce_ros.experiments.closed_loop import first_touch
+    t = np.arange(0.0, 4.0, 0.01)
+    f_d = np.zeros((t.size, 3))
+    f_d[t >= 2.0, 2] = -np.minimum((t[t >= 2.0] - 1.99) / 1.0, 1.0) * 2.0   # ramp to 2 N
+    f_tilde = np.zeros((t.size, 3))
+    f_tilde[(t > 0.5) & (t < 0.6), 2] = -3.0          # the impact
+    f_tilde[t >= 2.5, 2] = -9.0                       # after the command: not the first touch
+    touch = first_touch(trace(t, f_d, f_tilde))
+    assert touch == {'peak_n': 3.0, 'command_n': pytest.approx(2.0), 'ratio': pytest.approx(1.5)}
+    assert first_touch(trace(t, np.zeros_like(f_d), f_tilde))['ratio'] is None
+
+
 def test_node_comparison_reports_the_difference_against_the_tolerance():
     t = np.arange(0.0, 70.0, 0.01)
     f_d = np.array([0.0, 0.0, -2.0])

@@ -54,8 +54,11 @@ def test_the_thumb_closes_its_loop_on_its_own_rig(tmp_path):
     # The loop runs closed but for a rare watchdog trip of a starved process (a joint stream
     # 24 ms late was seen with the machine busy), which the controller logs with its cause.
     assert len(commanded) > 300 and len(closed) >= 0.95 * len(commanded)
-    trips = re.findall(r'closed_loop -> (\w+): (.*)', (tmp_path / 'logs' /
-                                                      'force_controller.log').read_text())
+    log = (tmp_path / 'logs' / 'force_controller.log').read_text()
+    # The guarded approach closes the thumb in and force control takes over at the touch.
+    assert 'closed_loop: approaching q_d' in log and 'closed_loop: touched: |f_hat|' in log, log
+    trips = [(mode, cause) for mode, cause in re.findall(r'closed_loop -> (\w+): (.*)', log)
+             if mode != 'closed_loop']
     watchdogs = ('joints stale', 'estimate stale', 'no valid estimate')  # estimator: stale
     assert all(mode in ('safe', 'hold') and cause.startswith(watchdogs)
                for mode, cause in trips), trips

@@ -12,7 +12,8 @@ from typing import Any
 
 from tacforce_ros.bringup.processes import unclean_exits
 from tacforce_ros.experiments import paper_reference as paper
-from tacforce_ros.experiments.skin_targets import LOOP_REDUCTION, LOOP_TRACK, targets
+from tacforce_ros.experiments.skin_targets import (LOOP_REDUCTION, LOOP_TRACK, loop_gain_said,
+                                                  targets)
 from tacforce_ros.hand.description import ARRAY_KIND_TITLES
 
 MODEL_NAMES = {'M3-lambda': 'M3λ', 'M3-lambda-cv': 'M3λ (nested-CV λ)', 'open_loop': 'O.L.'}
@@ -91,6 +92,7 @@ def table_iii(closed: dict[tuple[str, str], dict]) -> list[dict]:
                              'e_track': m['e_track_mean'], 'e_track_std': m['e_track_std'],
                              'e_tilde': m['e_tilde_mean'], 'e_tilde_std': m['e_tilde_std'],
                              'e_tilde_per_run': m['e_tilde_per_run'], 'runs': m['runs'],
+                             'estimate_gain': m.get('estimate_gain'),
                              'first_touch_peak_n': m.get('first_touch_peak_n'),
                              'first_touch_ratio': m.get('first_touch_ratio')},
                      'paper': paper.TABLE_III.get((obj, controller))})
@@ -132,6 +134,10 @@ def skin_targets(table_i: dict, rows: list[dict], seed: int) -> list[dict]:
         if network is not None and not check['met']:
             check['why_missed'] = plates_against_linear(table_i[network['array']],
                                                         network['model'])
+        if check.get('loop') and not check['met'] and 'why_missed' in check:
+            gain = (by.get(('spherical', check['loop'])) or {}).get('estimate_gain')
+            check['why_missed'] = loop_gain_said(check['why_missed'],
+                                                 gain[2] if gain and gain[2] else None)
     return checks
 
 

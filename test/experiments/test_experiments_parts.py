@@ -210,6 +210,12 @@ def test_a_magnetic_skin_report_judges_the_skins_targets_on_its_own_tables():
                        'on the other 4 plate(s) (per_plate_errors.png); the button plate is also '
                        'where it errs most (0.81 N), so it weighs most in the mean.']
     assert report.skin_targets_section(None) == []       # the empirical skin: no section
+    # A loop that misses its reduction says how its model read the normal force in this run.
+    rows[1]['sim'].update(e_tilde=0.35, estimate_gain=[0.7, 1.4, 1.96])
+    missed = {c['target']: c for c in report.skin_targets(table_i(errors), rows, seed=0)}
+    why = missed['closed loop M3-lambda: e~ reduction >= 70%']['why_missed']
+    assert why.startswith('the loop holds one spot at about 1 N, where a model fitted on the five '
+                          'training plates reads the normal force 1.96 times'), why
 
 
 def test_closed_loop_runner_refuses_what_it_cannot_run(hand, kinematics):

@@ -12,7 +12,7 @@ from typing import Any
 
 from tacforce_ros.bringup.processes import unclean_exits
 from tacforce_ros.experiments import paper_reference as paper
-from tacforce_ros.experiments.skin_targets import (LOOP_REDUCTION, LOOP_TRACK, loop_gain_said,
+from tacforce_ros.experiments.skin_targets import (LOOP_REDUCTION, LOOP_TRACK, loop_reason,
                                                   targets)
 from tacforce_ros.hand.description import ARRAY_KIND_TITLES
 
@@ -136,8 +136,7 @@ def skin_targets(table_i: dict, rows: list[dict], seed: int) -> list[dict]:
                                                         network['model'])
         if check.get('loop') and not check['met'] and 'why_missed' in check:
             gain = (by.get(('spherical', check['loop'])) or {}).get('estimate_gain')
-            check['why_missed'] = loop_gain_said(check['why_missed'],
-                                                 gain[2] if gain and gain[2] else None)
+            check['why_missed'] = loop_reason(gain[2] if gain and gain[2] else None)
     return checks
 
 

@@ -21,22 +21,19 @@ WHY_MISSED = {
                    'newton change sign from plate to plate and M1 and M2, which sum them, err '
                    'more than M3 on the four broad plates (docs/SKIN_PHYSICS.md, "Why M1 errs '
                    'on the flat array")',
-    'loop_reduction': 'the loop holds one spot at about 1 N, where a model fitted on the five '
-                      'training plates misreads the normal force (the column under the magnet '
-                      'stiffens with the force, and where the fit lands at that spot and force '
-                      'depends on the sessions drawn and on the spot); the loop follows that '
-                      'estimate (docs/SKIN_PHYSICS.md, "Why the closed loop differs so much '
-                      'between seeds")',
 }
 
 
-def loop_gain_said(why: str, gain: float | None) -> str:
-    """WHY_MISSED['loop_reduction'] with the run's own reading of the normal force at the
-    loop's spot (its estimate over the measured force), where the run has it."""
-    if gain is None:
-        return why
-    return why.replace('misreads the normal force', f'reads the normal force {gain:.2f} times',
-                       1)
+def loop_reason(gain: float | None = None) -> str:
+    """Why the closed loop misses its reduction, with the run's own reading of the normal force at
+    the loop's spot (its estimate over the measured force) where the run has it."""
+    reading = 'misreads the normal force' if gain is None else \
+        f'reads the normal force {gain:.2f} times'
+    return ('the loop holds one spot at about 1 N, where a model fitted on the five training '
+            f'plates {reading} (the column under the magnet stiffens with the force, and where '
+            'the fit lands at that spot and force depends on the sessions drawn and on the '
+            'spot); the loop follows that estimate (docs/SKIN_PHYSICS.md, "Why the closed loop '
+            'differs so much between seeds")')
 
 
 def targets(result: dict) -> list[dict]:
@@ -82,7 +79,7 @@ def targets(result: dict) -> list[dict]:
     for label in dict.fromkeys(loops):
         check(f'closed loop {label}: e~ reduction >= {LOOP_REDUCTION:.0%}',
               lambda row, m=label: (row.get('closed_loop') or {}).get(m, {}).get('reduction'),
-              lambda v: v >= LOOP_REDUCTION, WHY_MISSED['loop_reduction'], loop=label)
+              lambda v: v >= LOOP_REDUCTION, loop_reason(), loop=label)
         check(f'closed loop {label}: e_track < {LOOP_TRACK} N',
               lambda row, m=label: (row.get('closed_loop') or {}).get(m, {}).get('e_track'),
               lambda v: v < LOOP_TRACK)

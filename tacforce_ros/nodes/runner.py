@@ -26,14 +26,9 @@ EXIT_FAILURE = 1          # an unexpected exception while running
 EXIT_BAD_PARAMETERS = 2   # refused at start-up: the log names each bad parameter
 EXIT_STOP_STUCK = 1       # faulthandler's own exit code (see STOP_LIMIT_S)
 
-# The longest a stop may take, from the end of spinning to the end of ROS teardown. Leaving a
-# device safe is bounded (its link's timeouts, a polling thread joined within 5 s), and the
-# teardown after it takes a few ms (nodes/entry.py); yet twice an allegro_driver that had closed
-# its link (its last log line) did not end within the 10 s `session` gives (a fresh clone's
-# suite; a main job's closed-loop session at 0.3x real time), with no trace of where it was.
-# Past this limit the stacks of every thread go to the node's log and the process ends with
-# EXIT_STOP_STUCK: the hang is named, and the stop is not left to SIGKILL (session's 10 s,
-# ros2 launch's SIGTERM at 5 s and SIGKILL at 10 s).
+# The longest a stop (leaving devices safe, then ROS teardown) may take before every thread's
+# stack goes to the log and the process ends with EXIT_STOP_STUCK: a hang is named, not left to
+# SIGKILL (session's 10 s grace; ros2 launch's SIGKILL at 10 s).
 STOP_LIMIT_S = 8.0
 
 

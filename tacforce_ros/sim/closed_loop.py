@@ -34,8 +34,10 @@ ARMATURE = 2e-5  # kg m^2
 class ModelBuild:
     """The MuJoCo model under construction, as the 'model' stage effects see and edit it."""
 
-    def __init__(self, spec: mujoco.MjSpec, finger: str) -> None:
+    def __init__(self, spec: mujoco.MjSpec, finger: str, hand_wide: bool = True) -> None:
         self.spec = spec
+        # A grasp builds one per finger: effects on every joint of the hand act on the first.
+        self.hand_wide = hand_wide
         first = 4 * list(FINGER_JOINTS).index(finger)
         self.tip_body = f'link_{first + 3}.0_tip'
         self._finger_bodies = [f'link_{first + k}.0' for k in range(4)] + [self.tip_body]

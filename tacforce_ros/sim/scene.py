@@ -10,6 +10,9 @@ all 18 arrays has one home for what a calibration session is. Likewise a closed-
 `closed_loop_<fingertip>_<object>` is `closed_loop_<object>` (the index finger's) with that
 fingertip pressing instead (and `_closed_loop_<finger>.yaml`'s finger part, where the finger has
 one: the thumb). A file of either name wins.
+
+A grasp scene (kind `grasp`, sim/grasp.py) has fingers pinching a free object of the
+`grasp_objects` library instead of a plate: each fingertip's contact surface is the object's.
 """
 from __future__ import annotations
 
@@ -24,11 +27,12 @@ import yaml
 from tacforce_ros.paths import config_dir
 from tacforce_ros.rig import FINGERS
 
-KINDS = ('calibration', 'closed_loop')
+KINDS = ('calibration', 'closed_loop', 'grasp')
 FINGER_FIELDS = {'pose': 4, 'others': 12, 'others_kp': 0, 'others_kd': 0, 'tip_radius': 0,
                  'skin_stiffness': 0, 'skin_damping': 0}   # closed loop; value = list length
 OPTIONAL_FINGER_FIELDS = {'contact_pose': 4}   # default: `pose` (the finger starts in contact)
 PLATE_SHAPES = ('sphere', 'cylinder', 'plane')
+OBJECT_SHAPES = {'sphere': 1, 'box': 3, 'cylinder': 2}   # shape -> numbers in `size`
 
 
 class SceneError(ValueError):
@@ -54,6 +58,34 @@ class SoftObject:
 
 
 @dataclass(frozen=True)
+class GraspObject:
+    """A free object to hold (grasp scenes), in its own frame: x across the grip (from the
+    other fingers to the thumb), z the hand's up (against gravity), y = z x x."""
+    name: str
+    shape: str                  # sphere | box | cylinder (axis along z)
+    size: tuple[float, ...]     # m: sphere (radius,), box half extents (x, y, z),
+    #                             cylinder (radius, half length)
+    mass: float                 # kg
+    friction: float             # Coulomb coefficient, skin on the object's surface
+    stiffness: float | None     # N/m through the surface at one contact; None: rigid
+    damping: float              # N s/m, with the stiffness
+    source: str                 # where size and mass come from
+
+    @property
+    def width(self) -> float:
+        """m, across the grip (along x)."""
+        return 2.0 * self.size[0]
+
+    @property
+    def plate(self) -> Plate:
+        """The object's surface near a fingertip, as the skin models take an indenter: a box's
+        face is a plane, a cylinder's side a cylinder (axis in the contact plane)."""
+        shape = {'sphere': 'sphere', 'box': 'plane', 'cylinder': 'cylinder'}[self.shape]
+        return Plate(name=self.name, shape=shape,
+                     radius=0.0 if shape == 'plane' else self.size[0])
+
+
+@dataclass(frozen=True)
 class Scene:
     name: str
     kind: str                       # 'calibration' | 'closed_loop'
@@ -74,6 +106,10 @@ class Scene:
     # Calibration: arrays the operator presses in turn, `duration` each, round and round (a
     # press tour, sim/calibration.py); empty: `array` alone. `array` is the tour's first.
     press_tour: tuple[str, ...] = ()
+    # Grasp: the object held and the fingers holding it (`grasp` mapping of the scene file:
+    # fingers with their start and contact poses, gravity, hand-over, disturbances).
+    grasp_object: GraspObject | None = None
+    grasp: dict[str, Any] = field(default_factory=dict)
 
     @property
     def dt(self) -> float:
@@ -271,9 +307,9 @@ def load_scene(name_or_path: str | Path) -> Scene:
     if kind not in KINDS:
         raise SceneError(f'{where}: field "kind" must be one of {KINDS}, got {kind!r}')
     tactile_rate = _positive(raw, 'tactile_rate', where)
-    physics_rate = (_positive(raw, 'physics_rate', where) if kind == 'closed_loop'
-                    else tactile_rate)
-    if kind == 'closed_loop' and abs(physics_rate / tactile_rate
+    dynamic = kind in ('closed_loop', 'grasp')    # MuJoCo: a physics rate of their own
+    physics_rate = _positive(raw, 'physics_rate', where) if dynamic else tactile_rate
+    if dynamic and abs(physics_rate / tactile_rate
                                      - round(physics_rate / tactile_rate)) > 1e-9:
         raise SceneError(f'{where}: field "physics_rate" must be a multiple of tactile_rate')
     seed = _get(raw, 'seed', int, where)
@@ -283,15 +319,97 @@ def load_scene(name_or_path: str | Path) -> Scene:
         if raw['array'] != press_tour[0]:
             raise SceneError(f'{where}: field "array" must be the first of "press_tour"')
     sensor_seed = _get(raw, 'sensor_seed', int, where) if 'sensor_seed' in raw else 0
+    grasp_object, grasp = (_grasp_object(raw, where), _grasp(raw, where)) if kind == 'grasp' \
+        else (None, {})
+    if grasp:       # the first finger's tip is the scene's array; the object is its plate
+        raw['array'] = f'{next(iter(grasp["fingers"]))}_tip'
     return Scene(
         name=path.stem, kind=kind, array=_get(raw, 'array', str, where),
-        plate=_plate(raw, where), duration=_positive(raw, 'duration', where),
+        plate=grasp_object.plate if grasp_object else _plate(raw, where),
+        duration=_positive(raw, 'duration', where),
         tactile_rate=tactile_rate, physics_rate=physics_rate, seed=seed,
         effects=_effects(raw, where),
         operator=_get(raw, 'operator', dict, where) if kind == 'calibration' else {},
         finger=_finger(raw, where) if kind == 'closed_loop' else {},
         soft_object=_soft_object(raw, where), path=path, sensor_seed=sensor_seed,
-        press_tour=press_tour)
+        press_tour=press_tour, grasp_object=grasp_object, grasp=grasp)
+
+
+def _grasp_object(raw: dict, where: str) -> GraspObject:
+    name = _get(raw, 'grasp_object', str, where)
+    library = _get(raw, 'grasp_objects', dict, where)
+    if name not in library:
+        raise SceneError(f'{where}: field "grasp_object" is {name!r}, not one of '
+                         f'{sorted(library)}')
+    spec, sub = library[name], f'{where}: grasp_objects.{name}'
+    shape = _get(spec, 'shape', str, sub)
+    if shape not in OBJECT_SHAPES:
+        raise SceneError(f'{sub}: field "shape" must be one of {sorted(OBJECT_SHAPES)}')
+    size = _get(spec, 'size', list, sub)
+    if len(size) != OBJECT_SHAPES[shape] or not all(
+            isinstance(v, (int, float)) and not isinstance(v, bool) and v > 0 for v in size):
+        raise SceneError(f'{sub}: field "size" must be {OBJECT_SHAPES[shape]} positive numbers '
+                         f'(m) for a {shape}')
+    stiffness = spec.get('stiffness')
+    if stiffness is not None:
+        stiffness = _positive(spec, 'stiffness', sub)
+    damping = _get(spec, 'damping', float, sub) if 'damping' in spec else 0.0
+    if damping < 0.0:
+        raise SceneError(f'{sub}: field "damping" must be >= 0')
+    return GraspObject(name=name, shape=shape, size=tuple(float(v) for v in size),
+                       mass=_positive(spec, 'mass', sub),
+                       friction=_positive(spec, 'friction', sub), stiffness=stiffness,
+                       damping=damping, source=_get(spec, 'source', str, sub))
+
+
+GRASP_FIELDS = {'gravity': 3, 'hand_pose': 16, 'others_kp': 0, 'others_kd': 0, 'tip_radius': 0,
+                'skin_stiffness': 0, 'skin_damping': 0, 'hand_over': 0}
+
+
+def _grasp(raw: dict, where: str) -> dict[str, Any]:
+    grasp, sub = _get(raw, 'grasp', dict, where), f'{where}: grasp'
+    for key, length in GRASP_FIELDS.items():
+        if length:
+            value = _get(grasp, key, list, sub)
+            if len(value) != length or not all(isinstance(v, (int, float)) for v in value):
+                raise SceneError(f'{sub}: field "grasp.{key}" must be {length} numbers')
+        elif key == 'hand_over':
+            if _get(grasp, key, float, sub) < 0.0:
+                raise SceneError(f'{sub}: field "grasp.hand_over" must be >= 0 s')
+        else:
+            _positive(grasp, key, sub)
+    fingers = _get(grasp, 'fingers', dict, sub)
+    if 'thumb' not in fingers or len(fingers) < 2 or not set(fingers) <= set(FINGERS):
+        raise SceneError(f'{sub}: field "grasp.fingers" must name the thumb and one to three '
+                         f'of {[f for f in FINGERS if f != "thumb"]}, got {sorted(fingers)}')
+    for finger, poses in fingers.items():
+        for key in ('pose', 'contact_pose'):
+            value = _get(poses or {}, key, list, f'{sub}.fingers.{finger}')
+            if len(value) != 4 or not all(isinstance(v, (int, float)) for v in value):
+                raise SceneError(f'{sub}: field "grasp.fingers.{finger}.{key}" must be 4 '
+                                 'numbers (rad)')
+    disturbances = grasp.get('disturbances') or {}
+    for name, spec in disturbances.items():
+        if name not in DISTURBANCES or not isinstance(spec, dict):
+            raise SceneError(f'{sub}: field "grasp.disturbances.{name}": known disturbances '
+                             f'are {sorted(DISTURBANCES)}, each a mapping')
+        for key, length in DISTURBANCES[name].items():
+            value = spec.get(key)
+            ok = (isinstance(value, list) and len(value) == length
+                  and all(isinstance(v, (int, float)) for v in value)) if length else \
+                (isinstance(value, (int, float)) and not isinstance(value, bool) and value >= 0)
+            if not ok:
+                raise SceneError(f'{sub}: field "grasp.disturbances.{name}.{key}" must be '
+                                 f'{f"{length} numbers" if length else "a number >= 0"}')
+    # The thumb first: it opposes the others (its tip is the scene's `array`).
+    ordered = {'thumb': fingers['thumb'], **{f: fingers[f] for f in FINGERS
+                                             if f in fingers and f != 'thumb'}}
+    return {**grasp, 'fingers': ordered, 'disturbances': dict(disturbances)}
+
+
+# Opt-in disturbances of a grasp scene (sim/grasp.py): field -> numbers it takes (0: one).
+DISTURBANCES = {'push': {'at': 0, 'duration': 0, 'force': 3},    # s, s, N in the base frame
+                'added_mass': {'at': 0, 'mass': 0}}               # s, kg
 
 
 def _press_tour(raw: dict, where: str) -> tuple[str, ...]:

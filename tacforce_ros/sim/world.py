@@ -1,4 +1,4 @@
-"""One entry point for both kinds of simulator: make_simulator(scene) -> Simulator."""
+"""One entry point for every kind of simulator: make_simulator(scene) -> Simulator."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -12,7 +12,8 @@ from tacforce_ros.sim.scene import Scene, load_scene
 
 
 class Simulator(Protocol):
-    """Calibration (quasi-static) or closed-loop (MuJoCo) simulation behind one interface."""
+    """Calibration (quasi-static), closed-loop or grasp (MuJoCo) simulation behind one
+    interface."""
     scene: Scene
     hand: HandDescription
     dt: float     # s per step: 1/100 in calibration scenes, 1/physics_rate in closed loop
@@ -31,5 +32,8 @@ def make_simulator(scene: Scene | str | Path, hand: HandDescription | None = Non
     if scene.kind == 'calibration':
         from tacforce_ros.sim.calibration import CalibrationSimulator, PressTour
         return (PressTour if scene.press_tour else CalibrationSimulator)(scene, hand, seed)
+    if scene.kind == 'grasp':
+        from tacforce_ros.sim.grasp import GraspSimulator
+        return GraspSimulator(scene, hand, seed)
     from tacforce_ros.sim.closed_loop import ClosedLoopSimulator
     return ClosedLoopSimulator(scene, hand, seed)

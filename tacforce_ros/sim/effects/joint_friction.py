@@ -20,6 +20,8 @@ class JointFriction(Effect):
     viscous: float = 0.003    # N m s/rad
 
     def on_model(self, world) -> None:
+        if not world.hand_wide:
+            return
         for joint in world.hand_joints():
             joint.frictionloss = self.coulomb
             joint.damping = np.asarray(joint.damping) + np.eye(len(joint.damping))[0] * self.viscous

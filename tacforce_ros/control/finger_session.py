@@ -56,7 +56,8 @@ class FingerSession:
         return self.controller.joints
 
     def update(self, t: float, q: np.ndarray, qdot: np.ndarray, f_hat: np.ndarray,
-               f_hat_age: float, q_age: float, f_d: np.ndarray | None
+               f_hat_age: float, q_age: float, f_d: np.ndarray | None,
+               error: np.ndarray | None = None
                ) -> tuple[np.ndarray, ControllerState, Transition | None]:
         """One tick, arguments as ForceController.update; f_d None: no command has come yet.
         Returns the finger's 4 torques, the tick's state, and the transition this tick made
@@ -71,7 +72,7 @@ class FingerSession:
             # touch, and is the paper's baseline: it gets the command as given).
             untouched = approaching and not self.controller.open_loop
             tau, state = self.controller.update(t, q, qdot, f_hat, f_hat_age, q_age,
-                                                np.zeros(3) if untouched else f_d)
+                                                np.zeros(3) if untouched else f_d, error)
             if state.reason == 'streams fresh':
                 if touch:
                     state.reason = (f'touched: |f_hat| {np.linalg.norm(f_hat):.2f} N, force '

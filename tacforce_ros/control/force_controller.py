@@ -320,10 +320,12 @@ class ForceController:
                 if f_hat_age > cfg.estimate_timeout else 'estimate not finite')
 
     def update(self, t: float, q: np.ndarray, qdot: np.ndarray, f_hat: np.ndarray,
-               f_hat_age: float, q_age: float, f_d: np.ndarray
-               ) -> tuple[np.ndarray, ControllerState]:
+               f_hat_age: float, q_age: float, f_d: np.ndarray,
+               error: np.ndarray | None = None) -> tuple[np.ndarray, ControllerState]:
         """One tick. q, qdot: all 16 joints (rad, rad/s); f_d: (3,) N in force_frame;
-        f_hat in estimate_frame; ages in s (inf for a missing or invalid estimate).
+        f_hat in estimate_frame; ages in s (inf for a missing or invalid estimate). `error`:
+        what the integral integrates instead of f_d - f_hat (force_frame; used only with a fresh
+        estimate): a grasp integrates the error of its internal force alone.
         Returns (tau (4,) Nm, state); state forces are in force_frame."""
         cfg, mem = self.config, self._mem
         q = np.asarray(q, dtype=np.float64)
@@ -377,7 +379,12 @@ class ForceController:
             return jacobian.T @ (rotation @ f_cmd) + gravity_damping - spring
 
         tau_raw = torque(f_d + self._k_i * mem.integral)
-        error = f_d - f_hat if estimate_fresh else np.zeros(3)
+        if not estimate_fresh:
+            error = np.zeros(3)
+        elif error is None:
+            error = f_d - f_hat
+        else:
+            error = np.asarray(error, dtype=np.float64)
         # A long gap between ticks must not integrate as one big step.
         dt = min(elapsed, cfg.estimate_timeout)
         if force_target == 1.0 and dt > 0.0 and not self.open_loop and f_d.any():

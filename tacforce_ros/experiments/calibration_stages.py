@@ -16,8 +16,9 @@ from tacforce_ros.experiments.calibration_data import simulate_calibration
 from tacforce_ros.hand.description import load_hand
 from tacforce_ros.hand.kinematics import HandKinematics
 from tacforce_ros.sim.scene import calibration_scene_name, session_seed
-from tacforce_ros.experiments.settings import (ARRAYS, PLATES, WHOLE_HAND_MODEL, Context, Settings,
-                                             hand_digest, model_hyper, scene_for)
+from tacforce_ros.experiments.settings import (ARRAYS, GRASP_ARRAYS, PLATES, WHOLE_HAND_MODEL,
+                                             Context, Settings, hand_digest, model_hyper,
+                                             scene_for)
 from tacforce_ros.experiments.workers import (job_benchmark, job_calibration, job_cross_validation,
                                             job_training_set, run_units, worker_hand)
 
@@ -118,10 +119,12 @@ def benchmark_stage(ctx: Context, layout: dict) -> tuple[dict, dict]:
     return {a: {label: cv[a][label] for label in s.models} for a in ARRAYS}, models
 
 
-def whole_hand_stage(ctx: Context, cv: dict) -> dict:
+def whole_hand_stage(ctx: Context, cv: dict) -> tuple[dict, dict[str, str]]:
     """The whole-hand campaign: every array not in Table I, one session per training plate of
-    `whole_hand_seconds`, M3-lambda leave-one-plate-out; the Table I arrays keep their rows.
-    Returns {array: {'type', 'sessions', 'seconds', 'cv'}} in hand order."""
+    `whole_hand_seconds`, M3-lambda leave-one-plate-out; the Table I arrays keep their rows. The
+    fingertips a grasp needs (GRASP_ARRAYS) also keep the model fitted on all five plates.
+    Returns ({array: {'type', 'sessions', 'seconds', 'cv'}} in hand order, {array: model path}
+    of those fingertips)."""
     s = ctx.settings
     hand, _ = worker_hand()
     others = [a.name for a in hand.arrays if a.name not in ARRAYS]
@@ -136,10 +139,21 @@ def whole_hand_stage(ctx: Context, cv: dict) -> dict:
     run_units(ctx, 'whole-hand sessions', jobs)
     sets = training_sets(ctx, 'whole-hand training sets', layout)
     kind, hyper = model_hyper(WHOLE_HAND_MODEL, s)
-    results, cv_jobs, keys = {}, [], {}
+    results, cv_jobs, keys, final = {}, [], {}, {}
     for array, paths in layout.items():
         keys[array] = _training_key(paths, WHOLE_HAND_MODEL, s)
         cached = ctx.cache.load_json('cross_validation', keys[array])
+        if array in GRASP_ARRAYS:
+            target = ctx.cache.path('models', keys[array], '.npz')
+            final[array] = str(target)
+            if cached is None or ctx.cache.lookup('models', keys[array], '.npz') is None:
+                target.parent.mkdir(parents=True, exist_ok=True)
+                provenance = {'dataset': f'reproduce cache {keys[array][:24]}', 'date':
+                              time.strftime('%Y-%m-%dT%H:%M:%S%z'), 'seed': s.seed,
+                              'code_version': source_digest(fit_bundles)[:12]}
+                cv_jobs.append((array, job_benchmark, (array, kind, hyper, sets[array],
+                                                       provenance, str(target))))
+                continue
         if cached is None:
             cv_jobs.append((array, job_cross_validation, (array, kind, hyper, sets[array])))
         else:
@@ -156,4 +170,4 @@ def whole_hand_stage(ctx: Context, cv: dict) -> dict:
         else:
             rows[array.name] = {'type': array.kind, 'sessions': 1,
                                 'seconds': s.whole_hand_seconds, 'cv': results[array.name]}
-    return rows
+    return rows, final

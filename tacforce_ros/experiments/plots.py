@@ -1,7 +1,7 @@
 """The report's figures (PNG, matplotlib Agg): accuracy against time (the leave-one-plate-out
 benchmark against the cost of a tick, and the estimator's input low-pass trade-off), force
 tracking as the paper's Fig. 4 (mean and standard-deviation band over the repeats), and per-plate
-errors."""
+errors, and the grasp's per-finger forces."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -52,6 +52,35 @@ def tracking(traces: dict[str, list[ClosedLoopTrace]], title: str, path: Path) -
     fullest = max((row[0] for row in axes), key=lambda ax: len(ax.get_lines()))
     fullest.legend(fontsize=7)
     fig.suptitle(f'{SIM_LABEL}: {title} (mean and std band over {len(runs)} runs)')
+    return _save(fig, path)
+
+
+def grasp_tracking(runs: dict, title: str, path: Path) -> Path:
+    """Rows: controllers (one run each); columns: fingers. Each finger's commanded and simulated
+    contact force along its grip direction d_i, its estimate, and the hand-over."""
+    fingers = next(iter(runs.values())).fingers
+    fig, axes = plt.subplots(len(runs), len(fingers), figsize=(6 * len(fingers), 2.8 * len(runs)),
+                             sharex=True, squeeze=False)
+    for row, (controller, trace) in enumerate(runs.items()):
+        released = trace.t[(~trace.held_by_fixture).argmax()] if (~trace.held_by_fixture).any() \
+            else None
+        for i, ax in enumerate(axes[row]):
+            d = trace.directions[i]
+            ax.plot(trace.t, trace.f_d[:, i] @ d, 'k--', lw=1.0, label='desired f_d . d')
+            if np.isfinite(trace.f_hat[:, i]).any():
+                ax.plot(trace.t, trace.f_hat[:, i] @ d, color='tab:blue', lw=0.8,
+                        label='estimate f_hat . d')
+            ax.plot(trace.t, trace.f_true[:, i] @ d, color='tab:red', lw=1.0,
+                    label='simulated contact f . d')
+            if released is not None:
+                ax.axvline(released, color='0.5', lw=0.8, ls=':', label='hand-over')
+            ax.set_title(f'{MODEL_NAMES.get(controller, controller)}, {fingers[i]} [N]',
+                         fontsize=9)
+            ax.grid(True, alpha=0.3)
+    for ax in axes[-1]:
+        ax.set_xlabel('t [s] since the goal')
+    axes[0][0].legend(fontsize=7)
+    fig.suptitle(f'{SIM_LABEL}: {title}')
     return _save(fig, path)
 
 

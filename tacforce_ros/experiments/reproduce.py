@@ -3,7 +3,8 @@
 Records calibration sessions (five training plates; index_tip and index_middle), runs the
 leave-one-plate-out benchmark of M1-M5 and M3-lambda (Table I), retrains on all five plates and
 tests online on the held-out spherical plate (Table II), runs the closed-loop experiments
-(open loop, M3-lambda, M4; spherical plate and four soft objects; Table III), sends one
+(open loop, M3-lambda, M4; spherical plate and four soft objects; Table III), holds objects
+between the thumb and index fingertip (the grasp table, not in the paper), sends one
 calibration session and one closed-loop run through the ROS node graph (`session`) and compares
 them with the direct path, and writes <out>/report.md, report.json and PNG figures.
 
@@ -30,11 +31,12 @@ from pathlib import Path
 from tacforce_ros import results
 from tacforce_ros.bringup.processes import interrupt_on_sigterm
 from tacforce_ros.experiments import calibration_stages as calibration
+from tacforce_ros.experiments import grasp_stages as grasp
 from tacforce_ros.experiments import estimation_stages as estimation
 from tacforce_ros.experiments import loop_stages as loop
 from tacforce_ros.experiments import report
-from tacforce_ros.experiments.settings import (CONTROLLERS, PLATES, SKINS, WHOLE_HAND_MODEL,
-                                             Context, Settings)
+from tacforce_ros.experiments.settings import (CONTROLLERS, GRASP_MODEL, PLATES, SKINS,
+                                             WHOLE_HAND_MODEL, Context, Settings)
 from tacforce_ros.experiments.workers import init_worker, load_trace
 from tacforce_ros.rig import HELD_OUT_PLATE
 from tacforce_ros.experiments.cache import StageCache
@@ -119,7 +121,7 @@ def run(settings: Settings, out: Path, jobs: int) -> dict:
                                log=lambda line: print(line, file=sys.stderr, flush=True))
         layout = calibration.calibration_stage(ctx)
         cv, models = calibration.benchmark_stage(ctx, layout)
-        whole_hand = calibration.whole_hand_stage(ctx, cv)
+        whole_hand, whole_hand_models = calibration.whole_hand_stage(ctx, cv)
         timing = estimation.timing_stage(ctx, models)
         online = estimation.online_stage(ctx, layout, models)
         end_to_end = estimation.end_to_end_stage(ctx, layout, models, timing,
@@ -128,6 +130,8 @@ def run(settings: Settings, out: Path, jobs: int) -> dict:
         plain = traces.get((HELD_OUT_PLATE, 'M3-lambda'))
         filtered = None if plain is None else \
             loop.filtered_closed_loop_stage(ctx, models, end_to_end)
+        grasp_traces = grasp.grasp_stage(ctx, grasp.grasp_model_config(ctx, models,
+                                                                       whole_hand_models))
     node = loop.node_path_stage(ctx, models)
     closed = {key: trace_metrics([load_trace(p) for p in paths])
               for key, paths in traces.items()}
@@ -136,6 +140,9 @@ def run(settings: Settings, out: Path, jobs: int) -> dict:
         trace_metrics([load_trace(p) for p in filtered['traces']]))
     rows = report.table_iii(closed)
     table_i = report.table_i(cv, timing)
+    single = closed.get((HELD_OUT_PLATE, GRASP_MODEL))
+    grasp_rows = grasp.grasp_rows(grasp_traces, None if single is None else
+                                  single['e_tilde_mean'])
     doc = {
         'label': 'SIMULATION: every sim number comes from the simulated hand, not hardware',
         'skin': settings.skin,
@@ -148,7 +155,10 @@ def run(settings: Settings, out: Path, jobs: int) -> dict:
         'skin_targets': (report.skin_targets(table_i, rows, settings.seed)
                          if settings.skin == 'magnetic' else None),
         'node_tolerance_reason': NODE_TOLERANCE_REASON,
-        'figures': figures(out, cv, table_i, end_to_end, traces, whole_hand),
+        'grasp': {'rows': grasp_rows, 'must_show': grasp.grasp_must_show(grasp_rows),
+                  'hand_over_s': grasp.hand_over_after_goal(settings.grasp_objects[0])},
+        'figures': (figures(out, cv, table_i, end_to_end, traces, whole_hand)
+                    + grasp.grasp_figures(grasp_traces, out)),
     }
     # What differs between two runs of the same inputs lives under 'run' only.
     doc['run'] = {'date': time.strftime('%Y-%m-%dT%H:%M:%S%z'), 'code_version': results.commit(),

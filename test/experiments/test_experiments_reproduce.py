@@ -177,7 +177,8 @@ def test_report_holds_every_stage_and_labels_it_simulation(runs):
 def test_figures_are_png_images(runs):
     import matplotlib.image
     out, doc, _, _ = runs
-    assert len(doc['figures']) == 3 + len(doc['settings']['objects'])
+    assert len(doc['figures']) == 3 + len(doc['settings']['objects']) + len(
+        doc['settings']['grasp_objects'])
     for name in doc['figures']:
         path = out / name
         assert path.read_bytes()[:8] == b'\x89PNG\r\n\x1a\n', name
@@ -214,3 +215,27 @@ def test_the_whole_hand_section_shows_every_array_s_held_out_error(runs):
     assert (out / 'whole_hand.png').read_bytes()[:8] == b'\x89PNG\r\n\x1a\n'
     assert second['whole_hand'] == rows               # from the cache, the same
 
+
+
+def test_the_grasp_table_holds_its_rows_as_the_json_says(runs):
+    out, doc, md, second = runs
+    rows = doc['grasp']['rows']
+    settings = doc['settings']
+    assert [(r['object'], r['grip_n']) for r in rows] == [
+        (o, g) for o in settings['grasp_objects'] for g in settings['grasp_grips']]
+    for row in rows:
+        assert set(row) >= {'object', 'grip_n', 'fingers', 'runs', 'drops', 'finger_error_n',
+                            'open_loop_finger_error_n', 'single_finger_error_n',
+                            'peak_over_command', 'slip_mm'}
+        assert row['fingers'] == ['thumb', 'index'] and row['runs'] == settings['grasp_repeats']
+        assert row['single_finger_error_n'] == doc['table_III'][1]['sim']['e_tilde'] or \
+            row['single_finger_error_n'] == next(
+                r['sim']['e_tilde'] for r in doc['table_III'] if r['row'].endswith('M3λ'))
+    shown = next(v for h, v in tables(md).items() if h.startswith('Grasp'))
+    for cells, row in zip(shown, rows, strict=True):
+        assert cells[0] == row['object'] and float(cells[1]) == row['grip_n']
+        assert_shows(cells[4], row['finger_error_n'], None, 2)
+        assert_shows(cells[5], row['open_loop_finger_error_n'], None, 2)
+    for obj in settings['grasp_objects']:
+        assert f'grasp_{obj}.png' in doc['figures']
+    assert second['grasp'] == doc['grasp']

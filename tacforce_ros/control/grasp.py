@@ -36,10 +36,11 @@ grasp adds is what each fingertip is asked to push:
   to where the finger is: left ahead, its P term pressed on top of the command (simulated golf
   ball at 1 N: the contact force led the ramp by the ~0.25 N of the touch, 1.25x the grip at its
   peak).
-* Slip. Each finger's share of tangential force (|tangential| / normal of its estimate),
-  low-passed over `slip_window` s, is taken as its baseline once every finger has held its grip
-  `slip_window` s (the integral has then taken up most of the estimate's error); a share that
-  rises `slip_rise` above it (the load outgrows the grip: added mass, a push) raises the grip at
+* Slip. Each finger's share of unasked tangential force (the estimate's tangential part less
+  the commanded one, the weight share, over the estimate's normal part), low-passed over
+  `slip_window` s, is taken as its baseline once every finger has held its grip `slip_window` s;
+  a share that rises `slip_rise` above it (the load outgrows the grip: more mass than the goal
+  said, a push, the support gone under an object whose mass was not given) raises the grip at
   `slip_rate` N/s, never above what the joints can press (max_grip); the raise is kept. A rise,
   not the share itself against an assumed friction: an estimate's error in direction is a share
   of its own (the magnetic skin's thumb model read a pinched golf ball's force at 0.42 of
@@ -86,7 +87,11 @@ class GraspConfig:
     grip_min: float = 0.3          # N: below it a grip is lost in the estimate's noise
     friction: float = 0.5          # skin on an unknown surface, the low end (assumed)
     slip_margin: float = 0.8       # share of the friction cone a goal may load (refusal)
-    slip_rise: float = 0.2         # rise of tangential / normal over its baseline: a slip
+    # A rise of the unasked tangential share over its baseline that is a slip. 0.2 raised the
+    # grip on a still tennis ball to the joints' limit (magnetic skin, 1 N, seed 0: the noise of
+    # the thumb's estimate); a load that outgrows a pinch runs the share up to the friction
+    # limit, about 0.5 above the weight share at 1 N.
+    slip_rise: float = 0.3
     slip_window: float = 0.5       # s: the share's low-pass, and the wait for its baseline
     slip_rate: float = 1.0         # N/s
     drop_time: float = 0.1         # s of no contact at every finger: dropped
@@ -345,7 +350,9 @@ class GraspController:
         weight = min(1.0, elapsed / cfg.slip_window)
         for s in fresh:
             if s.normal > 0.0:
-                share = s.tangential / s.normal
+                d = self.directions[s.finger]
+                asked = float(np.linalg.norm(s.desired - (s.desired @ d) * d))
+                share = (s.tangential - asked) / s.normal
                 before = self._share.get(s.finger, share)
                 self._share[s.finger] = before + weight * (share - before)
         if t - self._held_since < cfg.slip_window:

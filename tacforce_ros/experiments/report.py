@@ -12,6 +12,7 @@ from typing import Any
 
 from tacforce_ros.bringup.processes import unclean_exits
 from tacforce_ros.experiments import paper_reference as paper
+from tacforce_ros.experiments.settings import GRASP_ARRAYS
 from tacforce_ros.experiments.skin_targets import (LOOP_REDUCTION, LOOP_TRACK, loop_reason,
                                                   targets)
 from tacforce_ros.hand.description import ARRAY_KIND_TITLES
@@ -275,8 +276,9 @@ def _sim_paper(sim_mean, sim_std, ref: tuple | None, digits: int) -> list[str]:
 
 def whole_hand_section(rows: dict, settings: dict) -> list[str]:
     lines = ['## Whole hand — M3λ on every array, 5-fold leave-one-plate-out', '',
-             f"Every array pressed on the five training plates: the Table I arrays at the sizes "
-             f"above, the others {settings['whole_hand_seconds']:g} s per plate (one session). "
+             f"Every array pressed on the five training plates: the Table I arrays and the "
+             f"grasp's ({', '.join(GRASP_ARRAYS)}) at the sizes above, the others "
+             f"{settings['whole_hand_seconds']:g} s per plate (one session). "
              'Figure: whole_hand.png.', '',
              '| array | data | e_r [%] sim | e_hat [N] sim | MAE x / y / z [N] |',
              '|---|---|---|---|---|']

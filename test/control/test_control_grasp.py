@@ -204,7 +204,7 @@ def test_a_rising_tangential_share_raises_the_grip_within_its_bound():
     steady = {f: array_force(q, f, 1.0 * d[f] + 0.2 * side) for f in ('thumb', 'index')}
     state = touch_all(grasp, q, steady)
     assert state.phase == PHASE_HOLDING and state.grip == 1.0   # a constant share is no slip
-    slipping = {f: (array_force(q, f, 1.0 * d[f] + 0.5 * side), 0.0) for f in ('thumb', 'index')}
+    slipping = {f: (array_force(q, f, 1.0 * d[f] + 0.6 * side), 0.0) for f in ('thumb', 'index')}
     for k in range(200, 400):
         _, state = grasp.update(k * DT, q, ZERO16, slipping, 0.0)
     assert state.reason.startswith('slip at thumb, index: grip')

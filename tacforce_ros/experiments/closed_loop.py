@@ -71,6 +71,28 @@ class CommandLink:
         return self._in_flight.popleft()
 
 
+def steps_per_tick(dt: float, control_rate: float) -> int:
+    """Physics steps of `dt` s per control tick; the control rate must divide the physics
+    rate."""
+    every = int(round(1.0 / (control_rate * dt)))
+    if every < 1 or abs(every * dt * control_rate - 1.0) > 1e-9:
+        raise ValueError(f'control rate {control_rate} Hz must divide the physics rate '
+                         f'{1.0 / dt:g} Hz')
+    return every
+
+
+def control_period(sim, link: CommandLink, torque: np.ndarray, every: int):
+    """One control period: `every` physics steps, each applying what `link` delivers of the
+    torque sent. Returns the last sample and the newest tactile frame delivered in the period
+    (None when none came)."""
+    frame = None
+    for _ in range(every):
+        sample = sim.step(link.step(torque))
+        if sample.tactile_fresh and sample.delivered['tactile']:
+            frame = sample.taxel_counts
+    return sample, frame
+
+
 def run_closed_loop(hand: HandDescription, kinematics: HandKinematics,
                     scene: str | Path | Scene,
                     seed: int, config: ForceControllerConfig, sequence: ForceSequence,
@@ -99,10 +121,7 @@ def run_closed_loop(hand: HandDescription, kinematics: HandKinematics,
     if sim.finger != config.finger:
         raise ValueError(f'scene {scene.name} presses the {sim.finger} finger, the controller '
                          f'drives the {config.finger} (ForceControllerConfig.pressing_with)')
-    every = int(round(1.0 / (control_rate * sim.dt)))
-    if every < 1 or abs(every * sim.dt * control_rate - 1.0) > 1e-9:
-        raise ValueError(f'control rate {control_rate} Hz must divide the physics rate '
-                         f'{1.0 / sim.dt:g} Hz')
+    every = steps_per_tick(sim.dt, control_rate)
     delay = 1.0 / control_rate if actuation_delay is None else actuation_delay
     delay_steps = int(round(delay / sim.dt))
     if abs(delay_steps * sim.dt - delay) > 1e-9:
@@ -129,11 +148,7 @@ def run_closed_loop(hand: HandDescription, kinematics: HandKinematics,
     log_t = np.zeros(ticks)
     start = settle_ticks / control_rate
     for tick in range(-settle_ticks, ticks):
-        frame = None
-        for _ in range(every):
-            sample = sim.step(link.step(torque))
-            if sample.tactile_fresh and sample.delivered['tactile']:
-                frame = sample.taxel_counts
+        sample, frame = control_period(sim, link, torque, every)
         t = sample.t - start    # closed-loop samples are stamped at the end of their step
         if q is None:   # the first state, even if its message was dropped (then it is stale)
             q, qdot = sample.q, sample.qdot

@@ -18,7 +18,8 @@ import numpy as np
 
 from tacforce_ros.control.grasp import GraspConfig, GraspController, GraspGoal
 from tacforce_ros.estimation.model_set import TareWindow
-from tacforce_ros.experiments.closed_loop import SETTLE_SECONDS, CommandLink
+from tacforce_ros.experiments.closed_loop import (SETTLE_SECONDS, CommandLink, control_period,
+                                                 steps_per_tick)
 from tacforce_ros.hand.kinematics import HandKinematics
 from tacforce_ros.hand.pinch import joint_limits, pad
 from tacforce_ros.rig import RATE_HZ
@@ -112,10 +113,7 @@ def run_grasp(hand: HandDescription, scene: str | Scene,
     open_loop = all(not any(c.k_i) for c in configs.values())
     if models is None and not open_loop:
         raise ValueError('a closed-loop grasp (k_i != 0) needs force models')
-    every = int(round(1.0 / (control_rate * sim.dt)))
-    if every < 1 or abs(every * sim.dt * control_rate - 1.0) > 1e-9:
-        raise ValueError(f'control rate {control_rate} Hz must divide the physics rate '
-                         f'{1.0 / sim.dt:g} Hz')
+    every = steps_per_tick(sim.dt, control_rate)
     link = CommandLink(every)       # one control period from a tick's state to its torque
     fingers = sim.fingers
     rows = None if models is None else {f: [a.name for a in models.arrays].index(f'{f}_tip')
@@ -141,11 +139,7 @@ def run_grasp(hand: HandDescription, scene: str | Scene,
     start = settle_ticks / control_rate
     hold = {f: None for f in fingers}   # the start-pose hold before the goal
     for tick in range(-settle_ticks, ticks):
-        frame = None
-        for _ in range(every):
-            sample = sim.step(link.step(torque))
-            if sample.tactile_fresh and sample.delivered['tactile']:
-                frame = sample.taxel_counts
+        sample, frame = control_period(sim, link, torque, every)
         t = sample.t - start
         if q is None:
             q, qdot = sample.q, sample.qdot

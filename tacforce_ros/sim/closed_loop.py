@@ -20,7 +20,7 @@ from tacforce_ros.hand.description import HandDescription
 from tacforce_ros.sim.contact import Contact, skin_surface
 from tacforce_ros.sim.effects import Pipeline
 from tacforce_ros.sim.operator import FINGER_JOINTS
-from tacforce_ros.sim.sample import SimSample, StepState
+from tacforce_ros.sim.sample import SimSample, StepState, checked_torques
 from tacforce_ros.sim.scene import CLOSED_LOOP_FINGER, Scene, SceneError
 from tacforce_ros.sim.sensors import TactileSensor
 from tacforce_ros.sim.vector import Vec3, add3, cross3, dot3, matTvec3, matvec3, scale3, sub3
@@ -210,9 +210,7 @@ class ClosedLoopSimulator:
 
     def step(self, joint_torques: np.ndarray | None = None) -> SimSample:
         data = self.data
-        command = np.zeros(16) if joint_torques is None else np.asarray(joint_torques, np.float64)
-        if command.shape != (16,) or not np.isfinite(command).all():
-            raise ValueError('joint_torques must be 16 finite values (N m), Allegro order')
+        command = checked_torques(joint_torques)
         t = self.step_index * self.dt
         torque = command * self._driven   # the others: their joint springs
         state = StepState(t=t, contact=None, torque=torque)

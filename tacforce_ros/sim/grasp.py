@@ -32,12 +32,11 @@ import mujoco
 import numpy as np
 
 from tacforce_ros.hand.description import HandDescription
-from tacforce_ros.hand.kinematics import TIP_LINKS
 from tacforce_ros.sim.closed_loop import ARMATURE, ModelBuild
 from tacforce_ros.sim.contact import Contact, skin_surface
 from tacforce_ros.sim.effects import Pipeline
 from tacforce_ros.sim.operator import FINGER_JOINTS
-from tacforce_ros.sim.sample import SimSample, StepState
+from tacforce_ros.sim.sample import SimSample, StepState, checked_torques
 from tacforce_ros.sim.scene import GraspObject, Scene, SceneError
 from tacforce_ros.sim.sensors import TactileSensor
 
@@ -315,9 +314,7 @@ class GraspSimulator:
 
     def step(self, joint_torques: np.ndarray | None = None) -> GraspSample:
         data = self.data
-        command = np.zeros(16) if joint_torques is None else np.asarray(joint_torques, np.float64)
-        if command.shape != (16,) or not np.isfinite(command).all():
-            raise ValueError('joint_torques must be 16 finite values (N m), Allegro order')
+        command = checked_torques(joint_torques)
         t = self.step_index * self.dt
         if self.fixture and t >= self.hand_over:
             self.release()
@@ -396,8 +393,3 @@ class GraspSimulator:
             scale = (self._mass + added['mass']) / self._mass
             self.model.body_mass[self.body] = self._mass * scale
             self.model.body_inertia[self.body] = self._inertia * scale
-
-    # ------------------------------------------------------------------ queries
-
-    def tip_link(self, finger: str) -> str:
-        return TIP_LINKS[finger]

@@ -45,6 +45,14 @@ class SimSample:
         return ft_counts(self.ft_wrench)
 
 
+def checked_torques(command: np.ndarray | None) -> np.ndarray:
+    """A simulator step's 16 joint torques (N m, Allegro order): None is zero torque."""
+    torque = np.zeros(16) if command is None else np.asarray(command, np.float64)
+    if torque.shape != (16,) or not np.isfinite(torque).all():
+        raise ValueError('joint_torques must be 16 finite values (N m), Allegro order')
+    return torque
+
+
 # Net F/T defaults (docs/PROTOCOLS.md section 3): counts per N and per N m.
 COUNTS_PER_FORCE = 1e6
 COUNTS_PER_TORQUE = 1e6

@@ -1,4 +1,4 @@
-"""Grasp controller: the thumb and one to three fingertips holding an object at a commanded grip
+"""Grasp controller: the thumb and another fingertip holding an object at a commanded grip
 force, each fingertip closing its own force loop on its own tactile estimate. Pure numpy, no ROS:
 the grasp_controller node and the in-process experiments call it alike.
 
@@ -48,8 +48,12 @@ grasp adds is what each fingertip is asked to push:
   limit).
 * A stale fingertip holds: its FingerSession's watchdog ramps it to the contact hold (the law
   with its command latched, open loop); the other fingers go on.
-* A drop: every finger's estimate below half the touch force for `drop_time` s after all had
-  touched ends the grasp as dropped.
+* A drop: every finger's estimate fresh and below half the touch force for `drop_time` s after
+  all had touched ends the grasp as dropped: from then no force is commanded and nothing
+  integrated (the fingers hold where they are by the law's P term). A finger with a stale
+  estimate, or the open loop, cannot tell a drop.
+* One fingertip against the thumb: with more, the thumb would have to press as hard as the
+  others together (not built yet: such goals are refused).
 
 Open loop (K_i = 0: the paper's baseline, the same poses and gains): it feels no touch, so each
 finger's ramp starts when it engages and its approach goes on, blind, to its target.
@@ -112,7 +116,7 @@ class GraspConfig:
 
 @dataclass(frozen=True)
 class GraspGoal:
-    """What to hold: the fingertips (the thumb and one to three others), the grip force each
+    """What to hold: the fingertips (the thumb and another), the grip force each
     presses with (N), the object's mass if known (kg: its weight is then shared), and per finger
     the joint target its approach closes toward (rad; through the object)."""
 
@@ -191,7 +195,7 @@ class GraspController:
     def check(self, goal: GraspGoal, q16: np.ndarray) -> None:
         """Raise GraspGoalError with the reason when `goal` cannot run from pose q16."""
         if not goal.fingers:
-            raise GraspGoalError('no fingers: a grasp needs the thumb and one to three others')
+            raise GraspGoalError('no fingers: a grasp needs the thumb and another fingertip')
         unknown = [f for f in goal.fingers if f not in FINGERS]
         if unknown:
             raise GraspGoalError(f'{unknown} are not fingertips of the hand ({list(FINGERS)})')
@@ -201,8 +205,12 @@ class GraspController:
                                  f'{sorted(self.configs)})')
         if 'thumb' not in goal.fingers or len(goal.fingers) < 2 or \
                 len(set(goal.fingers)) != len(goal.fingers):
-            raise GraspGoalError(f'{list(goal.fingers)}: a grasp opposes the thumb to one to three '
-                                 'other fingertips, each named once')
+            raise GraspGoalError(f'{list(goal.fingers)}: a grasp opposes the thumb to another '
+                                 'fingertip, each named once')
+        if len(goal.fingers) > 2:
+            raise GraspGoalError(f'{list(goal.fingers)}: more than one fingertip against the '
+                                 'thumb is not built yet (the thumb would have to press as hard '
+                                 'as the others together)')
         for finger in goal.fingers:
             target = np.asarray(goal.targets.get(finger, ()), dtype=np.float64)
             if target.shape != (4,) or not np.isfinite(target).all():
@@ -245,6 +253,8 @@ class GraspController:
         self._baseline: dict[str, float] = {}     # finger -> tangential / normal at the hold
         self._share: dict[str, float] = {}        # finger -> its low-passed share now
         self._held_since: float | None = None
+        self._saturated = False                   # some finger's torque at the last tick
+        self._q_timeout = min(self.configs[f].joints_timeout for f in goal.fingers)
         self._t: float | None = None
         self.phase = PHASE_CLOSING
 
@@ -265,48 +275,57 @@ class GraspController:
         cfg = self.config
         elapsed = 0.0 if self._t is None else max(0.0, t - self._t)
         self._t = t
-        states, transitions = {}, []
-        directions = self.directions = self._directions(self.sessions, q)
-        ticks = {}
+        q = np.asarray(q, dtype=np.float64)
+        # A stale or broken joint reading keeps the last line (each finger's watchdog fades its
+        # torque out meanwhile).
+        joints_ok = bool(q.shape == (16,) and np.isfinite(q).all() and q_age <= self._q_timeout)
+        if joints_ok:
+            self.directions = self._directions(self.sessions, q)
+        directions = self.directions
+        states, transitions, ticks = {}, [], {}
         for finger, session in self.sessions.items():
             f_hat, age = estimates.get(finger, (np.full(3, np.nan), np.inf))
             f_hat = np.asarray(f_hat, dtype=np.float64)
-            fresh = session.controller.estimate_fresh(f_hat, age)
+            fresh = joints_ok and session.controller.estimate_fresh(f_hat, age)
             base = self._to_base(q, finger, f_hat) if fresh else np.full(3, np.nan)
             d = directions[finger]
             normal = float(base @ d) if fresh else float('nan')
             started = self._ramp_from.get(finger)
-            # The ramp starts at the touch, or where the approach ended without one (at its
-            # target: the P term presses there; open loop: from engaging).
+            # The ramp starts at the tick after the touch (the session finds the touch in its
+            # update), or where the approach ended without one (at its target: the P term
+            # presses there; open loop: from engaging).
             touched = session.engaged and (session.controller.open_loop or (
                 session.approach is not None and session.approach.done))
             if started is None and touched:
                 start_grip = 0.0 if session.controller.open_loop or not fresh else \
                     min(max(normal, 0.0), self.grip)
                 started = self._ramp_from[finger] = (float(t), start_grip)
-                if not session.controller.open_loop:
+                if not session.controller.open_loop and joints_ok:
                     # The P term's target, ahead of the finger while it closed, moves to where
                     # the finger is: from here the grasp presses by its force command alone.
-                    session.controller.set_position_target(np.asarray(q)[session.joints])
-            grip = 0.0 if started is None else min(
+                    session.controller.set_position_target(q[session.joints])
+            grip = 0.0 if started is None or self.phase == PHASE_DROPPED else min(
                 self.grip, started[1] + cfg.force_rate * (t - started[0]))
             ticks[finger] = (f_hat, age, base, normal, grip, started)
-        # The internal force: the fingers' squeeze, commanded and as the estimates read it.
-        # From the first tick every finger presses (the law integrates only under a command).
-        everyone = all(tick[5] is not None and tick[4] > 0.0 for tick in ticks.values())
-        asked = np.mean([tick[4] for tick in ticks.values()])
-        read = [tick[3] for tick in ticks.values() if tick[5] is not None and np.isfinite(tick[3])]
-        felt = float(np.mean(read)) if read else float('nan')
+        # The internal force: the fingers' squeeze, commanded and as the estimates read it. It
+        # is integrated only while every finger presses (the law integrates only under a
+        # command), every closed-loop estimate is fresh (one finger's error alone would be the
+        # single finger's law), and no finger's torque was saturated at the last tick (its
+        # integral would skip a step the others take): so the fingers' corrections stay equal.
+        closed = [f for f, s in self.sessions.items() if not s.controller.open_loop]
+        integrate = (self.phase != PHASE_DROPPED and not self._saturated
+                     and all(ticks[f][5] is not None and ticks[f][4] > 0.0 for f in ticks)
+                     and all(np.isfinite(ticks[f][3]) for f in closed))
+        internal = 0.0
+        if integrate and closed:
+            internal = float(np.mean([ticks[f][4] for f in ticks])
+                             - np.mean([ticks[f][3] for f in closed]))
         for finger, session in self.sessions.items():
             f_hat, age, base, normal, grip, started = ticks[finger]
             d = directions[finger]
             desired = grip * d + grip / self.grip * self.share
-            # Each finger integrates the internal force's error along its own d_i, the same for
-            # all: the squeeze is regulated, the net force on the object left to the
-            # feed-forward (see the module's docstring).
-            error = (asked - felt) * d if everyone and np.isfinite(felt) else np.zeros(3)
             finger_tau, state, transition = session.update(t, q, qdot, f_hat, age, q_age, desired,
-                                                           error)
+                                                           internal * d)
             tau[session.joints] = finger_tau
             if transition is not None:
                 transitions.append(f'{finger}: {transition}')
@@ -315,10 +334,12 @@ class GraspController:
                 float('nan')
             states[finger] = FingerGraspState(finger, stage, state, state.desired_force,
                                               base, normal, tangential, grip)
-        reason = self._advance(t, elapsed, states)
+        self._saturated = any(s.controller.saturation_scale < 1.0 for s in states.values())
+        reason = self._advance(t, elapsed, states, q if joints_ok else None)
         return tau, GraspState(float(t), self.phase, self.grip, states, transitions, reason)
 
-    def _advance(self, t: float, elapsed: float, states: dict[str, FingerGraspState]) -> str:
+    def _advance(self, t: float, elapsed: float, states: dict[str, FingerGraspState],
+                 q: np.ndarray | None) -> str:
         """Move the grasp's phase on from this tick's fingers; returns why it is in it."""
         cfg = self.config
         if self.phase == PHASE_DROPPED:
@@ -349,7 +370,8 @@ class GraspController:
         self._held_since = t if self._held_since is None else self._held_since
         weight = min(1.0, elapsed / cfg.slip_window)
         for s in fresh:
-            if s.normal > 0.0:
+            # A share over a normal force below the touch is the estimate's noise, not a load.
+            if s.normal >= self.configs[s.finger].touch_force:
                 d = self.directions[s.finger]
                 asked = float(np.linalg.norm(s.desired - (s.desired @ d) * d))
                 share = (s.tangential - asked) / s.normal
@@ -363,6 +385,9 @@ class GraspController:
                     if share > self._baseline[f] + cfg.slip_rise]
         if not slipping:
             return 'holding'
+        if q is not None:    # what the joints can press where the fingers are now
+            self.top = max_grip(self.kinematics, q, self.sessions, self.directions, self.share,
+                                min(self.configs[f].torque_cap for f in self.sessions))
         if self.grip < self.top:
             self.grip = min(self.top, self.grip + cfg.slip_rate * elapsed)
             return f'slip at {", ".join(slipping)}: grip raised to {self.grip:.2f} N'

@@ -4,7 +4,8 @@ GraspController, ticking at the control rate with the torque held over the physi
 between and reaching the hand one control period late (as closed_loop.run_closed_loop).
 
 A run as a lab's: the fingers hold their start poses `settle_seconds` (the estimator tares on
-the last frames of it, out of contact), the goal starts at t = 0, the fingers close and ramp to
+the last frames of it, out of contact), the goal starts at t = 0 (its first tick one control
+period later), the fingers close and ramp to
 the grip while the fixture holds the object, the fixture lets go at the scene's `hand_over`, and
 the fingers hold it to the scene's end.
 """
@@ -43,7 +44,7 @@ class GraspTrace:
     f_d: np.ndarray                # (T, n, 3) desired, per finger
     f_hat: np.ndarray              # (T, n, 3) estimate (NaN when not fresh)
     f_true: np.ndarray             # (T, n, 3) simulated contact force (the finger on the object)
-    directions: np.ndarray         # (n, 3) each finger's grip direction d_i
+    directions: np.ndarray         # (T, n, 3) each finger's grip direction d_i at each tick
     grip: np.ndarray               # (T,) grip asked (the goal's, raised on slip)
     object_position: np.ndarray    # (T, 3) m, base frame
     held_by_fixture: np.ndarray    # (T,) bool
@@ -119,6 +120,9 @@ def run_grasp(hand: HandDescription, scene: str | Scene,
     rows = None if models is None else {f: [a.name for a in models.arrays].index(f'{f}_tip')
                                         for f in fingers}
     settle_ticks = int(round(settle_seconds * control_rate))
+    if settle_ticks < tare_frames:
+        raise ValueError(f'settle_seconds {settle_seconds} s holds fewer than the '
+                         f'{tare_frames} frames the tare needs at {control_rate:g} Hz')
     tare = TareWindow(tare_frames)
     if models is not None:
         models.check_taxels()
@@ -127,6 +131,7 @@ def run_grasp(hand: HandDescription, scene: str | Scene,
     ticks = int(round((scene.duration - settle_seconds) * control_rate))
     n = len(fingers)
     log = {key: np.full((ticks, n, 3), np.nan) for key in ('f_d', 'f_hat', 'f_true')}
+    directions = np.full((ticks, n, 3), np.nan)
     log_t, log_grip = np.zeros(ticks), np.zeros(ticks)
     position, fixture = np.zeros((ticks, 3)), np.zeros(ticks, bool)
     dropped, phase = np.zeros(ticks, bool), np.empty(ticks, dtype=object)
@@ -172,12 +177,13 @@ def run_grasp(hand: HandDescription, scene: str | Scene,
             log['f_d'][tick, i] = finger.desired
             log['f_hat'][tick, i] = finger.estimate
             log['f_true'][tick, i] = sample.finger_forces_base[f]
+            directions[tick, i] = controller.directions[f]
         position[tick] = sample.object_position
         fixture[tick], dropped[tick] = sample.held_by_fixture, sample.dropped
     return GraspTrace(fingers=fingers, t=log_t, grip=log_grip, object_position=position,
                       held_by_fixture=fixture, dropped=dropped, phase=phase.astype(str),
                       command=float(grip),
-                      directions=np.array([controller.directions[f] for f in fingers]),
+                      directions=directions,
                       transitions=transitions, **log)
 
 
@@ -204,9 +210,13 @@ def grasp_metrics(trace: GraspTrace) -> dict:
     t, before = trace.t, trace.held_by_fixture
     released = int((~before).argmax()) if (~before).any() else len(t) - 1
     judged = t >= t[released] + SETTLED_AFTER_HAND_OVER
+    if released == len(t) - 1 or not judged.any():
+        raise ValueError(f'the run ends {t[-1] - t[released]:.2f} s after the hand-over: '
+                         f'nothing to judge (the hold is judged from '
+                         f'{SETTLED_AFTER_HAND_OVER:g} s after it)')
     error = np.linalg.norm(trace.f_d - trace.f_true, axis=2)          # (T, n)
     per_finger = {f: float(error[judged, i].mean()) for i, f in enumerate(trace.fingers)}
-    along = np.einsum('tni,ni->tn', trace.f_true, trace.directions)
+    along = np.einsum('tni,tni->tn', trace.f_true, trace.directions)
     grip_error = float(np.abs(along[judged].mean(axis=1) - trace.grip[judged]).mean())
     peaks = {}
     for i, f in enumerate(trace.fingers):

@@ -131,16 +131,17 @@ def grasp_rows(traces: dict[tuple[str, float, str], list[str]],
 
 def _estimate_gain(traces: list[GraspTrace]) -> dict[str, float | None]:
     """Per finger, the least-squares slope of the estimate's component along d_i over the true
-    force's (while the fixture held the object and the finger pressed): how the model reads
-    this contact (1: as it is)."""
+    force's, while the fixture held the object and the finger pressed it (its true force along
+    d_i at least the law's touch_force): how the model reads this contact (1: as it is)."""
+    touched = controller_config(GRASP_MODEL).touch_force
     gains = {}
     for i, finger in enumerate(traces[0].fingers):
         est, true = [], []
         for tr in traces:
-            d = tr.directions[i]
-            held = tr.held_by_fixture & np.isfinite(tr.f_hat[:, i, 0])
-            est.append(tr.f_hat[held, i] @ d)
-            true.append(tr.f_true[held, i] @ d)
+            along = np.einsum('ti,ti->t', tr.f_true[:, i], tr.directions[:, i])
+            held = tr.held_by_fixture & np.isfinite(tr.f_hat[:, i, 0]) & (along >= touched)
+            est.append(np.einsum('ti,ti->t', tr.f_hat[held, i], tr.directions[held, i]))
+            true.append(along[held])
         est, true = np.concatenate(est), np.concatenate(true)
         power = float(true @ true)
         gains[finger] = float(est @ true / power) if power > 1e-6 else None

@@ -65,12 +65,13 @@ def grasp_tracking(runs: dict, title: str, path: Path) -> Path:
         released = trace.t[(~trace.held_by_fixture).argmax()] if (~trace.held_by_fixture).any() \
             else None
         for i, ax in enumerate(axes[row]):
-            d = trace.directions[i]
-            ax.plot(trace.t, trace.f_d[:, i] @ d, 'k--', lw=1.0, label='desired f_d . d')
+            def along(forces: np.ndarray) -> np.ndarray:
+                return np.einsum('ti,ti->t', forces[:, i], trace.directions[:, i])
+            ax.plot(trace.t, along(trace.f_d), 'k--', lw=1.0, label='desired f_d . d')
             if np.isfinite(trace.f_hat[:, i]).any():
-                ax.plot(trace.t, trace.f_hat[:, i] @ d, color='tab:blue', lw=0.8,
+                ax.plot(trace.t, along(trace.f_hat), color='tab:blue', lw=0.8,
                         label='estimate f_hat . d')
-            ax.plot(trace.t, trace.f_true[:, i] @ d, color='tab:red', lw=1.0,
+            ax.plot(trace.t, along(trace.f_true), color='tab:red', lw=1.0,
                     label='simulated contact f . d')
             if released is not None:
                 ax.axvline(released, color='0.5', lw=0.8, ls=':', label='hand-over')

@@ -33,9 +33,9 @@ def controllers_for(obj: str) -> tuple[str, ...]:
 
 
 ONLINE_MODELS = ('M3-lambda', 'M4')                          # Table II rows
-# The grasp table: objects (config/scenes/grasp_<object>.yaml; one rigid and one soft of each
-# of two shapes) x grip forces, the thumb and index fingertip pinching, the closed loop on
-# M3-lambda against the open loop. The gelatin box's 97 g is refused at 1 N (the controller
+# The grasp table: objects (config/scenes/grasp_<object>.yaml: a rigid and a soft sphere, a
+# rigid cylinder, a soft box) x grip forces, the thumb and index fingertip pinching, the closed
+# loop on M3-lambda against the open loop. The gelatin box's 97 g is refused at 1 N (the controller
 # asks 1.19 N at its assumed friction), so it is not a row.
 GRASP_OBJECTS = ('golf_ball', 'marker', 'tennis_ball', 'foam_brick')
 GRASP_GRIPS = (1.0, 2.0)                                      # N

@@ -5,8 +5,7 @@ A pinch is found by least squares over the fingers' joints (scipy's bounded trus
 solver, the URDF's joint limits as bounds, a fixed set of starting poses so the answer is
 reproducible): the fingertip spheres (`tip_radius`) are the object's width apart, each touching
 the object where its array is centred (the direction from the tip sphere's centre to the
-taxels' mean position). With more than one finger against the thumb each finger is paired with
-it in turn, the thumb kept where the first pair put it.
+taxels' mean position). One fingertip against the thumb (the grasp controller's pinch).
 """
 from __future__ import annotations
 
@@ -46,43 +45,42 @@ def pad(hand: HandDescription, kinematics: HandKinematics, q16: np.ndarray,
 def pinch_pose(hand: HandDescription, kinematics: HandKinematics, fingers: tuple[str, ...],
                width: float, tip_radius: float, rest: np.ndarray, local: bool = False
                ) -> np.ndarray:
-    """q16: `rest` with the thumb and `fingers` (others than the thumb) set to pinch an object
+    """q16: `rest` with the thumb and `fingers` (one other fingertip) set to pinch an object
     `width` m across. `local`: the one pose nearest `rest` (one start, there) instead of the
     best of STARTS. Raises PinchError when no pose within the joint limits does."""
+    if len(fingers) != 1 or fingers[0] == 'thumb':
+        raise PinchError(f'{list(fingers)}: a pinch pairs the thumb with one other fingertip')
     lower, upper = joint_limits(kinematics)
     q = np.asarray(rest, dtype=np.float64).copy()
-    thumb = kinematics.finger_joints('thumb')
+    finger = fingers[0]
+    free = np.r_[np.arange(16)[kinematics.finger_joints(finger)],
+                 np.arange(16)[kinematics.finger_joints('thumb')]]
     rng = np.random.default_rng(0)
-    for number, finger in enumerate(fingers):
-        own = kinematics.finger_joints(finger)
-        free = np.r_[np.arange(16)[own], np.arange(16)[thumb]] if number == 0 \
-            else np.arange(16)[own]
 
-        def residuals(x: np.ndarray) -> np.ndarray:
-            trial = q.copy()
-            trial[free] = x
-            c_f, p_f, _ = pad(hand, kinematics, trial, finger)
-            c_t, p_t, _ = pad(hand, kinematics, trial, 'thumb')
-            axis = (c_t - c_f) / np.linalg.norm(c_t - c_f)
-            return np.concatenate([
-                np.linalg.norm(c_t - c_f) - np.array([2.0 * tip_radius + width]),
-                tip_radius * (axis - _unit(p_f - c_f)),     # touching at the pad's centre
-                tip_radius * (-axis - _unit(p_t - c_t))])
+    def residuals(x: np.ndarray) -> np.ndarray:
+        trial = q.copy()
+        trial[free] = x
+        c_f, p_f, _ = pad(hand, kinematics, trial, finger)
+        c_t, p_t, _ = pad(hand, kinematics, trial, 'thumb')
+        axis = (c_t - c_f) / np.linalg.norm(c_t - c_f)
+        return np.concatenate([
+            np.linalg.norm(c_t - c_f) - np.array([2.0 * tip_radius + width]),
+            tip_radius * (axis - _unit(p_f - c_f)),     # touching at the pad's centre
+            tip_radius * (-axis - _unit(p_t - c_t))])
 
-        best = None
-        for attempt in range(1 if local else STARTS):
-            start = np.clip(q[free], lower[free], upper[free]) if local else \
-                rng.uniform(lower[free], upper[free])
-            fit = least_squares(residuals, start, bounds=(lower[free], upper[free]))
-            if best is None or fit.cost < best.cost:
-                best = fit
-        if np.abs(best.fun).max() > TOLERANCE:
-            raise PinchError(f'the thumb and {finger} cannot hold {width * 1e3:.1f} mm within '
-                             f'their joint limits (worst residual '
-                             f'{np.abs(best.fun).max() * 1e3:.1f} mm)')
-        q[free] = best.x
+    best = None
+    for _ in range(1 if local else STARTS):
+        start = np.clip(q[free], lower[free], upper[free]) if local else \
+            rng.uniform(lower[free], upper[free])
+        fit = least_squares(residuals, start, bounds=(lower[free], upper[free]))
+        if best is None or fit.cost < best.cost:
+            best = fit
+    if np.abs(best.fun).max() > TOLERANCE:
+        raise PinchError(f'the thumb and {finger} cannot hold {width * 1e3:.1f} mm within '
+                         f'their joint limits (worst residual '
+                         f'{np.abs(best.fun).max() * 1e3:.1f} mm)')
+    q[free] = best.x
     return q
-
 
 def _unit(v: np.ndarray) -> np.ndarray:
     return v / np.linalg.norm(v)
@@ -129,7 +127,3 @@ def grasp_poses(hand: HandDescription, kinematics: HandKinematics, fingers: tupl
 
 def _rounded(values: np.ndarray) -> list[float]:
     return [round(float(v), 4) for v in values]
-
-
-def _unit(v: np.ndarray) -> np.ndarray:
-    return v / np.linalg.norm(v)

@@ -36,6 +36,7 @@ class ModelBuild:
 
     def __init__(self, spec: mujoco.MjSpec, finger: str, hand_wide: bool = True) -> None:
         self.spec = spec
+        self.finger = finger
         # A grasp builds one per finger: effects on every joint of the hand act on the first.
         self.hand_wide = hand_wide
         first = 4 * list(FINGER_JOINTS).index(finger)

@@ -123,6 +123,10 @@ class GraspSimulator:
                            for f in self.fingers}
         self.rest = np.asarray(grasp['hand_pose'], np.float64)
         self.gravity = np.asarray(grasp['gravity'], np.float64)
+        if not np.linalg.norm(self.gravity) > 0.0:
+            raise SceneError(f'{scene.name}: grasp.gravity is zero: the object would not need '
+                             'holding, and "up" is not defined')
+        self.down = self.gravity / np.linalg.norm(self.gravity)
         self.held_kp, self.held_kd = float(grasp['others_kp']), float(grasp['others_kd'])
         self.tip_radius = float(grasp['tip_radius'])
         skin_k, skin_c = float(grasp['skin_stiffness']), float(grasp['skin_damping'])
@@ -194,7 +198,7 @@ class GraspSimulator:
         holder = spec.worldbody.add_body(name='grasp_fixture')
         if placement is not None:
             holder.pos, holder.quat = placement
-        fixture = spec.add_equality(type=mujoco.mjtEq.mjEQ_WELD,
+        fixture = spec.add_equality(name='grasp_fixture', type=mujoco.mjtEq.mjEQ_WELD,
                                     objtype=mujoco.mjtObj.mjOBJ_BODY, name1='grasp_object',
                                     name2='grasp_fixture')
         data = np.zeros(len(fixture.data))
@@ -217,7 +221,7 @@ class GraspSimulator:
         self._mass = float(model.body_mass[self.body])
         self._inertia = model.body_inertia[self.body].copy()
         data.qpos[:16] = self._q(self.start_pose)
-        data.eq_active[0] = True
+        data.eq_active[self.weld] = True
         mujoco.mj_forward(model, data)
         self.step_index = 0
         self.fixture = True
@@ -230,6 +234,7 @@ class GraspSimulator:
         model = self.model
         self.data = mujoco.MjData(model)
         self.body = model.body('grasp_object').id
+        self.weld = model.equality('grasp_fixture').id
         for finger, build in zip(self._fingers, builds, strict=True):
             finger.tip = model.body(build.tip_body).id
             finger.radius = self.tip_radius + build.tip_radius_extra
@@ -255,7 +260,7 @@ class GraspSimulator:
                              f'{(gap - 2 * radius) * 1e3:.1f} mm apart, the '
                              f'{self.object.name} is {self.object.width * 1e3:.1f} mm across')
         x_axis = (thumb - others) / gap
-        up = -self.gravity / np.linalg.norm(self.gravity)
+        up = -self.down
         z_axis = up - (up @ x_axis) * x_axis
         z_axis /= np.linalg.norm(z_axis)
         rotation = np.column_stack([x_axis, np.cross(z_axis, x_axis), z_axis])
@@ -310,7 +315,7 @@ class GraspSimulator:
     def release(self) -> None:
         """The fixture lets go of the object (also at `hand_over` s by itself)."""
         self.fixture = False
-        self.data.eq_active[0] = False
+        self.data.eq_active[self.weld] = False
 
     def step(self, joint_torques: np.ndarray | None = None) -> GraspSample:
         data = self.data
@@ -371,7 +376,7 @@ class GraspSimulator:
         state.wrench = np.zeros(6)          # no F/T sensor in a grasp: the fingertips hold it
         self.pipeline.run('delivery', state)
         position = data.xpos[self.body].copy()
-        below = float((position - self.handed_at) @ (self.gravity / np.linalg.norm(self.gravity)))
+        below = float((position - self.handed_at) @ self.down)
         self.dropped = self.dropped or (not self.fixture and below > DROP_DISTANCE)
         self.step_index += 1
         return GraspSample(

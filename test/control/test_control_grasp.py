@@ -68,6 +68,10 @@ def test_each_bad_goal_is_refused_with_its_reason():
         (goal(grip=0.5, mass=0.5), 'cannot carry 0.5 kg'),
         (goal(mass=-1.0), 'must be a number >= 0'),
     ]
+    three = controller(fingers=('thumb', 'index', 'middle'))
+    with pytest.raises(GraspGoalError, match='more than one fingertip against the thumb'):
+        three.start(dataclasses.replace(goal(), fingers=('thumb', 'index', 'middle'), targets={
+            **goal().targets, 'middle': tuple(q[4:8])}), q)
     for bad, reason in cases:
         with pytest.raises(GraspGoalError, match=None) as error:
             grasp.start(bad, q)
@@ -175,6 +179,12 @@ def test_a_stale_fingertip_holds_while_the_other_goes_on():
     assert state.fingers['index'].controller.mode == MODE_HOLD
     assert state.fingers['thumb'].controller.mode == MODE_CLOSED_LOOP
     assert state.phase == PHASE_HOLDING
+    # Neither integrates meanwhile: the thumb's error alone would be the single finger's law.
+    integral = state.fingers['thumb'].controller.integral_error.copy()
+    for k in range(230, 240):
+        _, state = grasp.update(k * DT, q, ZERO16, {'thumb': (0.5 * reads['thumb'], 0.0),
+                                                    'index': (reads['index'], 1.0)}, 0.0)
+    np.testing.assert_array_equal(state.fingers['thumb'].controller.integral_error, integral)
 
 
 def test_a_drop_ends_the_grasp_with_its_reason():
@@ -187,11 +197,45 @@ def test_a_drop_ends_the_grasp_with_its_reason():
     gone = {f: (array_force(q, f, np.zeros(3)), 0.0) for f in ('thumb', 'index')}
     for k in range(200, 205):
         _, state = grasp.update(k * DT, q, ZERO16, gone, 0.0)
-    assert state.phase == PHASE_HOLDING          # 0.05 s: not yet
+    assert state.phase == PHASE_HOLDING          # 0.04 s without a touch: not yet
     for k in range(205, 215):
         _, state = grasp.update(k * DT, q, ZERO16, gone, 0.0)
     assert state.phase == PHASE_DROPPED
     assert state.reason == 'dropped: no finger has felt the object since 2.00 s'
+
+
+def test_a_saturated_finger_stops_both_integrals_so_they_stay_balanced():
+    grasp = controller()
+    q = contact_q()
+    top = max_grip(KIN, q, ('thumb', 'index'), controller()._directions(('thumb', 'index'), q),
+                   np.zeros(3), 0.35)
+    grasp.start(goal(grip=0.95 * top), q)
+    d = grasp._directions(('thumb', 'index'), q)
+    # The estimates read far less than the grip: the integral pushes the torque to its limit.
+    reads = {f: (array_force(q, f, 0.1 * d[f]), 0.0) for f in ('thumb', 'index')}
+    saturated = False
+    for k in range(600):
+        _, state = grasp.update(k * DT, q, ZERO16, reads, 0.0)
+        saturated |= any(s.controller.saturation_scale < 1.0 for s in state.fingers.values())
+    assert saturated
+    np.testing.assert_allclose(state.fingers['thumb'].controller.integral_error,
+                               -state.fingers['index'].controller.integral_error, atol=1e-9)
+
+
+def test_stale_joints_keep_the_grip_line_and_raise_nothing():
+    grasp = controller()
+    q = contact_q()
+    grasp.start(goal(grip=1.0), q)
+    d = grasp._directions(('thumb', 'index'), q)
+    reads = {f: (array_force(q, f, 1.0 * d[f]), 0.0) for f in ('thumb', 'index')}
+    touch_all(grasp, q, {f: v for f, (v, _) in reads.items()})
+    line = {f: v.copy() for f, v in grasp.directions.items()}
+    moved = q.copy()
+    moved[:4] += 0.3
+    tau, state = grasp.update(2.0, moved, ZERO16, reads, 1.0)      # joints 1 s old
+    assert np.all(np.isfinite(tau))
+    for f in line:
+        np.testing.assert_array_equal(grasp.directions[f], line[f])
 
 
 def test_a_rising_tangential_share_raises_the_grip_within_its_bound():

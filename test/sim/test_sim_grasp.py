@@ -69,13 +69,14 @@ def test_the_contact_poses_pinch_the_object_at_its_width(hand, name):
 
 
 def test_a_bad_grasp_field_is_refused_by_name(tmp_path):
-    good = (tmp_path / 'g.yaml')
-    good.write_text('extends: grasp_golf_ball\ngrasp: {fingers: {index: {pose: [0, 0, 0, 0], '
-                    'contact_pose: [0, 0, 0, 0]}}}\n')
-    # The fingers merge with the parent's; a scene naming no thumb is a new file's mistake.
+    fingers = ('grasp: {fingers: {index: {pose: [0, 0, 0, 0], contact_pose: [0, 0, 0, 0]}}}\n')
+    # A child's fingers merge with its parent's (the thumb stays) ...
+    child = tmp_path / 'child.yaml'
+    child.write_text('extends: grasp_golf_ball\n' + fingers)
+    assert list(load_scene(child).grasp['fingers']) == ['thumb', 'index']
+    # ... but a scene naming no thumb at all is refused.
     bad = tmp_path / 'nothumb.yaml'
-    bad.write_text(good.read_text().replace('extends: grasp_golf_ball', 'extends: _grasp\n'
-                                            'grasp_object: golf_ball'))
+    bad.write_text('extends: _grasp\ngrasp_object: golf_ball\n' + fingers)
     with pytest.raises(SceneError, match='must name the thumb'):
         load_scene(bad)
     size = tmp_path / 'size.yaml'
@@ -141,7 +142,12 @@ def test_added_mass_and_a_push_are_opt_in_and_act_when_scheduled(hand):
     heavier = make_simulator(scene_with('grasp_golf_ball', hand_over=0.0, disturbances={
         'added_mass': {'at': 0.05, 'mass': 0.05}}), hand, seed=0)
     body = plain.body
-    for _ in range(100):
+    for _ in range(49):             # 0.049 s: before `at`, the same mass and the same fall
+        plain.step()
+        heavier.step()
+    assert heavier.model.body_mass[body] == plain.model.body_mass[body]
+    np.testing.assert_array_equal(heavier.data.xpos[body], plain.data.xpos[body])
+    for _ in range(51):
         plain.step()
         heavier.step()
     assert heavier.model.body_mass[body] == pytest.approx(plain.model.body_mass[body] + 0.05)
@@ -168,3 +174,8 @@ def test_the_object_model_is_a_free_body_with_the_scene_mass(hand):
     assert body.mass[0] == pytest.approx(0.097)
     joint = sim.model.jnt_type[sim.model.body_jntadr[body.id]]
     assert joint == mujoco.mjtJoint.mjJNT_FREE
+
+
+def test_a_scene_without_gravity_is_refused(hand):
+    with pytest.raises(SceneError, match='gravity is zero'):
+        make_simulator(scene_with('grasp_golf_ball', gravity=[0.0, 0.0, 0.0]), hand, seed=0)

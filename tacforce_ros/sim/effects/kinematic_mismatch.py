@@ -9,6 +9,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from tacforce_ros.rig import FINGERS
 from tacforce_ros.sim.effects import Effect
 
 
@@ -21,13 +22,15 @@ class KinematicMismatch(Effect):
     link_sigma: float = 0.0005     # m, per link origin
 
     def draw_hand(self, rng: np.random.Generator, ctx) -> None:
-        # Origins of the finger's links after its base link (3 links and the tip): the
-        # tolerances of this hand's assembly.
-        self._link_errors = rng.normal(0.0, self.link_sigma, (4, 3))
+        # Origins of each finger's links after its base link (3 links and the tip), in the
+        # hand's finger order: the tolerances of this hand's assembly (the index finger's drawn
+        # first, as when only it was drawn).
+        self._link_errors = rng.normal(0.0, self.link_sigma, (len(FINGERS), 4, 3))
 
     def on_model(self, world) -> None:
         world.tip_radius_extra += self.tip_thickness
-        for body, error in zip(world.finger_bodies()[1:], self._link_errors, strict=True):
+        errors = self._link_errors[FINGERS.index(world.finger)]
+        for body, error in zip(world.finger_bodies()[1:], errors, strict=True):
             body.pos = np.asarray(body.pos) + error
 
 

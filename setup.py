@@ -9,7 +9,8 @@ HERE = Path(__file__).parent
 
 # Installed executables: ROS nodes first, then offline tools (all take --help).
 NODES = ['xela_driver', 'ft_bridge', 'allegro_driver', 'force_controller', 'estimator',
-         'sync_recorder', 'coverage_view', 'command_player', 'sim_world', 'tacforce_container']
+         'sync_recorder', 'coverage_view', 'command_player', 'sim_world', 'tacforce_container',
+         'grasp_controller', 'grasp_client']
 # Offline tools of the runtime (tacforce_ros/tools/): executable -> module.
 TOOLS = {
     'train': 'tools.train',                 # bags/datasets -> model files + report

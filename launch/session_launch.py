@@ -1,13 +1,13 @@
-"""Shared body of calibration.launch.py, closed_loop.launch.py and two_hands_sim.launch.py (needs a
-full ROS 2 install with the launch and launch_ros packages; on this machine `session <mode>` starts
-the same graph).
+"""Shared body of calibration.launch.py, closed_loop.launch.py, grasp.launch.py and
+two_hands_sim.launch.py (needs a full ROS 2 install with the launch and launch_ros packages; on
+this machine `session <mode>` starts the same graph).
 
 The node list, parameter files and overrides come from tacforce_ros.bringup.session_plan, the
 same source the `session` tool reads, and so do the checks of every argument: a bad argument
 ends the launch before any process starts, naming the argument (launch prints "Caught exception
 in launch", exit code 1). A node that exits with an error while the session runs, or does not
 stop cleanly when it is shut down, ends the launch with exit code 1, naming the node; a clean
-shutdown (Ctrl-C, the end of the scene) exits 0.
+shutdown (Ctrl-C, the end of the scene, a simulated grasp's client ending with its result) exits 0.
 robot_state_publisher publishes the package URDF on /tf for RViz; our nodes compute frames from
 the URDF in-process and do not need /tf.
 """
@@ -58,6 +58,15 @@ ONLY = {
         'campaign': ('', 'record the next session this campaign folder has due (its array, '
                      'plate and folder; in simulation its length and seed)'),
     },
+    'grasp': {
+        'model': ('', 'estimator models YAML, with the thumb\'s fingertip and another; empty: '
+                  'config/models/default.yaml'),
+        'object': ('golf_ball', 'sim: the object held, scene grasp_<object> (golf_ball, '
+                   'gelatin_box, marker, tennis_ball, foam_brick)'),
+        'grip': ('1.0', 'grip force (N)'),
+        'hold_time': ('0.0', 'sim: hold this long, then release and end; 0: until the scene '
+                      'ends or Ctrl-C'),
+    },
     'closed_loop': {
         'model': ('', 'estimator models YAML; empty: config/models/default.yaml (the left hand: '
                   'config/models/left/default.yaml)'),
@@ -83,6 +92,9 @@ def session_args(mode: str, value: dict[str, str]) -> SessionArgs:
     text = {**{name: default for name, (default, _) in COMMON.items()},
             **{name: default for only in ONLY.values() for name, (default, _) in only.items()},
             **value}
+    grasp = ({'grasp_object': text['object'], 'grip': launch_number('grip', text['grip']),
+              'hold_time': launch_number('hold_time', text['hold_time'])}
+             if mode == 'grasp' else {})
     return SessionArgs(
         mode='closed_loop' if mode == 'two_hands' else mode, sim=launch_bool('sim', text['sim']),
         hand_side=text['hand_side'], array=text['array'], plate=text['plate'],
@@ -97,7 +109,7 @@ def session_args(mode: str, value: dict[str, str]) -> SessionArgs:
         namespace=text['namespace'], frame_prefix=text['frame_prefix'],
         xela_port=launch_number('xela_port', text['xela_port'], int),
         netft_port=launch_number('netft_port', text['netft_port'], int),
-        can_port=launch_number('can_port', text['can_port'], int))
+        can_port=launch_number('can_port', text['can_port'], int), **grasp)
 
 
 def _actions(context, mode: str):
@@ -106,7 +118,7 @@ def _actions(context, mode: str):
     try:
         # Another session file's argument, given here, would be ignored: refused by name. (Other
         # names may be a including launch file's own, and are left alone.)
-        ours = set(COMMON) | set(ONLY['closed_loop']) | set(ONLY['calibration'])
+        ours = set(COMMON).union(*ONLY.values())
         foreign = sorted(set(context.launch_configurations) & ours - set(declared))
         if foreign:
             raise PlanError(f'{", ".join(foreign)}: not an argument of this launch file (it '
@@ -139,6 +151,10 @@ def _session_actions(args: SessionArgs, nodes):
         # A node that exits with an error ends the launch with exit code 1, naming itself.
         actions.append(RegisterEventHandler(OnProcessExit(
             target_action=action, on_exit=_fail_on_error(node.namespace, node.executable))))
+        if node.finishes:
+            # A client's clean end (a simulated grasp's result) ends the session.
+            actions.append(RegisterEventHandler(OnProcessExit(
+                target_action=action, on_exit=_shutdown_when_finished(node.executable))))
         if node.executable == 'sim_world':
             # The end of the scene (sim_duration): shut down, the drivers before the emulators.
             actions.append(RegisterEventHandler(OnProcessIO(
@@ -192,6 +208,14 @@ def _fail_on_error(namespace: str, name: str):
     return handler
 
 
+def _shutdown_when_finished(name: str):
+    def handler(event, context):
+        if event.returncode == 0 and not context.is_shutdown:
+            return [Shutdown(reason=f'{name} finished')]
+        return None
+    return handler
+
+
 def _shutdown_when_done(event):
     if SCENE_DONE_MARKER.encode() in event.text:
         return [Shutdown(reason='the scene ended (sim_duration)')]
@@ -199,7 +223,7 @@ def _shutdown_when_done(event):
 
 
 def session_launch_description(mode: str) -> LaunchDescription:
-    """calibration, closed_loop, or two_hands (two simulated closed-loop hands)."""
+    """calibration, closed_loop, grasp, or two_hands (two simulated closed-loop hands)."""
     return LaunchDescription(
         [DeclareLaunchArgument(name, default_value=default, description=text)
          for name, (default, text) in arguments(mode).items()]

@@ -52,7 +52,7 @@ export PATH="$VENV/bin:$PATH" CMAKE_PREFIX_PATH="$VENV" AMENT_PREFIX_PATH="$VENV
 COLCON=(colcon --log-base "$ROOT/build/log" build --build-base "$ROOT/build" --install-base "$VENV"
         --merge-install)
 
-MSG_HASH=$(hash_of "$ROOT"/msg/package.xml "$ROOT"/msg/CMakeLists.txt "$ROOT"/msg/*.msg "$ROOT"/msg/srv/*.srv)
+MSG_HASH=$(hash_of "$ROOT"/msg/package.xml "$ROOT"/msg/CMakeLists.txt "$ROOT"/msg/*.msg "$ROOT"/msg/srv/*.srv "$ROOT"/msg/action/*.action)
 if ! stamp_ok msgs "$MSG_HASH"; then
     log "building interfaces tacforce_msgs (about 20 s)"
     "${COLCON[@]}" --base-paths "$ROOT/msg" --packages-select tacforce_msgs \

@@ -19,6 +19,10 @@ TOPIC_MARKERS = '/tactile/markers'
 # Closed-loop sessions also carry the command and the controller's ticks.
 TOPIC_DESIRED = '/force_controller/desired'
 TOPIC_CONTROLLER_STATE = '/force_controller/state'
+# Grasp sessions: the grasp controller's ticks (one ControllerState per fingertip, base frame)
+# and the simulated object's pose.
+TOPIC_GRASP_STATE = '/grasp_controller/state'
+TOPIC_SIM_OBJECT = '/sim/object_pose'
 # Joint torques for the hand driver (sensor_msgs/JointState: name and effort), from any controller.
 TOPIC_TORQUE_COMMAND = '/allegro_driver/torque_command'
 # Health of the device links (diagnostic_msgs/DiagnosticArray), where ROS tools look for it.
@@ -37,6 +41,8 @@ TOPIC_QOS = {
     TOPIC_SAMPLE: RELIABLE,
     TOPIC_DESIRED: RELIABLE,
     TOPIC_CONTROLLER_STATE: RELIABLE,
+    TOPIC_GRASP_STATE: RELIABLE,
+    TOPIC_SIM_OBJECT: SENSOR,
     TOPIC_TORQUE_COMMAND: RELIABLE,
     TOPIC_DIAGNOSTICS: RELIABLE,
 }

@@ -24,7 +24,7 @@ from tacforce_ros.paths import config_dir, ros_home
 from tacforce_ros.sim.scene import (SceneError, calibration_scene_name, closed_loop_scene_name,
                                     load_scene)
 
-MODES = ('calibration', 'closed_loop')
+MODES = ('calibration', 'closed_loop', 'grasp')
 NAMESPACE = re.compile(r'(/[A-Za-z_][A-Za-z0-9_]*)+')
 
 # Default device ports of the hardware; in simulation sim_world serves the emulators on these
@@ -62,6 +62,7 @@ class NodeLaunch:
     parts: tuple[NodeLaunch, ...] = ()
     namespace: str = ''               # '' : the root namespace
     remappings: tuple[tuple[str, str], ...] = ()
+    finishes: bool = False            # a client: its clean exit ends the session (its result)
 
     def ros_args(self) -> list[str]:
         """Command-line arguments giving the node exactly these parameters, namespace and
@@ -89,9 +90,10 @@ CONTAINER = 'tacforce_container'
 
 
 def composed(nodes: list[NodeLaunch]) -> list[NodeLaunch]:
-    """The same nodes with every one but the simulator in one tacforce_container process (the
-    simulator stands for the hardware, which is not composed with its drivers)."""
-    devices = [n for n in nodes if n.executable == 'sim_world']
+    """The same nodes with every one but the simulator and a client in one tacforce_container
+    process (the simulator stands for the hardware, which is not composed with its drivers; a
+    client's end is the session's, not the container's)."""
+    devices = [n for n in nodes if n.executable == 'sim_world' or n.finishes]
     return devices + [NodeLaunch(CONTAINER, parts=tuple(n for n in nodes if n not in devices))]
 
 
@@ -104,6 +106,9 @@ class SessionArgs:
     hand_side: str = DEFAULT_SIDE
     array: str = 'index_tip'
     plate: str = 'spherical'           # push-plate (calibration) or object (closed loop)
+    grasp_object: str = 'golf_ball'    # grasp: the object held (sim: scene grasp_<object>)
+    grip: float = 1.0                  # grasp: grip force (N)
+    hold_time: float = 0.0             # grasp: s to hold, then release; 0: until the end
     scene: str = ''                    # empty: derived from mode, array and plate
     model_config: str = ''             # estimator models YAML; empty: the params file's
     sequence: str = ''                 # closed loop: force command sequence (a name in
@@ -132,6 +137,8 @@ class SessionArgs:
             return self.scene
         if self.mode == 'calibration':
             return calibration_scene_name(self.array, self.plate)
+        if self.mode == 'grasp':
+            return f'grasp_{self.grasp_object}'
         return closed_loop_scene_name(self.array, self.plate)
 
 
@@ -154,12 +161,13 @@ def launch_number(name: str, text: str, kind: type = float) -> float | int:
 
 
 # What only one mode, or only simulation, reads: refused where it would be ignored.
-ONLY_FOR_MODE = {'model_config': 'closed_loop', 'sequence': 'closed_loop',
-                 'campaign': 'calibration'}
+ONLY_FOR_MODE = {'model_config': ('closed_loop', 'grasp'), 'sequence': ('closed_loop',),
+                 'campaign': ('calibration',), 'grasp_object': ('grasp',), 'grip': ('grasp',),
+                 'hold_time': ('grasp',)}
 SIM_ONLY = ('scene', 'real_time_factor', 'lockstep', 'sim_duration', 'seed', 'xela_port',
-            'netft_port', 'can_port')
+            'netft_port', 'can_port', 'grip', 'hold_time')
 # The launch files' names of SessionArgs fields that differ from them.
-ARGUMENT_NAMES = {'model_config': 'model'}
+ARGUMENT_NAMES = {'model_config': 'model', 'grasp_object': 'object'}
 PLATE_NAME = re.compile(r'[a-z][a-z0-9_]*')
 
 
@@ -168,10 +176,10 @@ def check_arguments(args: SessionArgs, hand: Any) -> None:
     other mode or for simulation alone, an array the hand does not have, a plate name that cannot
     name a bag, a port out of range."""
     defaults = {f.name: f.default for f in dataclasses.fields(SessionArgs)}
-    for name, mode in ONLY_FOR_MODE.items():
-        if getattr(args, name) != defaults[name] and args.mode != mode:
-            raise PlanError(f'{ARGUMENT_NAMES.get(name, name)}: only a {mode} session reads it; '
-                            f'this is a {args.mode} session')
+    for name, modes in ONLY_FOR_MODE.items():
+        if getattr(args, name) != defaults[name] and args.mode not in modes:
+            raise PlanError(f'{ARGUMENT_NAMES.get(name, name)}: only a {" or ".join(modes)} '
+                            f'session reads it; this is a {args.mode} session')
     if not args.sim:
         given = [name for name in SIM_ONLY if getattr(args, name) != defaults[name]]
         if given:
@@ -185,6 +193,12 @@ def check_arguments(args: SessionArgs, hand: Any) -> None:
     if not PLATE_NAME.fullmatch(args.plate):
         raise PlanError(f'plate: {args.plate!r} is not a plate name (lower-case letters, digits '
                         'and _, as the bags are named after it)')
+    if not PLATE_NAME.fullmatch(args.grasp_object):
+        raise PlanError(f'object: {args.grasp_object!r} is not an object name (lower-case '
+                        'letters, digits and _)')
+    if not (args.grip > 0 and args.hold_time >= 0):
+        raise PlanError(f'grip {args.grip} N, hold_time {args.hold_time} s: the grip must be '
+                        'above 0 and the hold time at least 0')
     if not args.real_time_factor > 0:
         raise PlanError(f'real_time_factor: {args.real_time_factor} must be above 0')
     ports = {'xela_port': args.xela_port, 'netft_port': args.netft_port,
@@ -323,6 +337,47 @@ def two_hands(args: SessionArgs) -> list[SessionArgs]:
             for side, (xela, netft, can) in TWO_HANDS_PORTS.items()]
 
 
+def grasp_model_config(args: SessionArgs, hand: Any) -> str:
+    """The estimator's models of a grasp session, which must model the thumb's fingertip (every
+    grasp opposes the thumb) and another."""
+    models_yaml = args.model_config or str(default_model_config(hand))
+    try:
+        models = model_files(models_yaml)
+    except ModelConfigError as exc:
+        raise PlanError(f'model: {exc}') from None
+    tips = [f'{f}_tip' for f in ('thumb', 'index', 'middle', 'ring') if f'{f}_tip' in models]
+    if 'thumb_tip' not in tips or len(tips) < 2:
+        raise PlanError(f'model: {models_yaml} models {tips or "no fingertip"}; a grasp needs '
+                        'the thumb\'s fingertip and another')
+    return models_yaml
+
+
+def grasp_nodes(args: SessionArgs, scene: Any, models_yaml: str, common: dict, hand_param: dict,
+                framed: dict, managed: dict, allegro: dict) -> list[NodeLaunch]:
+    """A grasp session's estimator, hand driver and grasp_controller; in simulation also the
+    grasp_client that sends the scene's goal at its `goal_at` (on the hardware, goals come from
+    the user: `grasp_client` with their targets, or their own action client). In simulation the
+    hand is mounted as the scene has it (its gravity for the driver's holds and the law's)."""
+    mount = ({'gravity': [float(v) for v in scene.grasp['gravity']]}
+             if scene is not None else {})
+    nodes = [
+        NodeLaunch('estimator', (params_file('estimator'),), {
+            **common, **hand_param, **framed,
+            'tare_file': str(tare_file(args.session_id, args.namespace)),
+            **({'model_config': args.model_config} if args.model_config else {})}),
+        NodeLaunch('allegro_driver', (params_file('allegro_driver'),),
+                   {**common, **managed, **hand_param, **allegro, **mount, 'control': 'torque'}),
+        NodeLaunch('grasp_controller', (params_file('grasp_controller'),),
+                   {**common, **hand_param, **framed, **mount, 'model_config': models_yaml})]
+    if scene is not None:
+        nodes.append(NodeLaunch('grasp_client', (params_file('grasp_client'),), {
+            **common, **hand_param, **mount, 'scene': args.scene_name(),
+            'fingers': list(scene.grasp['fingers']), 'grip_force': float(args.grip),
+            'object_mass': -1.0, 'hold_time': float(args.hold_time),
+            'start_time': float(scene.grasp['goal_at'])}, finishes=True))
+    return nodes
+
+
 def plan(args: SessionArgs) -> list[NodeLaunch]:
     """The nodes of one session, in start order (the clock source first); `args` with a
     campaign are campaign_session's."""
@@ -345,6 +400,8 @@ def plan(args: SessionArgs) -> list[NodeLaunch]:
     description = load_hand(hand)
     check_arguments(args, description)
     loop = fingertip_loop(args, description) if args.mode == 'closed_loop' else None
+    grasp_models = grasp_model_config(args, description) if args.mode == 'grasp' else ''
+    scene = None
     if args.sim:
         try:
             scene = load_scene(args.scene_name())     # before any node starts, not in sim_world
@@ -352,7 +409,7 @@ def plan(args: SessionArgs) -> list[NodeLaunch]:
             raise PlanError(f'scene: {exc}') from exc
         if scene.kind != args.mode:
             raise PlanError(f'scene {scene.name!r} is a {scene.kind} scene, not {args.mode}')
-        if scene.array not in {a.name for a in description.arrays}:
+        if args.mode != 'grasp' and scene.array not in {a.name for a in description.arrays}:
             raise PlanError(f'scene {scene.name!r} presses {scene.array!r}, not an array of the '
                             f'{description.side} hand')
     if args.sequence:
@@ -386,9 +443,14 @@ def plan(args: SessionArgs) -> list[NodeLaunch]:
     # A finger whose pad faces another way pushes on the rig mounted for it: {F} is that frame.
     rig = ({'frame_id': loop.rig_frame}
            if loop is not None and loop.rig_frame != description.ft_frame else {})
-    nodes.append(NodeLaunch('ft_bridge', (params_file('ft_bridge'),),
-                            {**common, **managed, **framed, **sim_devices['netft'], **rig}))
-    if args.mode == 'calibration':
+    if args.mode != 'grasp':     # a grasp has no F/T sensor: the truth is the skin's own
+        nodes.append(NodeLaunch('ft_bridge', (params_file('ft_bridge'),),
+                                {**common, **managed, **framed, **sim_devices['netft'],
+                                 **rig}))
+    if args.mode == 'grasp':
+        nodes += grasp_nodes(args, scene, grasp_models, common, hand_param, framed, managed,
+                             sim_devices['allegro'])
+    elif args.mode == 'calibration':
         # The operator moves the hand: joint states only, no torque commands.
         nodes.append(NodeLaunch('allegro_driver', (params_file('allegro_driver'),),
                                 {**common, **managed, **hand_param,
@@ -419,7 +481,8 @@ def plan(args: SessionArgs) -> list[NodeLaunch]:
     # of simulated F/T readings on a loaded host: DDS discovery).
     recorder = NodeLaunch('sync_recorder', (params_file('sync_recorder'),), {
         **common, **hand_param, 'output_dir': args.out, 'array': args.array,
-        'plate': args.plate, 'source': 'sim' if args.sim else 'lab', 'autostart': True,
+        'plate': args.grasp_object if args.mode == 'grasp' else args.plate,
+        'source': 'sim' if args.sim else 'lab', 'autostart': True,
         **({'scene': args.scene_name(), 'seed': args.seed} if args.sim else {})})
     nodes.insert(1 if args.sim else 0, recorder)
     if args.namespace:

@@ -71,6 +71,16 @@ from tacforce_ros.control.force_controller import (ControllerState, ForceControl
                                                    Kinematics)
 from tacforce_ros.rig import FINGERS, finger_torque_limits
 
+
+def _param(default, description: str):
+    """A configuration field with its description (the node's parameter help reads it)."""
+    return field(default=default, metadata={'help': description})
+
+
+# The single finger's q_d lies 0.2 rad past the plate on each flexion joint, four times the
+# 0.05 rad its start pose is clear of it (config/params/force_controller.yaml): the same here.
+THROUGH = 4.0
+
 PHASE_IDLE = 'idle'           # no goal
 PHASE_CLOSING = 'closing'     # some finger has not touched yet
 PHASE_RAMPING = 'ramping'     # every finger touched; some grip still ramping
@@ -86,19 +96,24 @@ class GraspGoalError(ValueError):
 class GraspConfig:
     """What the grasp adds to each finger's law (SI units, forces in the hand's base frame)."""
 
-    gravity: tuple[float, float, float] = (0.0, 0.0, -9.81)  # m/s^2, base frame (the mount)
-    force_rate: float = 2.0        # N/s: g_i from the touch to the grip
-    grip_min: float = 0.3          # N: below it a grip is lost in the estimate's noise
-    friction: float = 0.5          # skin on an unknown surface, the low end (assumed)
-    slip_margin: float = 0.8       # share of the friction cone a goal may load (refusal)
+    gravity: tuple[float, float, float] = _param(
+        (0.0, 0.0, -9.81), 'gravity in the hand base frame (m/s^2), from the mounting')
+    force_rate: float = _param(2.0, 'rate of each grip from the touch to the command (N/s)')
+    grip_min: float = _param(0.3, 'smallest grip a goal may ask (N): below it a grip is lost '
+                             'in the estimate\'s noise')
+    friction: float = _param(0.5, 'skin on an unknown surface, the low end (assumed): the '
+                             'grip a goal\'s mass needs')
+    slip_margin: float = _param(0.8, 'share of the friction cone a goal\'s weight may load')
     # A rise of the unasked tangential share over its baseline that is a slip. 0.2 raised the
     # grip on a still tennis ball to the joints' limit (magnetic skin, 1 N, seed 0: the noise of
     # the thumb's estimate); a load that outgrows a pinch runs the share up to the friction
     # limit, about 0.5 above the weight share at 1 N.
-    slip_rise: float = 0.3
-    slip_window: float = 0.5       # s: the share's low-pass, and the wait for its baseline
-    slip_rate: float = 1.0         # N/s
-    drop_time: float = 0.1         # s of no contact at every finger: dropped
+    slip_rise: float = _param(0.3, 'rise of a finger\'s unasked tangential share over its '
+                              'baseline that is a slip')
+    slip_window: float = _param(0.5, 'low-pass of the tangential share, and the wait for its '
+                                'baseline (s)')
+    slip_rate: float = _param(1.0, 'rate the grip rises at while the object slips (N/s)')
+    drop_time: float = _param(0.1, 'no contact at every finger this long is a drop (s)')
 
     def __post_init__(self) -> None:
         gravity = np.asarray(self.gravity, dtype=np.float64)
@@ -148,6 +163,40 @@ class GraspState:
     fingers: dict[str, FingerGraspState]
     transitions: list[str] = field(default_factory=list)
     reason: str = ''
+
+
+def finger_configs(base: ForceControllerConfig, hand, fingers: Iterable[str]
+                   ) -> dict[str, ForceControllerConfig]:
+    """Each finger's law for a grasp: `base` on that fingertip (its own gains where its links
+    differ, ForceControllerConfig.pressing_with), forces in the hand's base frame."""
+    return {f: base.pressing_with(hand.array(f'{f}_tip'), hand.base_frame) for f in fingers}
+
+
+def approach_targets(poses: Mapping[str, tuple[np.ndarray, np.ndarray]], kinematics: Kinematics,
+                     lower: np.ndarray, upper: np.ndarray, through: float = THROUGH
+                     ) -> dict[str, tuple[float, ...]]:
+    """Each finger's joint target from its start pose and the pose where it touches the object
+    (finger -> (start, contact), 4 angles each): past the contact by `through` times the way
+    from the start to it, within the joint limits (16 each, lower and upper): the approach
+    closes through the object, as the single finger's q_d lies past the plate."""
+    targets = {}
+    for finger, (start, contact) in poses.items():
+        start, contact = np.asarray(start, np.float64), np.asarray(contact, np.float64)
+        joints = kinematics.finger_joints(finger)
+        target = np.clip(contact + through * (contact - start), lower[joints], upper[joints])
+        targets[finger] = tuple(float(v) for v in target)
+    return targets
+
+
+def grip_directions(pad_centre, fingers: Iterable[str], q16: np.ndarray
+                    ) -> dict[str, np.ndarray]:
+    """Each finger's d_i at q16: the unit vector from its tip (pad_centre(q16, finger), base
+    frame) toward the grasp's centre, midway between the thumb's tip and the others' mean."""
+    fingers = tuple(fingers)
+    tips = {f: np.asarray(pad_centre(q16, f), np.float64) for f in fingers}
+    others = np.mean([tips[f] for f in fingers if f != 'thumb'], axis=0)
+    centre = 0.5 * (tips['thumb'] + others)
+    return {f: (centre - tips[f]) / np.linalg.norm(centre - tips[f]) for f in fingers}
 
 
 def max_grip(kinematics: Kinematics, q16: np.ndarray, fingers: Iterable[str],
@@ -396,11 +445,7 @@ class GraspController:
     # ------------------------------------------------------------------ geometry
 
     def _directions(self, fingers: Iterable[str], q16: np.ndarray) -> dict[str, np.ndarray]:
-        fingers = tuple(fingers)
-        tips = {f: np.asarray(self.pad_centre(q16, f), np.float64) for f in fingers}
-        others = np.mean([tips[f] for f in fingers if f != 'thumb'], axis=0)
-        centre = 0.5 * (tips['thumb'] + others)
-        return {f: (centre - tips[f]) / np.linalg.norm(centre - tips[f]) for f in fingers}
+        return grip_directions(self.pad_centre, fingers, q16)
 
     def _weight_share(self, goal: GraspGoal) -> np.ndarray:
         return -goal.mass * np.asarray(self.config.gravity) / len(goal.fingers)

@@ -17,10 +17,10 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from tacforce_ros.control.grasp import GraspConfig, GraspController, GraspGoal
+from tacforce_ros.control.grasp import (THROUGH, GraspConfig, GraspController, GraspGoal,
+                                        approach_targets)
 from tacforce_ros.estimation.model_set import TareWindow
-from tacforce_ros.experiments.closed_loop import (SETTLE_SECONDS, CommandLink, control_period,
-                                                 steps_per_tick)
+from tacforce_ros.experiments.closed_loop import CommandLink, control_period, steps_per_tick
 from tacforce_ros.hand.kinematics import HandKinematics
 from tacforce_ros.hand.pinch import joint_limits, pad
 from tacforce_ros.rig import RATE_HZ
@@ -66,45 +66,30 @@ class GraspTrace:
         return cls(**values)
 
 
-# The single finger's q_d lies 0.2 rad past the plate on each flexion joint, four times the
-# 0.05 rad its start pose is clear of it (config/params/force_controller.yaml): the same here.
-THROUGH = 4.0
-
-
 def grasp_targets(scene: Scene, kinematics: HandKinematics, through: float = THROUGH
                   ) -> dict[str, tuple[float, ...]]:
-    """Each finger's joint target: past its contact pose by `through` times the way from its
-    start pose to it, within the joint limits (the approach closes through the object, as the
-    single finger's q_d lies past the plate)."""
+    """Each finger's joint target for the scene's grasp (control.grasp.approach_targets from its
+    start and contact poses)."""
     lower, upper = joint_limits(kinematics)
-    targets = {}
-    for finger, poses in scene.grasp['fingers'].items():
-        start, contact = np.asarray(poses['pose']), np.asarray(poses['contact_pose'])
-        joints = kinematics.finger_joints(finger)
-        target = np.clip(contact + through * (contact - start), lower[joints], upper[joints])
-        targets[finger] = tuple(float(v) for v in target)
-    return targets
-
-
-def grasp_configs(base: ForceControllerConfig, hand: HandDescription, fingers: tuple[str, ...]
-                  ) -> dict[str, ForceControllerConfig]:
-    """Each finger's law for a grasp: `base` on that fingertip (its own gains where its links
-    differ, ForceControllerConfig.pressing_with), forces in the hand's base frame."""
-    return {f: base.pressing_with(hand.array(f'{f}_tip'), hand.base_frame) for f in fingers}
+    poses = {f: (p['pose'], p['contact_pose']) for f, p in scene.grasp['fingers'].items()}
+    return approach_targets(poses, kinematics, lower, upper, through)
 
 
 def run_grasp(hand: HandDescription, scene: str | Scene,
               seed: int, configs: dict[str, ForceControllerConfig], models: ModelSet | None,
               grip: float, grasp_config: GraspConfig | None = None, mass: float | None = None,
               control_rate: float = RATE_HZ, tare_frames: int = 50,
-              settle_seconds: float = SETTLE_SECONDS,
+              settle_seconds: float | None = None,
               estimator_outage: dict[str, tuple[float, float]] | None = None) -> GraspTrace:
     """One grasp of the scene's object at `grip` N. configs: each finger's law (open loop: k_i
     = 0, models may then be None). mass: the goal's (default the scene object's: the operator
     knows what it hands over). estimator_outage: finger -> (start, end) s with no estimate.
+    settle_seconds: the start-pose hold before the goal (default the scene's `goal_at`).
     The controller's kinematics take the scene's gravity (the hand's mount).
     """
     scene = scene if isinstance(scene, Scene) else load_scene(scene)
+    if settle_seconds is None:
+        settle_seconds = float(scene.grasp['goal_at'])
     sim = make_simulator(scene, hand, seed=seed)
     gravity = tuple(float(v) for v in scene.grasp['gravity'])
     kinematics = HandKinematics.for_hand(hand, gravity=gravity)

@@ -10,12 +10,10 @@ import numpy as np
 import yaml
 
 from tacforce_ros.control.force_controller import shipped_params_file
-from tacforce_ros.control.grasp import GraspController
+from tacforce_ros.control.grasp import GraspController, finger_configs
 from tacforce_ros.experiments.cache import (atomic_write, digest, file_digest, scene_digest,
                                             source_digest)
-from tacforce_ros.experiments.closed_loop import SETTLE_SECONDS
-from tacforce_ros.experiments.grasp import (GraspTrace, grasp_configs, grasp_metrics,
-                                            run_grasp)
+from tacforce_ros.experiments.grasp import GraspTrace, grasp_metrics, run_grasp
 from tacforce_ros.experiments.settings import (GRASP_CONTROLLERS, GRASP_FINGERS, GRASP_MODEL,
                                                Context, controller_config, hand_digest,
                                                scene_for, tare_frames)
@@ -47,7 +45,7 @@ def job_grasp(scene: str, seed: int, controller: str, model_config: str | None, 
     from tacforce_ros.estimation.model_set import load_model_set
     hand, _ = worker_hand()
     models = None if model_config is None else load_model_set(model_config, hand)
-    configs = grasp_configs(controller_config(controller), hand, GRASP_FINGERS)
+    configs = finger_configs(controller_config(controller), hand, GRASP_FINGERS)
     trace = run_grasp(hand, scene, seed, configs, models, grip, tare_frames=tare_frames())
     atomic_write(target, lambda tmp: np.savez(tmp, **trace.arrays()))
     return target
@@ -182,4 +180,5 @@ def grasp_figures(traces: dict, out: Path) -> list[str]:
 
 def hand_over_after_goal(obj: str) -> float:
     """s from the goal to the hand-over in the grasp scene of `obj`."""
-    return float(load_scene(f'grasp_{obj}').grasp['hand_over']) - SETTLE_SECONDS
+    grasp = load_scene(f'grasp_{obj}').grasp
+    return float(grasp['hand_over']) - float(grasp['goal_at'])

@@ -11,6 +11,7 @@ import numpy as np
 
 from tacforce_ros.control.command_sequence import ForceSequence
 from tacforce_ros.control.force_controller import shipped_params_file
+from tacforce_ros.control.grasp import finger_configs
 from tacforce_ros.estimation.causal_filter import BatchLowPass
 from tacforce_ros.estimation.model_set import load_model_set
 from tacforce_ros.rig import HELD_OUT_PLATE
@@ -19,14 +20,16 @@ from tacforce_ros.experiments.cache import (digest, file_digest,
                                             node_modules, scene_digest, source_digest,
                                             tool_modules)
 from tacforce_ros.experiments.closed_loop import run_closed_loop
+from tacforce_ros.experiments.grasp import run_grasp
 from tacforce_ros.hand.description import load_hand
 from tacforce_ros.hand.kinematics import HandKinematics
 from tacforce_ros.paths import config_dir
 from tacforce_ros.sim import load_scene
 from tacforce_ros.sim.scene import calibration_scene_name, session_seed
 from tacforce_ros.experiments.estimation_stages import model_config_file
-from tacforce_ros.experiments.settings import (Context, controller_config, controllers_for,
-                                             hand_digest, scene_for, tare_frames)
+from tacforce_ros.experiments.settings import (GRASP_FINGERS, GRASP_MODEL, Context,
+                                               controller_config, controllers_for,
+                                               hand_digest, scene_for, tare_frames)
 from tacforce_ros.experiments.workers import job_closed_loop, run_units, worker_hand
 
 
@@ -102,8 +105,9 @@ def filtered_closed_loop_stage(ctx: Context, models: dict, end_to_end: dict) -> 
             'group_delay_ms': best['group_delay_ms'], 'traces': paths}
 
 
-def node_path_stage(ctx: Context, models: dict) -> dict:
-    """One calibration session and one closed-loop run (M3-lambda, spherical plate) through the
+def node_path_stage(ctx: Context, models: dict, grasp_models: Path) -> dict:
+    """One calibration session, one closed-loop run (M3-lambda, spherical plate) and one grasp
+    (the first grasp object at the first grip, the grasp's models `grasp_models`) through the
     node graph, each compared with the direct path on the same scene and seed. Cached like the
     other stages; a failure is recorded with its reason, never replaced by direct results."""
     s = ctx.settings
@@ -116,12 +120,17 @@ def node_path_stage(ctx: Context, models: dict) -> dict:
     hand, kinematics = worker_hand()
     calibration_scene = scene_for(ctx, calibration_scene_name('index_tip', HELD_OUT_PLATE))
     loop_scene = scene_for(ctx, 'closed_loop_spherical')
+    grasp_object, grip = s.grasp_objects[0], s.grasp_grips[0]
+    grasp_scene = scene_for(ctx, f'grasp_{grasp_object}')
     model = models['index_tip']['M3-lambda']
-    key = digest({'scenes': [scene_digest(calibration_scene), scene_digest(loop_scene)],
-                  'model': Path(model).stem,
+    key = digest({'scenes': [scene_digest(calibration_scene), scene_digest(loop_scene),
+                             scene_digest(grasp_scene)],
+                  'model': Path(model).stem, 'grasp_models': file_digest(grasp_models),
+                  'grasp': [grasp_object, grip],
                   'code': source_digest(node_path.run_session, *session_modules,
                                         node_path.closed_loop_against_direct,
-                                        node_path.bag_check, run_closed_loop,
+                                        node_path.grasp_against_direct,
+                                        node_path.bag_check, run_closed_loop, run_grasp,
                                         *node_modules()),
                   'inputs': file_digest(*sorted((config_dir() / 'params').glob('*.yaml')),
                                         config_dir() / 'commands' / f'{s.sequence}.yaml')})
@@ -152,6 +161,16 @@ def node_path_stage(ctx: Context, models: dict) -> dict:
         np.savez(work / 'closed_loop_traces.npz',
                  **{f'node_{k}': v for k, v in trace.arrays().items()},
                  **{f'direct_{k}': v for k, v in direct.arrays().items()})
+        ctx.log(f'stage node path: grasp of the {grasp_object} at {grip:g} N '
+                f'({load_scene(grasp_scene).duration:g} s simulated)')
+        result['grasp'], grasp_trace, grasp_direct, bag = node_path.grasp_against_direct(
+            hand, kinematics, grasp_scene, load_scene(grasp_scene).seed, grasp_models, grip,
+            work / 'grasp', finger_configs(controller_config(GRASP_MODEL), hand, GRASP_FINGERS),
+            tare_frames())
+        result['grasp_bag'] = node_path.bag_check(bag)
+        np.savez(work / 'grasp_traces.npz',
+                 **{f'node_{k}': v for k, v in grasp_trace.arrays().items()},
+                 **{f'direct_{k}': v for k, v in grasp_direct.arrays().items()})
     except (node_path.NodePathUnavailable, OSError, ValueError) as exc:
         result.update(ran=False, reason=str(exc))
         ctx.log(f'stage node path: did not complete: {exc}')

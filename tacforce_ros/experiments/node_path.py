@@ -24,11 +24,12 @@ from tacforce_ros.experiments.closed_loop import (METRIC_WINDOW, ClosedLoopTrace
 from tacforce_ros.bringup.session_plan import SESSION_SCENE_ENDED
 
 if TYPE_CHECKING:
+    from tacforce_ros.experiments.grasp import GraspTrace
     from tacforce_ros.hand.description import HandDescription
     from tacforce_ros.hand.kinematics import HandKinematics
 
 AGREEMENT_N = {'calibration_e_hat': 0.05, 'closed_loop_e_tilde': 0.08,
-               'closed_loop_e_track': 0.03}
+               'closed_loop_e_track': 0.03, 'grasp_finger_e_tilde': 0.08}
 AGREEMENT_REASON = (
     'Calibration e_hat: the node graph moves the streams through sockets and DDS, whose '
     'delivery jitter of a few ms shifts tactile, F/T and joint streams against each other; at '
@@ -81,12 +82,14 @@ def _free_ports(count: int) -> list[int]:
 def run_session(mode: str, scene: str, plate: str, out: Path, sim_duration: float,
                 model_config: Path | None = None, seed: int | None = None,
                 lockstep: bool = True, crash: tuple[str, float, float] | None = None,
-                compose: bool = False, sequence: str | None = None) -> Path:
+                compose: bool = False, sequence: str | None = None,
+                extra: tuple[str, ...] = ()) -> Path:
     """Run the `session` tool once until its scene has run `sim_duration` simulated seconds
     (seed None: the scene's own; lockstep False: free-running at real time; crash: the
     session's fault drill, node, at and down wall seconds; compose: the nodes in one process;
-    sequence: the closed loop's force command sequence, None: the command player's default);
-    return the bag folder it recorded. Its output is kept in `out`/session.log."""
+    sequence: the closed loop's force command sequence, None: the command player's default;
+    extra: more of the tool's arguments, e.g. a grasp's); return the bag folder it recorded.
+    Its output is kept in `out`/session.log."""
     try:
         session_exe = executable('session')
     except FileNotFoundError as error:
@@ -107,6 +110,7 @@ def run_session(mode: str, scene: str, plate: str, out: Path, sim_duration: floa
         command.append('--compose')
     if sequence is not None:
         command += ['--sequence', sequence]
+    command += list(extra)
     env = dict(os.environ)
     env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
     # A domain of our own, so DDS traffic of other processes on this host stays out.
@@ -278,3 +282,106 @@ def compare_closed_loop(node: ClosedLoopTrace, direct: ClosedLoopTrace, offset: 
                       e_track_tolerance_n=AGREEMENT_N['closed_loop_e_track'],
                       agree=result['agree'] and track <= AGREEMENT_N['closed_loop_e_track'])
     return result
+
+
+# --- a grasp ---------------------------------------------------------------------------------
+
+def grasp_node_trace(bag: Path, hand: HandDescription, kinematics: HandKinematics, scene: str,
+                     grip: float) -> GraspTrace:
+    """A grasp session's run as experiments/grasp.py's GraspTrace, from its bag: each
+    fingertip's f_d and f_hat from grasp_controller's ticks (/grasp_controller/state, base frame;
+    f_hat where fresh), its contact force from the simulator's truth (/sim/contact_force in
+    the fingertip's {S0}: the newest frame at each tick, turned into the base frame at the
+    tick's joint angles), d_i from the tick's joint angles (control.grasp.grip_directions),
+    the object's position (/sim/object_pose) and what the simulator judges of it: held by the
+    fixture before the scene's hand-over, dropped once DROP_DISTANCE below where it was then.
+    t = 0 is the goal's first tick. The grip asked is the goal's (a raise on slip is in the
+    action's feedback, not in the bag)."""
+    from tacforce_ros import bagio, topics
+    from tacforce_ros.control.grasp import grip_directions
+    from tacforce_ros.experiments.grasp import GraspTrace
+    from tacforce_ros.hand.pinch import pad
+    from tacforce_ros.sim import load_scene
+    from tacforce_ros.sim.grasp import DROP_DISTANCE
+    spec = load_scene(scene)
+    fingers = tuple(spec.grasp['fingers'])
+    frames = {hand.array(f'{f}_tip').frame_id: f for f in fingers}
+    ticks: dict[float, dict] = {}
+    truth: dict[str, list] = {f: [] for f in fingers}
+    pose = []
+    for topic, _, msg in bagio.read_messages(bag, [topics.TOPIC_GRASP_STATE,
+                                                   topics.TOPIC_SIM_CONTACT,
+                                                   topics.TOPIC_SIM_OBJECT]):
+        t = _seconds(msg.header.stamp)
+        if topic == topics.TOPIC_GRASP_STATE:
+            ticks.setdefault(t, {})[msg.finger] = msg
+        elif topic == topics.TOPIC_SIM_CONTACT:
+            if msg.header.frame_id in frames:
+                truth[frames[msg.header.frame_id]].append((t, *_xyz(msg.wrench.force)))
+        else:
+            p = msg.pose.position
+            pose.append((t, p.x, p.y, p.z))
+    stamps = sorted(t for t, states in ticks.items() if set(states) == set(fingers))
+    if len(stamps) < 2 or not pose or not all(truth.values()):
+        raise NodePathUnavailable(f'{bag}: {len(stamps)} grasp ticks, {len(pose)} object '
+                                  f'poses, truth {[len(v) for v in truth.values()]}: not a '
+                                  'grasp run')
+    n, count = len(fingers), len(stamps)
+    f_d, f_hat, f_true, directions = (np.full((count, n, 3), np.nan) for _ in range(4))
+    truth_arrays = {f: np.asarray(sorted(v)) for f, v in truth.items()}
+    for k, t in enumerate(stamps):
+        q16 = np.zeros(16)
+        for f in fingers:
+            q16[kinematics.finger_joints(f)] = ticks[t][f].q
+        d = grip_directions(lambda q, f: pad(hand, kinematics, q, f)[0], fingers, q16)
+        for i, f in enumerate(fingers):
+            state = ticks[t][f]
+            f_d[k, i] = _xyz(state.desired_force)
+            if state.estimate_fresh:
+                f_hat[k, i] = _xyz(state.estimated_force)
+            rows = truth_arrays[f]
+            newest = max(int(np.searchsorted(rows[:, 0], t, side='right')) - 1, 0)
+            rotation = kinematics.rotation_between(q16, hand.array(f'{f}_tip').frame_id,
+                                                   hand.base_frame)
+            f_true[k, i] = np.asarray(rotation) @ rows[newest, 1:]
+            directions[k, i] = d[f]
+    poses = np.asarray(sorted(pose))
+    position = np.column_stack([np.interp(stamps, poses[:, 0], poses[:, c]) for c in (1, 2, 3)])
+    scene_t = np.asarray(stamps)
+    held = scene_t < float(spec.grasp['hand_over'])
+    down = np.asarray(spec.grasp['gravity'], np.float64)
+    down /= np.linalg.norm(down)
+    released = int((~held).argmax()) if (~held).any() else count - 1
+    below = (position - position[released]) @ down
+    dropped = np.maximum.accumulate(~held & (below > DROP_DISTANCE))
+    return GraspTrace(fingers=fingers, t=scene_t - scene_t[0], f_d=f_d, f_hat=f_hat,
+                      f_true=f_true, directions=directions, grip=np.full(count, float(grip)),
+                      object_position=position, held_by_fixture=held, dropped=dropped,
+                      phase=np.full(count, ''), command=float(grip))
+
+
+def grasp_against_direct(hand: HandDescription, kinematics: HandKinematics, scene: str,
+                         seed: int, model_config: Path, grip: float, out: Path, configs: dict,
+                         tare_frames: int) -> tuple[dict, GraspTrace, GraspTrace, Path]:
+    """One grasp of `scene` at `grip` N in-process (experiments/grasp.py) and through the node
+    graph (`session grasp`, into `out`), same seed and models (the shipped gains: `configs`,
+    each fingertip's law as the grasp_controller node builds it): returns the comparison, the
+    node and direct traces, and the node run's bag."""
+    from tacforce_ros.experiments.grasp import grasp_metrics, run_grasp
+    from tacforce_ros.sim import load_scene
+    spec = load_scene(scene)
+    direct = run_grasp(hand, scene, seed, configs, load_model_set(model_config, hand), grip,
+                       tare_frames=tare_frames)
+    obj = spec.grasp_object.name
+    bag = run_session('grasp', scene, obj, out, spec.duration, model_config, seed=seed,
+                      extra=('--object', obj, '--grip', f'{grip:g}'))
+    trace = grasp_node_trace(bag, hand, kinematics, scene, grip)
+    node_m, direct_m = grasp_metrics(trace), grasp_metrics(direct)
+    difference = abs(node_m['finger_error_mean_n'] - direct_m['finger_error_mean_n'])
+    tolerance = AGREEMENT_N['grasp_finger_e_tilde']
+    compared = {'object': obj, 'grip_n': grip, 'seed': seed, 'node': node_m, 'direct': direct_m,
+                'difference_n': difference, 'tolerance_n': tolerance,
+                'agree': bool(difference <= tolerance and not node_m['dropped']
+                              and not direct_m['dropped']),
+                'exit_codes': session_exit_codes(out)}
+    return compared, trace, direct, bag

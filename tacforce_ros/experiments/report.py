@@ -319,6 +319,19 @@ def node_path_section(node: dict, tolerance_reason: str) -> list[str]:
                   f"{cell(loop['direct']['e_tilde_mean'], digits=3)} | "
                   f"{cell(loop['difference_n'], digits=3)} | {cell(loop['tolerance_n'], digits=3)}"
                   f" | {'yes' if loop['difference_n'] <= loop['tolerance_n'] else 'NO'} |"]
+        grasp = node.get('grasp')
+        if grasp is not None:
+            n, d = grasp['node'], grasp['direct']
+            lines += [f"| grasp, {grasp['object']} at {grasp['grip_n']:g} N, one run: per-finger "
+                      f"e~ [N] (drops node / direct: {int(n['dropped'])} / {int(d['dropped'])}"
+                      f"; first touch {cell(max(n['peak_over_command'].values()))} / "
+                      f"{cell(max(d['peak_over_command'].values()))}; slip "
+                      f"{cell(n['slip_mm'], digits=1)} / {cell(d['slip_mm'], digits=1)} mm) | "
+                      f"{cell(n['finger_error_mean_n'], digits=3)} | "
+                      f"{cell(d['finger_error_mean_n'], digits=3)} | "
+                      f"{cell(grasp['difference_n'], digits=3)} | "
+                      f"{cell(grasp['tolerance_n'], digits=3)} | "
+                      f"{'yes' if grasp['agree'] else 'NO'} |"]
         if 'e_track_difference_n' in loop:
             track, track_tolerance = loop['e_track_difference_n'], loop['e_track_tolerance_n']
             lines += [f"| closed loop (1)-M3λ, one run: e_track [N] | "
@@ -327,22 +340,25 @@ def node_path_section(node: dict, tolerance_reason: str) -> list[str]:
                       f"{cell(track, digits=3)} | {cell(track_tolerance, digits=3)} | "
                       f"{'yes' if track <= track_tolerance else 'NO'} |"]
         lines += ['', f"Tolerance: {tolerance_reason}", '']
-        if all('exit_codes' in node[part] for part in ('calibration', 'closed_loop')):
-            unclean = [(name, unclean_exits(node[part]['exit_codes'])) for part, name in
-                       (('calibration', 'calibration'), ('closed_loop', 'closed-loop'))]
-            lines += ['Every node of both sessions ended cleanly when its session stopped it: '
+        parts = [(part, name) for part, name in (('calibration', 'calibration'),
+                                                  ('closed_loop', 'closed-loop'),
+                                                  ('grasp', 'grasp')) if part in node]
+        if all('exit_codes' in node[part] for part, _ in parts):
+            unclean = [(name, unclean_exits(node[part]['exit_codes'])) for part, name in parts]
+            lines += ['Every node of every session ended cleanly when its session stopped it: '
                       + ('yes' if not any(codes for _, codes in unclean) else 'NO: ' + '; '.join(
                           f'{part} session ' + ', '.join(f'{name} exit code {code}'
                                                          for name, code in codes.items())
                           for part, codes in unclean if codes)
                          + f" (negative: killed by that signal; logs in {node.get('work_dir')})"),
                       '']
-        bag = node.get('closed_loop_bag')
-        if bag is not None:
-            lines += [f"The closed-loop run's bag: {bag['files']} MCAP file(s), "
-                      f"{bag['messages']} messages; messages per topic by its metadata.yaml, "
-                      "rosbags and Foxglove's mcap reader agree: "
-                      f"{'yes' if bag['agree'] else 'NO: ' + str(bag['counts'])}", '']
+        for key, name in (('closed_loop_bag', 'closed-loop'), ('grasp_bag', 'grasp')):
+            bag = node.get(key)
+            if bag is not None:
+                lines += [f"The {name} run's bag: {bag['files']} MCAP file(s), "
+                          f"{bag['messages']} messages; messages per topic by its metadata.yaml,"
+                          " rosbags and Foxglove's mcap reader agree: "
+                          f"{'yes' if bag['agree'] else 'NO: ' + str(bag['counts'])}", '']
     return lines
 
 
@@ -360,8 +376,9 @@ def grasp_section(grasp: dict | None) -> list[str]:
              "First touch: the worst fingertip's peak contact force before the hand-over over "
              "its command. Slip: mm the object moved from the hand-over to the end. Estimate "
              "gain: the estimate along d_i over the contact force along it, per finger, while "
-             "the fixture held the object (1: the model reads this contact as it is). The node "
-             "graph has no grasp yet.", '',
+             "the fixture held the object (1: the model reads this contact as it is). One "
+             "grasp through the node graph (grasp_controller's Grasp action): \"Node graph "
+             "against direct path\" below.", '',
              '| object | grip [N] | runs | drops | e~ per finger [N] | open loop [N] '
              '| reduction | single finger [N] | grip error [N] | first touch / command '
              '| slip [mm] mean / max | open-loop slip [mm] | grip raised to [N] '

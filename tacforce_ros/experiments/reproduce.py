@@ -130,9 +130,9 @@ def run(settings: Settings, out: Path, jobs: int) -> dict:
         plain = traces.get((HELD_OUT_PLATE, 'M3-lambda'))
         filtered = None if plain is None else \
             loop.filtered_closed_loop_stage(ctx, models, end_to_end)
-        grasp_traces = grasp.grasp_stage(ctx, grasp.grasp_model_config(ctx, models,
-                                                                       whole_hand_models))
-    node = loop.node_path_stage(ctx, models)
+        grasp_models = grasp.grasp_model_config(ctx, models, whole_hand_models)
+        grasp_traces = grasp.grasp_stage(ctx, grasp_models)
+    node = loop.node_path_stage(ctx, models, grasp_models)
     closed = {key: trace_metrics([load_trace(p) for p in paths])
               for key, paths in traces.items()}
     filter_effect = None if filtered is None else report.filter_closed_loop(

@@ -42,7 +42,7 @@ from tacforce_ros.nodes.parameters import (FRAME_PREFIX, GRAVITY, HAND_CONFIG, P
 from tacforce_ros.nodes.qos import publisher_qos, subscriber_qos
 from tacforce_ros.nodes.realtime import REALTIME_PRIORITY
 from tacforce_ros.nodes.runner import run_node
-from tacforce_ros.nodes.messages import stamp, stamp_ns, vector3
+from tacforce_ros.nodes.messages import controller_state, stamp, stamp_ns
 from tacforce_ros.rig import RATE_HZ
 from tacforce_ros.topics import (TOPIC_CONTROLLER_STATE, TOPIC_DESIRED, TOPIC_ESTIMATES,
                                  TOPIC_JOINTS, TOPIC_TORQUE_COMMAND, relative)
@@ -50,11 +50,14 @@ from tacforce_ros.topics import (TOPIC_CONTROLLER_STATE, TOPIC_DESIRED, TOPIC_ES
 CONTROLLER_GROUP = 'force_controller'
 
 
-def _controller_parameters() -> tuple[ParamSpec, ...]:
-    """force_controller.* parameters, defaults from ForceControllerConfig (one source)."""
+def controller_parameters(leave_out: tuple[str, ...] = ()) -> tuple[ParamSpec, ...]:
+    """force_controller.* parameters, defaults from ForceControllerConfig (one source), but for
+    the fields in `leave_out` (set otherwise by a node that drives several fingers)."""
     defaults = ForceControllerConfig()
     specs = []
     for f in fields(ForceControllerConfig):
+        if f.name in leave_out:
+            continue
         value = getattr(defaults, f.name)
         value = [float(v) for v in value] if isinstance(value, tuple) else value
         specs.append(ParamSpec(f'{CONTROLLER_GROUP}.{f.name}', value, f.metadata['help']))
@@ -72,7 +75,7 @@ class ForceControllerNode(TacforceNode):
         ParamSpec('estimate_array', 'index_tip', 'array whose estimate closes the loop'),
         GRAVITY,
         REALTIME_PRIORITY,
-    ) + _controller_parameters()
+    ) + controller_parameters()
 
     def __init__(self, **node_options) -> None:
         super().__init__(**node_options)
@@ -182,25 +185,10 @@ class ForceControllerNode(TacforceNode):
         command = JointState(name=self.joint_names, effort=tau.tolist())
         command.header.stamp = stamp(now)
         self.torque_publisher.publish(command)
-        self.state_publisher.publish(self._state_message(now, state, q, qdot))
-
-    def _state_message(self, now: int, state, q: np.ndarray, qdot: np.ndarray
-                       ) -> ControllerState:
         joints = self.session.joints
-        msg = ControllerState(finger=self.session.config.finger, mode=state.mode,
-                              desired_force=vector3(state.desired_force),
-                              estimated_force=vector3(state.estimated_force),
-                              integral_error=vector3(state.integral_error),
-                              q=q[joints].tolist(), qdot=qdot[joints].tolist(),
-                              tau_cmd=state.tau_cmd.tolist(),
-                              saturation_scale=float(state.saturation_scale),
-                              estimate_fresh=state.estimate_fresh,
-                              estimate_age=state.estimate_age,
-                              joints_fresh=state.joints_fresh)
-        msg.header.stamp = stamp(now)
-        msg.header.frame_id = self.frame(self.session.config.force_frame)
-        return msg
-
+        self.state_publisher.publish(controller_state(
+            now, self.frame(self.session.config.force_frame), self.session.config.finger, state,
+            q[joints], qdot[joints]))
 
 def main(args: list[str] | None = None) -> None:
     sys.exit(run_node(ForceControllerNode, args))

@@ -14,7 +14,7 @@ from builtin_interfaces.msg import Time
 from geometry_msgs.msg import Vector3, Wrench, WrenchStamped
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Header
-from tacforce_msgs.msg import TactileArray, TactileHand
+from tacforce_msgs.msg import ControllerState, TactileArray, TactileHand
 
 from tacforce_ros import message_build as build
 from tacforce_ros.hand.description import HandDescription
@@ -76,3 +76,23 @@ def flat_counts(msg: TactileHand, hand: HandDescription) -> np.ndarray:
         counts[spec.flat_indices] = np.column_stack([np.asarray(item.x), np.asarray(item.y),
                                                      np.asarray(item.z)])
     return counts
+
+
+def controller_state(ns: int, frame_id: str, finger: str, state, q: np.ndarray,
+                     qdot: np.ndarray) -> ControllerState:
+    """One finger's control tick (control/force_controller.py's ControllerState, forces in
+    `frame_id`) as tacforce_msgs/ControllerState; q and qdot: that finger's joints."""
+    msg = ControllerState(finger=finger, mode=state.mode,
+                          desired_force=vector3(state.desired_force),
+                          estimated_force=vector3(state.estimated_force),
+                          integral_error=vector3(state.integral_error),
+                          q=np.asarray(q, np.float64).tolist(),
+                          qdot=np.asarray(qdot, np.float64).tolist(),
+                          tau_cmd=np.asarray(state.tau_cmd, np.float64).tolist(),
+                          saturation_scale=float(state.saturation_scale),
+                          estimate_fresh=bool(state.estimate_fresh),
+                          estimate_age=float(state.estimate_age),
+                          joints_fresh=bool(state.joints_fresh))
+    msg.header.stamp = stamp(ns)
+    msg.header.frame_id = frame_id
+    return msg

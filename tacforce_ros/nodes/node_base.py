@@ -66,6 +66,7 @@ class TacforceNode(Node):
         super().__init__(self.NODE_NAME, **kwargs)
         # Set by SIGINT/SIGTERM (run_nodes shares its own): waits at start-up give up on it.
         self.stop_event = StopFlag()
+        self.exit_code = 0          # finish() sets it: the process's exit code when it ends
         self.samples_before_clock = 0
         self._clock_seen = False
         self.same_stamp: dict[str, int] = {}
@@ -183,6 +184,12 @@ class TacforceNode(Node):
     def on_built(self) -> None:
         """Called once by run_node right after building the node, before spinning (a managed
         driver's autostart)."""
+
+    def finish(self, code: int) -> None:
+        """End the process after this callback (a node whose job is done, e.g. a client with
+        its result), with exit code `code` (run_nodes takes the highest of its nodes')."""
+        self.exit_code = max(self.exit_code, int(code))
+        self.stop_event.set()
 
     def leave_safe(self) -> None:
         """Leave hardware and files safe; called once by run_node before the node is destroyed.

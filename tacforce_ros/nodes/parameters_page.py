@@ -14,7 +14,8 @@ from tacforce_ros.nodes.parameters import ParamSpec
 
 # Nodes in the order a session starts them (tacforce_container composes these, with no own).
 NODE_MODULES = ('sim_world', 'xela_driver', 'ft_bridge', 'allegro_driver', 'estimator',
-                'force_controller', 'command_player', 'sync_recorder', 'coverage_view')
+                'force_controller', 'command_player', 'grasp_controller', 'grasp_client',
+                'sync_recorder', 'coverage_view')
 PAGE = Path(__file__).resolve().parents[2] / 'docs' / 'PARAMETERS.md'
 
 

@@ -153,6 +153,7 @@ def run_nodes(parts: Sequence[tuple[type[TacforceNode], Sequence[str] | None]],
             # Short spin slices: a signal only sets `stop`, which is seen within 0.1 s.
             while not stop.is_set() and rclpy.ok():
                 spinner.spin_once(timeout_sec=0.1)
+            code = max([code, *(node.exit_code for node in nodes)])
         except Exception as exc:    # noqa: BLE001 - report, still leave things safe below
             logger.fatal(f'stopped by an error: {type(exc).__name__}: {exc}')
             code = EXIT_FAILURE

@@ -36,7 +36,10 @@ the driver, which opens the hand only once its clock is, acts from the first sim
 
 With `publish_clock` it is the /clock source (rosgraph_msgs/Clock, simulated time, every
 1/`clock_rate_hz` simulated seconds); it runs on wall time itself. /sim/contact_force carries the
-simulator's ground truth (WrenchStamped in the array frame {S0}) at the tactile rate. Service
+simulator's ground truth (WrenchStamped in the array frame {S0}) at the tactile rate; in a grasp
+scene one per fingertip (each in its own {S0}), and /sim/object_pose the object's pose
+(PoseStamped, base frame), which closes the loop through grasp_controller: lockstep gates on
+/grasp_controller/state, each fingertip's wrench and the joints. Service
 ~/pause_tactile (std_srvs/SetBool): true stops the xela_server emulator (the server disappears,
 as when it crashes), false brings it back on the same port.
 """
@@ -47,7 +50,7 @@ import threading
 from dataclasses import replace
 
 import numpy as np
-from geometry_msgs.msg import WrenchStamped
+from geometry_msgs.msg import PoseStamped, WrenchStamped
 from rclpy.clock import Clock as RclpyClock
 from rclpy.clock import ClockType
 from rosgraph_msgs.msg import Clock
@@ -71,8 +74,9 @@ from tacforce_ros.sim.emulators.base import Pacer
 from tacforce_ros.sim.emulators.netft import NetFtEmulator
 from tacforce_ros.sim.emulators.xela_server import XelaServerEmulator
 from tacforce_ros.sim.lockstep import RealTimeMeter, TimeGate
-from tacforce_ros.topics import (TOPIC_CONTROLLER_STATE, TOPIC_JOINTS, TOPIC_SAMPLE,
-                                 TOPIC_SIM_CONTACT, array_wrench_topic, relative)
+from tacforce_ros.topics import (TOPIC_CONTROLLER_STATE, TOPIC_GRASP_STATE, TOPIC_JOINTS,
+                                 TOPIC_SAMPLE, TOPIC_SIM_CONTACT, TOPIC_SIM_OBJECT,
+                                 array_wrench_topic, relative)
 
 # /clock as rosgraph's own publishers offer it: best effort, keep-last 1 (only the newest matters).
 CLOCK_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT,
@@ -94,6 +98,10 @@ def lockstep_streams(scene) -> tuple[dict[str, type], dict[str, type], dict[str,
     learn its period first let time run free while the estimator caught up after its tare
     (bench_graph's fault run: estimates stale for 0.1 s right after the tare)."""
     frame_period = 1.0 / scene.tactile_rate
+    if scene.kind == 'grasp':
+        wrenches = {array_wrench_topic(f'{f}_tip'): WrenchStamped for f in scene.grasp['fingers']}
+        return ({TOPIC_GRASP_STATE: ControllerState, **wrenches}, {TOPIC_JOINTS: JointState},
+                dict.fromkeys(wrenches, frame_period))
     if scene.kind == 'closed_loop':
         wrench = array_wrench_topic(scene.array)
         return ({TOPIC_CONTROLLER_STATE: ControllerState, wrench: WrenchStamped},
@@ -149,7 +157,7 @@ class SimWorld(TacforceNode):
             raise ParameterError(f'scene: {exc}') from None
         scene = self.sim.scene
         self.array = self.hand.array(scene.array)
-        self.takes_torques = scene.kind == 'closed_loop'
+        self.takes_torques = scene.kind in ('closed_loop', 'grasp')
         rtf = p['real_time_factor']
         self._torques = np.zeros(16)
         self._latest = self._step()
@@ -161,6 +169,9 @@ class SimWorld(TacforceNode):
                                 if p['publish_clock'] else None)
         self.truth_publisher = self.create_publisher(WrenchStamped, relative(TOPIC_SIM_CONTACT),
                                                      publisher_qos(TOPIC_SIM_CONTACT))
+        self.object_publisher = (self.create_publisher(PoseStamped, relative(TOPIC_SIM_OBJECT),
+                                                       publisher_qos(TOPIC_SIM_OBJECT))
+                                 if scene.kind == 'grasp' else None)
         # The emulator may poll at twice the frame rate: _tactile_frame waits for the next fresh
         # simulated frame, so the simulator (not the wall clock) sets the tactile rate.
         self.xela = XelaServerEmulator(self._tactile_frame, port=p['xela_port'],
@@ -282,15 +293,33 @@ class SimWorld(TacforceNode):
             if steps % self._clock_every == 0:
                 self._publish_clock(now_ns)
             if sample.tactile_fresh:
-                self.truth_publisher.publish(wrench_stamped(
-                    now_ns if self.clock_publisher is not None else self.now_ns(),
-                    self.frame(self.hand.array(sample.pressed_array).frame_id
-                               if sample.pressed_array else self.array.frame_id),
-                    sample.true_force))
+                self._publish_truth(sample, now_ns if self.clock_publisher is not None
+                                    else self.now_ns())
             if sample.t + dt >= stop_at - 0.5 * dt:
                 self._scene_done = True
                 self.get_logger().info(f'{SCENE_DONE_MARKER} {self._summary()}')
                 return
+
+    def _publish_truth(self, sample, t_ns: int) -> None:
+        """The contact force on the pressed array (a grasp: on each fingertip, in its own
+        frame) and, in a grasp, the object's pose in the base frame."""
+        if self.sim.scene.kind != 'grasp':
+            self.truth_publisher.publish(wrench_stamped(
+                t_ns, self.frame(self.hand.array(sample.pressed_array).frame_id
+                                 if sample.pressed_array else self.array.frame_id),
+                sample.true_force))
+            return
+        for finger, force in sample.finger_forces.items():
+            self.truth_publisher.publish(wrench_stamped(
+                t_ns, self.frame(self.hand.array(f'{finger}_tip').frame_id), force))
+        pose = PoseStamped()
+        pose.header.stamp = stamp(t_ns)
+        pose.header.frame_id = self.frame(self.hand.base_frame)
+        position, quaternion = sample.object_position, sample.object_quaternion
+        pose.pose.position.x, pose.pose.position.y, pose.pose.position.z = map(float, position)
+        (pose.pose.orientation.w, pose.pose.orientation.x, pose.pose.orientation.y,
+         pose.pose.orientation.z) = map(float, quaternion)
+        self.object_publisher.publish(pose)
 
     # --- achieved real-time factor ------------------------------------------------------------
 

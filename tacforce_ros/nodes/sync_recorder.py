@@ -6,7 +6,8 @@ three raw streams and the synchronised /calibration/sample stream (approximate t
 publishes. It also writes, as they arrive, the closed-loop streams when a graph publishes them:
 /force_controller/desired (f_d), /force_controller/state (the controller's every tick) and the
 simulator's ground truth /sim/contact_force, so a closed-loop bag carries command, estimate and
-truth on the one clock; it subscribes to /force_controller/desired only once it records all
+truth on the one clock (a grasp's: /grasp_controller/state, the truth per fingertip and
+/sim/object_pose); it subscribes to /force_controller/desired only once it records all
 three input streams, so a command_player that waits for it starts when the bag has everything.
 Bag layout and session metadata: docs/CONTRACTS.md. The bag is what `ros2 bag record -s mcap`
 writes (one MCAP file unless `max_bag_size` or `max_bag_duration` splits it); an MCAP chunk ends
@@ -30,7 +31,7 @@ import sys
 import time
 from pathlib import Path
 
-from geometry_msgs.msg import Vector3Stamped, WrenchStamped
+from geometry_msgs.msg import PoseStamped, Vector3Stamped, WrenchStamped
 from rclpy.clock import Clock, ClockType
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
@@ -44,15 +45,17 @@ from tacforce_ros.nodes.parameters import HAND_CONFIG, ParamSpec, ParameterError
 from tacforce_ros.nodes.qos import publisher_qos, subscriber_qos
 from tacforce_ros.nodes.runner import run_node
 from tacforce_ros.recording.synchroniser import ApproximateTimeSynchroniser
-from tacforce_ros.topics import (TOPIC_CONTROLLER_STATE, TOPIC_DESIRED, TOPIC_JOINTS,
-                                 TOPIC_SAMPLE, TOPIC_SIM_CONTACT, TOPIC_TACTILE, TOPIC_WRENCH,
-                                 relative)
+from tacforce_ros.topics import (TOPIC_CONTROLLER_STATE, TOPIC_DESIRED, TOPIC_GRASP_STATE,
+                                 TOPIC_JOINTS, TOPIC_SAMPLE, TOPIC_SIM_CONTACT, TOPIC_SIM_OBJECT,
+                                 TOPIC_TACTILE, TOPIC_WRENCH, relative)
 
 INPUTS = (TOPIC_TACTILE, TOPIC_WRENCH, TOPIC_JOINTS)   # synchroniser input order
 # Written as received, outside the samples: present only when the graph publishes them.
 PASSTHROUGH = {TOPIC_DESIRED: (Vector3Stamped, 'geometry_msgs/msg/Vector3Stamped'),
                TOPIC_CONTROLLER_STATE: (ControllerState, 'tacforce_msgs/msg/ControllerState'),
-               TOPIC_SIM_CONTACT: (WrenchStamped, TOPIC_TYPES[TOPIC_SIM_CONTACT])}
+               TOPIC_SIM_CONTACT: (WrenchStamped, TOPIC_TYPES[TOPIC_SIM_CONTACT]),
+               TOPIC_GRASP_STATE: (ControllerState, 'tacforce_msgs/msg/ControllerState'),
+               TOPIC_SIM_OBJECT: (PoseStamped, 'geometry_msgs/msg/PoseStamped')}
 BAG_TOPICS = {**TOPIC_TYPES, **{topic: name for topic, (_, name) in PASSTHROUGH.items()}}
 # Best-effort like every sensor consumer, but a deep history: a busy CPU must not cost samples
 # (depth 5 lost ~20 % here under load); 200 = 2 s of tactile frames, 0.2 s of wrench at 1 kHz.

@@ -363,7 +363,7 @@ def _grasp_object(raw: dict, where: str) -> GraspObject:
 
 
 GRASP_FIELDS = {'gravity': 3, 'hand_pose': 16, 'others_kp': 0, 'others_kd': 0, 'tip_radius': 0,
-                'skin_stiffness': 0, 'skin_damping': 0, 'hand_over': 0}
+                'skin_stiffness': 0, 'skin_damping': 0, 'goal_at': 0, 'hand_over': 0}
 
 
 def _grasp(raw: dict, where: str) -> dict[str, Any]:

@@ -1,9 +1,10 @@
-"""session: run a calibration or closed-loop session without `ros2 launch`.
+"""session: run a calibration, closed-loop or grasp session without `ros2 launch`.
 
 Starts the same executables with the same parameter files and argument-derived overrides as
 launch/<mode>.launch.py (both read tacforce_ros.bringup.session_plan), waits for Ctrl-C,
 `--duration` seconds (wall time), the end of the scene (`--sim-duration` simulated seconds:
-sim_world then logs session_plan.SCENE_DONE_MARKER) or for a node to exit, then stops every node
+sim_world then logs session_plan.SCENE_DONE_MARKER) or for a node to exit (a simulated grasp's
+grasp_client ending cleanly, with its goal's result, is the session's end), then stops every node
 cleanly: SIGINT, wait `--grace` s, then kill. Prints where the bag is. Exit code 0 when every
 node stopped cleanly, 1 otherwise (the log of each node is under <out>/logs/).
 
@@ -22,6 +23,7 @@ the killed process.
     session calibration --scene calibration_index_tip_flat --array index_tip --plate flat \\
         --out bags --duration 120
     session closed_loop --scene closed_loop_spherical --model config/models/default.yaml
+    session grasp --object tennis_ball --grip 2 --sim-duration 11
 """
 from __future__ import annotations
 
@@ -129,6 +131,7 @@ def run(args: SessionArgs, duration: float | None, grace: float,
     previous = {sig: signal.signal(sig, lambda *_: stop.update(requested=True))
                 for sig in (signal.SIGINT, signal.SIGTERM)}
     procs = start_nodes(nodes, log_dir)
+    finishing = {n.executable for n in nodes if n.finishes}
     print(f'session {args.mode}: started {", ".join(name for name, _ in procs)} '
           f'(logs in {log_dir})', flush=True)
     started = time.monotonic()
@@ -148,6 +151,11 @@ def run(args: SessionArgs, duration: float | None, grace: float,
             exited = first_exited([(name, proc) for name, proc in procs
                                    if not (drill is not None and drill.is_down(name))])
             exited_early = exited[0] if exited else None
+            if exited_early in finishing and exited[1] == 0:
+                print(f'session: {exited_early} finished (see {log_dir}/{exited_early}.log)',
+                      flush=True)
+                exited_early = None
+                break
             if exited_early:
                 print(f'session: {exited_early} exited early (code {exited[1]}); see '
                       f'{log_dir}/{exited_early}.log', file=sys.stderr)
@@ -180,7 +188,13 @@ def main(argv: list[str] | None = None) -> None:
                         '(index_tip, middle_tip, ring_tip or thumb_tip)')
     parser.add_argument('--plate', default='spherical', help='push-plate or object')
     parser.add_argument('--scene', default='', help='sim scene (default from mode/array/plate)')
-    parser.add_argument('--model', default='', help='estimator models YAML (closed_loop)')
+    parser.add_argument('--model', default='',
+                        help='estimator models YAML (closed_loop, grasp)')
+    parser.add_argument('--object', default='golf_ball',
+                        help='grasp: the object held (simulation: scene grasp_<object>)')
+    parser.add_argument('--grip', type=float, default=1.0, help='grasp: grip force (N)')
+    parser.add_argument('--hold-time', type=float, default=0.0,
+                        help='grasp: hold this long, then release (s); 0: until the end')
     parser.add_argument('--sequence', default='',
                         help='force command sequence (closed_loop): a name in config/commands/ '
                         'or a YAML path (default: command_player.yaml\'s, paper_70s)')
@@ -235,6 +249,7 @@ def main(argv: list[str] | None = None) -> None:
     os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     sys.exit(run(SessionArgs(mode=a.mode, sim=not a.hardware, hand_side=a.hand_side,
                              array=a.array, plate=a.plate, scene=a.scene,
+                             grasp_object=a.object, grip=a.grip, hold_time=a.hold_time,
                              model_config=a.model, sequence=a.sequence, out=str(a.out),
                              real_time_factor=a.real_time_factor, lockstep=a.lockstep,
                              sim_duration=a.sim_duration, seed=a.seed, compose=a.compose,

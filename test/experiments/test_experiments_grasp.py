@@ -6,8 +6,9 @@ import numpy as np
 import pytest
 
 from tacforce_ros.control.force_controller import ForceControllerConfig, shipped_params_file
+from tacforce_ros.control.grasp import finger_configs
 from tacforce_ros.estimation.model_set import default_model_config, load_model_set
-from tacforce_ros.experiments.grasp import grasp_configs, grasp_metrics, run_grasp
+from tacforce_ros.experiments.grasp import grasp_metrics, run_grasp
 from tacforce_ros.hand.description import load_hand
 
 HAND = load_hand()
@@ -19,9 +20,9 @@ FINGERS = ('thumb', 'index')
 def golf_ball():
     """The golf ball at 1 N, seed 0, on the empirical skin of the scene file with the shipped
     models (trained on it): closed loop and open loop."""
-    closed = run_grasp(HAND, 'grasp_golf_ball', 0, grasp_configs(BASE, HAND, FINGERS),
+    closed = run_grasp(HAND, 'grasp_golf_ball', 0, finger_configs(BASE, HAND, FINGERS),
                        load_model_set(default_model_config(HAND), HAND), 1.0)
-    opened = run_grasp(HAND, 'grasp_golf_ball', 0, grasp_configs(
+    opened = run_grasp(HAND, 'grasp_golf_ball', 0, finger_configs(
         dataclasses.replace(BASE, k_i=(0.0, 0.0, 0.0)), HAND, FINGERS), None, 1.0)
     return grasp_metrics(closed), grasp_metrics(opened), closed
 
@@ -47,7 +48,7 @@ def test_the_run_goes_closing_ramping_holding_and_logs_the_touches(golf_ball):
 
 def test_a_fingertip_whose_estimator_stops_holds_and_the_object_stays(golf_ball):
     _, _, reference = golf_ball
-    trace = run_grasp(HAND, 'grasp_golf_ball', 0, grasp_configs(BASE, HAND, FINGERS),
+    trace = run_grasp(HAND, 'grasp_golf_ball', 0, finger_configs(BASE, HAND, FINGERS),
                       load_model_set(default_model_config(HAND), HAND), 1.0,
                       estimator_outage={'index': (5.0, 6.0)})
     metrics = grasp_metrics(trace)

@@ -427,10 +427,21 @@ def test_the_report_names_a_node_that_did_not_end_cleanly_in_the_node_graph_sess
     assert not any('ended cleanly' in line for line in node_path_section(node, 'why'))
     node['calibration']['exit_codes'] = {'sim_world': 0, 'estimator': -2}
     node['closed_loop']['exit_codes'] = {'sim_world': 0, 'allegro_driver': 0}
-    assert ('Every node of both sessions ended cleanly when its session stopped it: yes'
+    assert ('Every node of every session ended cleanly when its session stopped it: yes'
             in node_path_section(node, 'why'))
     node['closed_loop']['exit_codes']['allegro_driver'] = -9
     text = '\n'.join(node_path_section(node, 'why'))
     assert ('ended cleanly when its session stopped it: NO: closed-loop session allegro_driver '
             'exit code -9 (negative: killed by that signal; logs in /w)') in text, text
     assert 'estimator' not in text
+    # The grasp's session is judged alike, and its row says whether it agrees.
+    metrics = {'finger_error_mean_n': 0.05, 'dropped': False, 'slip_mm': 1.0,
+               'peak_over_command': {'thumb': 1.0, 'index': 1.1}}
+    node['closed_loop']['exit_codes']['allegro_driver'] = 0
+    node['grasp'] = {'object': 'golf_ball', 'grip_n': 1.0, 'node': dict(metrics),
+                     'direct': {**metrics, 'finger_error_mean_n': 0.2}, 'difference_n': 0.15,
+                     'tolerance_n': 0.08, 'agree': False,
+                     'exit_codes': {'grasp_controller': -9, 'grasp_client': 0}}
+    text = '\n'.join(node_path_section(node, 'why'))
+    assert 'grasp session grasp_controller exit code -9' in text, text
+    assert '| grasp, golf_ball at 1 N, one run' in text and text.count('| NO |') == 1, text

@@ -32,6 +32,10 @@ CASES = [
     ('xela_driver', ["url:='http://127.0.0.1:5000'"], 'url: '),
     ('ft_bridge', ["force_unit:='furlong'"], "force_unit: 'furlong' is not one of"),
     ('estimator', ["frame_prefix:='/left/'"], "frame_prefix: '/left/' is not a frame-id prefix"),
+    ('grasp_controller', ['grasp.slip_margin:=1.5'], 'grasp.slip_margin: 1.5 must be in (0, 1]'),
+    ('grasp_controller', ['force_controller.k_p:=[1.0]'], 'k_p: expected 4 finite numbers'),
+    ('grasp_client', ["scene:='closed_loop_spherical'"],
+     "scene: 'closed_loop_spherical' is a closed_loop scene, not a grasp"),
 ]
 
 

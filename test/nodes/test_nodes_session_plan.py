@@ -309,7 +309,7 @@ def test_a_campaign_session_after_a_poor_one_takes_the_next_seed_and_a_complete_
     (dict(mode='calibration', array='palm_nosuch'),
      "array: 'palm_nosuch' is not an array of the right hand"),
     (dict(mode='calibration', sim=False, array='palm_nosuch'), 'array: .* not an array'),
-    (dict(mode='calibration', model_config='m.yaml'), 'model: only a closed_loop session'),
+    (dict(mode='calibration', model_config='m.yaml'), 'model: only a closed_loop or grasp session'),
     (dict(mode='calibration', sequence='fault_drill'), 'sequence: only a closed_loop session'),
     (dict(mode='closed_loop', campaign='somewhere'), 'campaign: only a calibration session'),
     (dict(mode='calibration', sim=False, seed=4), 'seed: only simulation reads it'),
@@ -318,7 +318,15 @@ def test_a_campaign_session_after_a_poor_one_takes_the_next_seed_and_a_complete_
     (dict(mode='calibration', plate='Flat plate'), "plate: 'Flat plate' is not a plate name"),
     (dict(mode='calibration', real_time_factor=0.0), 'real_time_factor: 0.0 must be above 0'),
     (dict(mode='calibration', can_port=70000), 'can_port: 70000 is not a port'),
-    (dict(mode='calibration', xela_port=6000, netft_port=6000), 'must differ')])
+    (dict(mode='calibration', xela_port=6000, netft_port=6000), 'must differ'),
+    (dict(mode='closed_loop', grip=2.0), 'grip: only a grasp session reads it'),
+    (dict(mode='calibration', grasp_object='tennis_ball'), 'object: only a grasp session'),
+    (dict(mode='grasp', sim=False, grip=2.0), 'grip: only simulation reads it'),
+    (dict(mode='grasp', grasp_object='Egg'), "object: 'Egg' is not an object name"),
+    (dict(mode='grasp', grasp_object='egg'), 'scene: .*grasp_egg'),
+    (dict(mode='grasp', scene='closed_loop_spherical'),
+     "scene 'closed_loop_spherical' is a closed_loop scene, not grasp"),
+    (dict(mode='grasp', grip=-1.0), 'the grip must be above 0')])
 def test_an_argument_the_session_would_ignore_or_cannot_use_is_refused(args, message):
     """In both modes, simulated or not: what the session would silently ignore (another mode's,
     or simulation's, on the hardware) or could not use is refused before any node starts."""
@@ -358,3 +366,39 @@ def test_two_hands_refuse_what_they_set_per_hand(field, value, name):
         two_hands(SessionArgs('closed_loop', **{field: value}))
     with pytest.raises(PlanError, match='simulated closed-loop session only'):
         two_hands(SessionArgs('calibration'))
+
+
+def test_a_grasp_session_holds_the_scene_object_with_the_scene_mount_and_goal():
+    """Simulation: no F/T bridge (a grasp has no F/T sensor), the hand driver and the grasp
+    controller mounted as the scene's hand (its gravity), and a client that sends the scene's
+    goal at its goal_at and whose clean end is the session's; on the hardware, no client (the
+    user sends goals) and no simulator."""
+    from tacforce_ros.sim import load_scene
+    nodes = {n.executable: n for n in plan(SessionArgs(mode='grasp', grasp_object='tennis_ball',
+                                                       grip=2.0, hold_time=3.0))}
+    scene = load_scene('grasp_tennis_ball')
+    assert list(nodes) == ['sim_world', 'sync_recorder', 'xela_driver', 'estimator',
+                           'allegro_driver', 'grasp_controller', 'grasp_client']
+    assert nodes['sim_world'].overrides['scene'] == 'grasp_tennis_ball'
+    gravity = [float(v) for v in scene.grasp['gravity']]
+    assert nodes['allegro_driver'].overrides['gravity'] == gravity
+    assert nodes['grasp_controller'].overrides['gravity'] == gravity
+    client = nodes['grasp_client']
+    assert client.finishes and not any(n.finishes for n in nodes.values() if n is not client)
+    assert client.overrides['start_time'] == scene.grasp['goal_at']
+    assert (client.overrides['grip_force'], client.overrides['hold_time']) == (2.0, 3.0)
+    assert client.overrides['fingers'] == ['thumb', 'index']
+    assert nodes['sync_recorder'].overrides['plate'] == 'tennis_ball'
+    hardware = [n.executable for n in plan(SessionArgs(mode='grasp', sim=False))]
+    assert hardware == ['sync_recorder', 'xela_driver', 'estimator', 'allegro_driver',
+                        'grasp_controller']
+    composed = plan(SessionArgs(mode='grasp', compose=True))
+    assert [n.executable for n in composed] == ['sim_world', 'grasp_client',
+                                                'tacforce_container']
+
+
+def test_a_grasp_session_refuses_models_without_the_thumbs_fingertip(tmp_path):
+    models = tmp_path / 'models.yaml'
+    models.write_text('models:\n  index_tip: index_tip_M3-lambda.npz\n')
+    with pytest.raises(PlanError, match="model: .* a grasp needs the thumb's fingertip"):
+        plan(SessionArgs(mode='grasp', model_config=str(models)))

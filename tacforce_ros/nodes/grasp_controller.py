@@ -1,0 +1,327 @@
+"""grasp_controller: the hand holding an object between the thumb and another fingertip, through
+the action tacforce_msgs/action/Grasp on ~/grasp.
+
+Runs tacforce_ros/control/grasp.py's GraspController (the object the in-process experiments
+run; docs/GRASP.md) at `control_rate_hz` on the node clock (sim time under use_sim_time), with
+each fingertip's law from the `force_controller.*` parameters (defaults: the single finger's,
+config/params/force_controller.yaml; the thumb's gains from its own file) and the grasp's from
+`grasp.*`. Inputs: the joints on /joint_states (their header stamp is their time), each
+fingertip's estimate from /tactile/estimates (entry `<finger>_tip`; invalid or missing entries
+count as stale). Output, while a goal runs: the grasp's joint torques on
+/allegro_driver/torque_command (allegro_driver holds every joint nobody commands), and every
+tick one tacforce_msgs/ControllerState per fingertip on /grasp_controller/state (forces in the
+hand's base frame).
+
+A goal is accepted and then checked: one that cannot run (no fingers, a finger that is not a
+fingertip or has no model in `model_config`, no thumb, more than one finger against the thumb,
+targets that are not 4 angles per finger, a grip outside 0.3 N to what the joints can press at
+the pose, a mass the grip cannot carry, no joint states yet, a grasp already running) ends
+aborted with outcome FAILED and the reason: a ROS 2 goal rejection carries no reason, so the
+check runs after acceptance (as nav2's servers report theirs in the result). A running grasp:
+* holds `hold_time` s at its grip, then releases: succeeded, HELD;
+* is canceled: released, canceled, RELEASED;
+* loses the object (every fingertip's estimate below half its touch force for
+  `grasp.drop_time`): released, aborted, FAILED with the reason.
+Feedback every `feedback_period` s: the phase, the grip asked and each fingertip's stage, mode,
+forces and freshness. Releasing sends zero torque to the grasp's joints once and then nothing
+(allegro_driver keeps zero torque on joints whose commands stop). A stale fingertip holds (its
+watchdog), the others go on; a second goal while one runs is refused (cancel the first).
+"""
+from __future__ import annotations
+
+import sys
+from dataclasses import fields
+
+import numpy as np
+from rclpy.action import ActionServer, CancelResponse, GoalResponse
+from rclpy.task import Future
+from sensor_msgs.msg import JointState
+from tacforce_msgs.action import Grasp
+from tacforce_msgs.msg import ControllerState, FingerGrasp, ForceEstimateArray
+
+from tacforce_ros.control.force_controller import ControllerConfigError, ForceControllerConfig
+from tacforce_ros.control.grasp import (PHASE_DROPPED, PHASE_HOLDING, GraspConfig,
+                                        GraspController, GraspGoal, GraspGoalError,
+                                        finger_configs)
+from tacforce_ros.devices.allegro import MAX_JOINT_RATE_HZ
+from tacforce_ros.devices.allegro_codec import N_JOINTS
+from tacforce_ros.estimation.model_set import (ModelConfigError, default_model_config,
+                                               model_files)
+from tacforce_ros.hand.pinch import pad
+from tacforce_ros.nodes.force_controller import CONTROLLER_GROUP, controller_parameters
+from tacforce_ros.nodes.messages import controller_state, stamp, stamp_ns, vector3
+from tacforce_ros.nodes.node_base import TacforceNode
+from tacforce_ros.nodes.parameters import (FRAME_PREFIX, GRAVITY, HAND_CONFIG, ParamSpec,
+                                           ParameterError, hand_parameter, kinematics_parameter)
+from tacforce_ros.nodes.qos import publisher_qos, subscriber_qos
+from tacforce_ros.nodes.realtime import REALTIME_PRIORITY
+from tacforce_ros.nodes.runner import run_node
+from tacforce_ros.rig import FINGERS, RATE_HZ
+from tacforce_ros.topics import (TOPIC_ESTIMATES, TOPIC_GRASP_STATE, TOPIC_JOINTS,
+                                 TOPIC_TORQUE_COMMAND, relative)
+
+GRASP_GROUP = 'grasp'
+# Set per fingertip (ForceControllerConfig.pressing_with, the goal's targets), not parameters.
+PER_FINGER = ('finger', 'force_frame', 'estimate_frame', 'q_d')
+ACTION = '~/grasp'
+
+
+def _grasp_parameters() -> tuple[ParamSpec, ...]:
+    """grasp.* parameters, defaults from GraspConfig (one source); gravity is the node's own."""
+    defaults = GraspConfig()
+    return tuple(ParamSpec(f'{GRASP_GROUP}.{f.name}', getattr(defaults, f.name),
+                           f.metadata['help']) for f in fields(GraspConfig) if f.name != 'gravity')
+
+
+class _Running:
+    """The goal being run: its handle, what the controller got, and how it ends."""
+
+    def __init__(self, handle, goal: GraspGoal, hold_time: float, done: Future) -> None:
+        self.handle = handle
+        self.goal = goal
+        self.hold_time = hold_time
+        self.done = done
+        self.held = 0.0                 # s at the grip so far
+        self.last_t: float | None = None
+        self.next_feedback = -np.inf
+
+
+class GraspControllerNode(TacforceNode):
+    """Thumb-and-fingertip grasps under force control, as a ROS 2 action server."""
+
+    NODE_NAME = 'grasp_controller'
+    PARAMETERS = (
+        HAND_CONFIG, FRAME_PREFIX,
+        ParamSpec('control_rate_hz', RATE_HZ, 'controller loop rate (Hz, node clock), up to the '
+                  '333 Hz joint stream', range=(1.0, MAX_JOINT_RATE_HZ)),
+        ParamSpec('model_config', '', 'the estimator\'s models YAML: the fingertips with a model '
+                  'may grasp; empty: the hand\'s default (config/models/)'),
+        ParamSpec('feedback_period', 0.1, 'action feedback every this many seconds (node clock)',
+                  range=(0.0, 10.0)),
+        GRAVITY,
+        REALTIME_PRIORITY,
+    ) + controller_parameters(leave_out=PER_FINGER) + _grasp_parameters()
+
+    def __init__(self, **node_options) -> None:
+        super().__init__(**node_options)
+        p = self.params
+        self.hand = hand_parameter(p)
+        self.kin = kinematics_parameter(self.hand, p)
+        configs = self._finger_configs()
+        try:
+            grasp = GraspConfig(gravity=tuple(p['gravity']), **{
+                name.split('.', 1)[1]: value for name, value in p.items()
+                if name.startswith(GRASP_GROUP + '.')})
+        except ValueError as exc:
+            raise ParameterError(f'{GRASP_GROUP}.{exc}') from None
+        self.controller = GraspController(
+            configs, self.kin, lambda q, f: pad(self.hand, self.kin, q, f)[0], grasp)
+        self._joints: tuple[np.ndarray, np.ndarray, int] | None = None   # q, qdot, stamp ns
+        self._estimates: dict[str, tuple[np.ndarray, int]] = {}          # f_hat, stamp ns
+        self._running: _Running | None = None
+        self.refused_joint_states = 0
+        self.create_subscription(JointState, relative(TOPIC_JOINTS), self._on_joints,
+                                 subscriber_qos(TOPIC_JOINTS, depth=1))
+        self.create_subscription(ForceEstimateArray, relative(TOPIC_ESTIMATES),
+                                 self._on_estimates, subscriber_qos(TOPIC_ESTIMATES, depth=1))
+        self.torque_publisher = self.create_publisher(JointState, relative(TOPIC_TORQUE_COMMAND),
+                                                      publisher_qos(TOPIC_TORQUE_COMMAND))
+        self.state_publisher = self.create_publisher(ControllerState,
+                                                     relative(TOPIC_GRASP_STATE),
+                                                     publisher_qos(TOPIC_GRASP_STATE))
+        self.server = ActionServer(self, Grasp, ACTION, execute_callback=self._execute,
+                                   goal_callback=lambda _goal: GoalResponse.ACCEPT,
+                                   cancel_callback=lambda _handle: CancelResponse.ACCEPT)
+        self.create_timer(1.0 / p['control_rate_hz'], self._control)
+        self.get_logger().info(
+            f'grasps of {", ".join(sorted(configs))} on {self.resolve_action_name()} at '
+            f'{p["control_rate_hz"]:g} Hz, '
+            f'{"open loop" if not any(configs["thumb"].k_i) else "closed loop"}; torques to '
+            f'{self.topic_name(TOPIC_TORQUE_COMMAND)}')
+
+    def resolve_action_name(self) -> str:
+        return f'{self.get_fully_qualified_name()}/grasp'
+
+    def _finger_configs(self) -> dict[str, ForceControllerConfig]:
+        """Each fingertip's law (force_controller.*, on that fingertip, in the base frame), for
+        the fingertips the estimator has a model of."""
+        group = {name.split('.', 1)[1]: value for name, value in self.params.items()
+                 if name.startswith(CONTROLLER_GROUP + '.')}
+        try:
+            base = ForceControllerConfig.from_mapping(group)
+        except ControllerConfigError as exc:
+            raise ParameterError(f'{CONTROLLER_GROUP}.{exc}') from None
+        models_yaml = self.params['model_config'] or str(default_model_config(self.hand))
+        try:
+            modelled = model_files(models_yaml)
+        except ModelConfigError as exc:
+            raise ParameterError(f'model_config: {exc}') from None
+        fingers = [f for f in FINGERS if f'{f}_tip' in modelled]
+        if 'thumb' not in fingers:
+            raise ParameterError(f'model_config: {models_yaml} has no model for thumb_tip: no '
+                                 'grasp can run (every grasp opposes the thumb)')
+        try:
+            return finger_configs(base, self.hand, fingers)
+        except ControllerConfigError as exc:
+            raise ParameterError(f'{CONTROLLER_GROUP}: {exc}') from None
+
+    # --- inputs ------------------------------------------------------------------------------
+
+    def _on_joints(self, msg: JointState) -> None:
+        if (list(msg.name) != self.kin.joint_names or len(msg.position) != N_JOINTS
+                or len(msg.velocity) != N_JOINTS):
+            self.refused_joint_states += 1
+            self.get_logger().warn(f'joint state refused ({self.refused_joint_states} so far): '
+                                   f'expected the 16 joints {self.kin.joint_names[0]}.. in '
+                                   'order with positions and velocities',
+                                   throttle_duration_sec=5.0)
+            return
+        self._joints = (np.asarray(msg.position, np.float64),
+                        np.asarray(msg.velocity, np.float64), stamp_ns(msg.header.stamp))
+
+    def _on_estimates(self, msg: ForceEstimateArray) -> None:
+        for item in msg.estimates:
+            finger = item.name.removesuffix('_tip')
+            if finger not in self.controller.configs or item.name != f'{finger}_tip':
+                continue
+            if item.valid:
+                self._estimates[finger] = (np.array([item.force.x, item.force.y, item.force.z]),
+                                           stamp_ns(item.header.stamp))
+            else:
+                self._estimates.pop(finger, None)    # stale: its watchdog takes over
+
+    # --- goals -------------------------------------------------------------------------------
+
+    async def _execute(self, handle) -> Grasp.Result:
+        request = handle.request
+        goal, hold_time, refusal = self._goal(request)
+        if refusal:
+            return self._finish(handle, Grasp.Result.FAILED, f'refused: {refusal}', 0.0, 0.0)
+        done = Future()
+        self._running = _Running(handle, goal, hold_time, done)
+        self.get_logger().info(f'grasp with {", ".join(goal.fingers)} at {goal.grip:g} N'
+                               + (f', {goal.mass:g} kg' if goal.mass else '')
+                               + (f', for {hold_time:g} s' if hold_time else ', until canceled'))
+        outcome, reason, grip, held = await done
+        return self._finish(handle, outcome, reason, grip, held)
+
+    def _goal(self, request) -> tuple[GraspGoal | None, float, str]:
+        """The core's goal from the request, the hold time, and the refusal ('' if none)."""
+        if self._running is not None:
+            return None, 0.0, ('a grasp is running (with '
+                               f'{", ".join(self._running.goal.fingers)}); cancel it first')
+        if self._joints is None:
+            return None, 0.0, f'no joint states yet on {self.topic_name(TOPIC_JOINTS)}'
+        fingers = tuple(request.fingers)
+        targets = np.asarray(request.targets, np.float64)
+        if targets.size != 4 * len(fingers):
+            return None, 0.0, (f'targets: {targets.size} angles for {len(fingers)} fingers; '
+                               'give 4 per finger, in the order of fingers')
+        hold_time = float(request.hold_time)
+        if not (np.isfinite(hold_time) and hold_time >= 0.0):
+            return None, 0.0, f'hold_time {hold_time!r} s: must be >= 0 (0: until canceled)'
+        goal = GraspGoal(fingers=fingers, grip=float(request.grip_force),
+                         targets={f: tuple(targets[4 * i:4 * i + 4])
+                                  for i, f in enumerate(fingers)},
+                         mass=float(request.object_mass))
+        try:
+            self.controller.start(goal, self._joints[0])
+        except GraspGoalError as exc:
+            return None, 0.0, str(exc)
+        return goal, hold_time, ''
+
+    def _finish(self, handle, outcome: int, reason: str, grip: float, held: float
+                ) -> Grasp.Result:
+        result = Grasp.Result(outcome=outcome, reason=reason, grip_force=float(grip),
+                              held_time=float(held))
+        if outcome == Grasp.Result.HELD:
+            handle.succeed()
+        elif outcome == Grasp.Result.RELEASED and handle.is_cancel_requested:
+            handle.canceled()
+        else:
+            handle.abort()
+        if outcome == Grasp.Result.FAILED:     # one severity per call site (rclpy's logger)
+            self.get_logger().warning(f'grasp ended: {reason}')
+        else:
+            self.get_logger().info(f'grasp ended: {reason}')
+        return result
+
+    def _end(self, outcome: int, reason: str) -> None:
+        """Release the running grasp and hand its outcome to its execute callback."""
+        running = self._running
+        grip = self.controller.grip
+        fingers = list(self.controller.sessions)
+        self.controller.release()
+        self._release_torques(fingers)
+        self._running = None
+        running.done.set_result((outcome, reason, grip, running.held))
+
+    def _release_torques(self, fingers: list[str]) -> None:
+        names = [name for f in fingers for name in self.kin.joint_names[
+            self.kin.finger_joints(f)]]
+        if names:
+            command = JointState(name=names, effort=[0.0] * len(names))
+            command.header.stamp = stamp(self.now_ns())
+            self.torque_publisher.publish(command)
+
+    # --- control tick ------------------------------------------------------------------------
+
+    def _control(self) -> None:
+        running = self._running
+        if running is None or self._joints is None:
+            return
+        if running.handle.is_cancel_requested:
+            self._end(Grasp.Result.RELEASED, 'canceled: released')
+            return
+        now = self.now_ns()
+        t = now * 1e-9
+        q, qdot, q_ns = self._joints
+        estimates = {f: (f_hat, (now - ns) * 1e-9) for f, (f_hat, ns) in self._estimates.items()}
+        tau, state = self.controller.update(t, q, qdot, estimates, (now - q_ns) * 1e-9)
+        for line in state.transitions:
+            self.get_logger().info(line)
+        joints = [j for f in state.fingers for j in range(N_JOINTS)[self.kin.finger_joints(f)]]
+        command = JointState(name=[self.kin.joint_names[j] for j in joints],
+                             effort=[float(tau[j]) for j in joints])
+        command.header.stamp = stamp(now)
+        self.torque_publisher.publish(command)
+        base = self.frame(self.hand.base_frame)
+        for finger, fs in state.fingers.items():
+            self.state_publisher.publish(controller_state(
+                now, base, finger, fs.controller, q[self.kin.finger_joints(finger)],
+                qdot[self.kin.finger_joints(finger)]))
+        if running.last_t is not None and state.phase == PHASE_HOLDING:
+            running.held += max(0.0, t - running.last_t)
+        running.last_t = t
+        if t >= running.next_feedback:
+            running.handle.publish_feedback(self._feedback(state))
+            running.next_feedback = t + self.params['feedback_period']
+        if state.phase == PHASE_DROPPED:
+            self._end(Grasp.Result.FAILED, state.reason)
+        elif running.hold_time and running.held >= running.hold_time:
+            self._end(Grasp.Result.HELD, f'held {running.held:.2f} s at '
+                      f'{self.controller.grip:.2f} N, then released')
+
+    def _feedback(self, state) -> Grasp.Feedback:
+        return Grasp.Feedback(phase=state.phase, reason=state.reason,
+                              grip_force=float(state.grip), fingers=[
+                                  FingerGrasp(finger=f, stage=s.stage, mode=s.controller.mode,
+                                              desired_force=vector3(s.desired),
+                                              estimated_force=vector3(s.estimate),
+                                              normal_force=float(s.normal),
+                                              grip_force=float(s.grip),
+                                              estimate_fresh=bool(s.controller.estimate_fresh))
+                                  for f, s in state.fingers.items()])
+
+    def leave_safe(self) -> None:
+        if self._running is not None:
+            self._end(Grasp.Result.FAILED, 'grasp_controller stopped: released')
+
+
+def main(args: list[str] | None = None) -> None:
+    sys.exit(run_node(GraspControllerNode, args))
+
+
+if __name__ == '__main__':
+    main()
+

@@ -18,6 +18,7 @@ TOOLS = {
     'campaign': 'tools.campaign',           # whole-hand campaign: plan, verdicts, resume
     'bag_repair': 'tools.bag_repair',       # bags cut off by a crash -> whole bags
     'session': 'tools.session',             # a session's processes without ros2 launch
+    'learning_curve': 'tools.learning_curve',   # held-out error against labelled seconds
     # The main job and its study (tacforce_ros/experiments/): the runtime never imports them.
     'reproduce': 'experiments.reproduce',   # the paper's experiments in simulation + report
     'skin_sensitivity': 'experiments.skin_sensitivity',  # Table I per skin estimate +/-

@@ -196,9 +196,11 @@ def check_arguments(args: SessionArgs, hand: Any) -> None:
     if not PLATE_NAME.fullmatch(args.grasp_object):
         raise PlanError(f'object: {args.grasp_object!r} is not an object name (lower-case '
                         'letters, digits and _)')
-    if not (args.grip > 0 and args.hold_time >= 0):
-        raise PlanError(f'grip {args.grip} N, hold_time {args.hold_time} s: the grip must be '
-                        'above 0 and the hold time at least 0')
+    from tacforce_ros.control.grasp import GraspConfig
+    if not (args.grip >= GraspConfig.grip_min and args.hold_time >= 0):
+        raise PlanError(f'grip {args.grip} N, hold_time {args.hold_time} s: the grip must be at '
+                        f'least {GraspConfig.grip_min:g} N (below, the estimate cannot tell it '
+                        'from noise) and the hold time at least 0')
     if not args.real_time_factor > 0:
         raise PlanError(f'real_time_factor: {args.real_time_factor} must be above 0')
     ports = {'xela_port': args.xela_port, 'netft_port': args.netft_port,
@@ -337,9 +339,9 @@ def two_hands(args: SessionArgs) -> list[SessionArgs]:
             for side, (xela, netft, can) in TWO_HANDS_PORTS.items()]
 
 
-def grasp_model_config(args: SessionArgs, hand: Any) -> str:
+def grasp_model_config(args: SessionArgs, hand: Any) -> tuple[str, dict]:
     """The estimator's models of a grasp session, which must model the thumb's fingertip (every
-    grasp opposes the thumb) and another."""
+    grasp opposes the thumb) and another: (its YAML, its model files by array)."""
     models_yaml = args.model_config or str(default_model_config(hand))
     try:
         models = model_files(models_yaml)
@@ -349,7 +351,7 @@ def grasp_model_config(args: SessionArgs, hand: Any) -> str:
     if 'thumb_tip' not in tips or len(tips) < 2:
         raise PlanError(f'model: {models_yaml} models {tips or "no fingertip"}; a grasp needs '
                         'the thumb\'s fingertip and another')
-    return models_yaml
+    return models_yaml, models
 
 
 def grasp_nodes(args: SessionArgs, scene: Any, models_yaml: str, common: dict, hand_param: dict,
@@ -400,7 +402,7 @@ def plan(args: SessionArgs) -> list[NodeLaunch]:
     description = load_hand(hand)
     check_arguments(args, description)
     loop = fingertip_loop(args, description) if args.mode == 'closed_loop' else None
-    grasp_models = grasp_model_config(args, description) if args.mode == 'grasp' else ''
+    grasp_models = grasp_model_config(args, description) if args.mode == 'grasp' else None
     scene = None
     if args.sim:
         try:
@@ -409,6 +411,11 @@ def plan(args: SessionArgs) -> list[NodeLaunch]:
             raise PlanError(f'scene: {exc}') from exc
         if scene.kind != args.mode:
             raise PlanError(f'scene {scene.name!r} is a {scene.kind} scene, not {args.mode}')
+        if args.mode == 'grasp':
+            unmodelled = [f for f in scene.grasp['fingers'] if f'{f}_tip' not in grasp_models[1]]
+            if unmodelled:
+                raise PlanError(f'model: {grasp_models[0]} has no model of {unmodelled}\'s '
+                                f'fingertip, which scene {scene.name!r} grasps with')
         if args.mode != 'grasp' and scene.array not in {a.name for a in description.arrays}:
             raise PlanError(f'scene {scene.name!r} presses {scene.array!r}, not an array of the '
                             f'{description.side} hand')
@@ -448,7 +455,7 @@ def plan(args: SessionArgs) -> list[NodeLaunch]:
                                 {**common, **managed, **framed, **sim_devices['netft'],
                                  **rig}))
     if args.mode == 'grasp':
-        nodes += grasp_nodes(args, scene, grasp_models, common, hand_param, framed, managed,
+        nodes += grasp_nodes(args, scene, grasp_models[0], common, hand_param, framed, managed,
                              sim_devices['allegro'])
     elif args.mode == 'calibration':
         # The operator moves the hand: joint states only, no torque commands.
@@ -481,7 +488,8 @@ def plan(args: SessionArgs) -> list[NodeLaunch]:
     # of simulated F/T readings on a loaded host: DDS discovery).
     recorder = NodeLaunch('sync_recorder', (params_file('sync_recorder'),), {
         **common, **hand_param, 'output_dir': args.out, 'array': args.array,
-        'plate': args.grasp_object if args.mode == 'grasp' else args.plate,
+        'plate': (args.plate if args.mode != 'grasp' else
+                  scene.grasp_object.name if scene is not None else args.grasp_object),
         'source': 'sim' if args.sim else 'lab', 'autostart': True,
         **({'scene': args.scene_name(), 'seed': args.seed} if args.sim else {})})
     nodes.insert(1 if args.sim else 0, recorder)

@@ -42,8 +42,13 @@ class CrossValidation:
 
 def cross_validate(array: TaxelArray, kind: str, hyper: dict[str, Any], X: np.ndarray,
                    F: np.ndarray, plates: np.ndarray, together: bool = True,
-                   final: bool = False) -> CrossValidation:
+                   final: bool = False,
+                   held_out: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+                   ) -> CrossValidation:
     """X counts and F newtons with offsets removed; one fold per distinct plate.
+
+    held_out: (X, F, plates) each fold is tested on instead, its rows of the fold's plate (a
+    learning curve trains on a cut of the data and tests on all of the held-out plate's).
 
     together: fit the folds' models in one fit_bundles call (M4 and M5 then train as one
     network, and each fold's train_seconds is the call's time over the models); False fits them
@@ -71,8 +76,10 @@ def cross_validate(array: TaxelArray, kind: str, hyper: dict[str, Any], X: np.nd
             seconds.append(time.perf_counter() - started)
     result = CrossValidation(kind=kind)
     for (plate, test), bundle, fold_seconds in zip(folds, bundles, seconds):
-        pred = bundle.predict(X[test])
-        result.folds.append(Fold(test_plate=str(plate), stats=error_stats(F[test], pred),
+        X_test, F_test = (X[test], F[test]) if held_out is None else \
+            (held_out[0][held_out[2] == plate], held_out[1][held_out[2] == plate])
+        pred = bundle.predict(X_test)
+        result.folds.append(Fold(test_plate=str(plate), stats=error_stats(F_test, pred),
                                  train_seconds=fold_seconds,
                                  hyperparameters=bundle.model.hyperparameters()))
         result.n_parameters = bundle.model.n_parameters()

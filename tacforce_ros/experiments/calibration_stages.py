@@ -20,7 +20,8 @@ from tacforce_ros.experiments.settings import (ARRAYS, GRASP_ARRAYS, PLATES, WHO
                                              Context, Settings, hand_digest, model_hyper,
                                              scene_for)
 from tacforce_ros.experiments.workers import (job_benchmark, job_calibration, job_cross_validation,
-                                            job_training_set, run_units, worker_hand)
+                                            job_learning_curve, job_training_set, run_units,
+                                            worker_hand)
 
 
 def calibration_unit(ctx: Context, array: str, plate: str, session: int, seconds: float,
@@ -182,3 +183,30 @@ def whole_hand_stage(ctx: Context, cv: dict) -> tuple[dict, dict[str, str]]:
             rows[array.name] = {'type': array.kind, 'sessions': 1,
                                 'seconds': s.whole_hand_seconds, 'cv': results[array.name]}
     return rows, final
+
+
+def learning_curve_stage(ctx: Context, layout: dict) -> list[dict]:
+    """Held-out e_hat against labelled seconds (estimation/learning_curve.py) on the Table I
+    arrays' training sessions, for each model of `learning_models`: a unit per array, model and
+    point, cached on its own. Rows as report.json `learning_curve.rows`."""
+    s = ctx.settings
+    jobs, keys, names = [], {}, []
+    for array in ARRAYS:
+        paths = [p for plate in PLATES for p in layout[array][plate]]
+        for label in s.learning_models:
+            kind, hyper = model_hyper(label, s)
+            for seconds in s.learning_seconds:
+                name = f'{array}/{label}/{seconds:g}'
+                names.append(name)
+                keys[name] = digest({'data': [Path(p).stem for p in paths], 'model': [kind, hyper],
+                                     'seconds': seconds, 'static_force': s.static_force,
+                                     'code': source_digest(job_learning_curve)})
+                if ctx.cache.load_json('learning_curve', keys[name]) is None:
+                    jobs.append((name, job_learning_curve, (array, paths, label, kind, hyper,
+                                                            seconds, s.static_force)))
+    ctx.log(f'stage learning curves: {len(names)} points, {len(jobs)} to fit')
+    slow = sorted(jobs, key=lambda u: (u[0].split('/')[1] != 'M4', -float(u[0].split('/')[2])))
+    for name, row in run_units(ctx, 'learning curves', slow).items():
+        ctx.cache.store_json('learning_curve', keys[name], row)
+    return [{**ctx.cache.load_json('learning_curve', keys[name]), 'way': 'own'}
+            for name in names]

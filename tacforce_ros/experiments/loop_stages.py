@@ -161,6 +161,11 @@ def node_path_stage(ctx: Context, models: dict, grasp_models: Path) -> dict:
         np.savez(work / 'closed_loop_traces.npz',
                  **{f'node_{k}': v for k, v in trace.arrays().items()},
                  **{f'direct_{k}': v for k, v in direct.arrays().items()})
+    except (node_path.NodePathUnavailable, OSError, ValueError) as exc:
+        result.update(ran=False, reason=str(exc))
+        ctx.log(f'stage node path: did not complete: {exc}')
+        return result          # not cached: the next run tries again
+    try:
         ctx.log(f'stage node path: grasp of the {grasp_object} at {grip:g} N '
                 f'({load_scene(grasp_scene).duration:g} s simulated)')
         result['grasp'], grasp_trace, grasp_direct, bag = node_path.grasp_against_direct(
@@ -172,8 +177,9 @@ def node_path_stage(ctx: Context, models: dict, grasp_models: Path) -> dict:
                  **{f'node_{k}': v for k, v in grasp_trace.arrays().items()},
                  **{f'direct_{k}': v for k, v in grasp_direct.arrays().items()})
     except (node_path.NodePathUnavailable, OSError, ValueError) as exc:
-        result.update(ran=False, reason=str(exc))
-        ctx.log(f'stage node path: did not complete: {exc}')
+        # The sessions before it stand; the grasp's failure is reported with its reason.
+        result['grasp'] = {'ran': False, 'reason': str(exc)}
+        ctx.log(f'stage node path: the grasp did not complete: {exc}')
         return result          # not cached: the next run tries again
     ctx.timings['node path'] = time.perf_counter() - started
     ctx.cache.store_json('node_path', key, result)

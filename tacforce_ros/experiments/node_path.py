@@ -121,6 +121,10 @@ def run_session(mode: str, scene: str, plate: str, out: Path, sim_duration: floa
         raise NodePathUnavailable(f'session {mode} did not stop within {wall_limit + 90:g} s') \
             from exc
     (out / 'session.log').write_text(done.stdout + done.stderr)
+    early = [line for line in done.stderr.splitlines() if 'exited early' in line]
+    if SESSION_SCENE_ENDED not in done.stdout and early:
+        raise NodePathUnavailable(f'session {mode}: {early[0].removeprefix("session: ")} '
+                                  f'(log: {out / "session.log"})')
     if SESSION_SCENE_ENDED not in done.stdout:
         raise NodePathUnavailable(
             f'session {mode}: {sim_duration:g} s simulated did not run within {wall_limit:g} s '
@@ -306,6 +310,7 @@ def grasp_node_trace(bag: Path, hand: HandDescription, kinematics: HandKinematic
     spec = load_scene(scene)
     fingers = tuple(spec.grasp['fingers'])
     frames = {hand.array(f'{f}_tip').frame_id: f for f in fingers}
+    unprefixed = lambda frame_id: frame_id.rsplit('/', 1)[-1]     # noqa: E731 (frame_prefix)
     ticks: dict[float, dict] = {}
     truth: dict[str, list] = {f: [] for f in fingers}
     pose = []
@@ -316,8 +321,9 @@ def grasp_node_trace(bag: Path, hand: HandDescription, kinematics: HandKinematic
         if topic == topics.TOPIC_GRASP_STATE:
             ticks.setdefault(t, {})[msg.finger] = msg
         elif topic == topics.TOPIC_SIM_CONTACT:
-            if msg.header.frame_id in frames:
-                truth[frames[msg.header.frame_id]].append((t, *_xyz(msg.wrench.force)))
+            if unprefixed(msg.header.frame_id) in frames:
+                truth[frames[unprefixed(msg.header.frame_id)]].append(
+                    (t, *_xyz(msg.wrench.force)))
         else:
             p = msg.pose.position
             pose.append((t, p.x, p.y, p.z))
@@ -348,12 +354,19 @@ def grasp_node_trace(bag: Path, hand: HandDescription, kinematics: HandKinematic
     poses = np.asarray(sorted(pose))
     position = np.column_stack([np.interp(stamps, poses[:, 0], poses[:, c]) for c in (1, 2, 3)])
     scene_t = np.asarray(stamps)
-    held = scene_t < float(spec.grasp['hand_over'])
+    hand_over = float(spec.grasp['hand_over'])
+    held = scene_t < hand_over
+    # Dropped as the simulator judges it: once let go, DROP_DISTANCE below where the fixture let
+    # go of it, on every pose the simulator published (also after the last tick).
     down = np.asarray(spec.grasp['gravity'], np.float64)
     down /= np.linalg.norm(down)
-    released = int((~held).argmax()) if (~held).any() else count - 1
-    below = (position - position[released]) @ down
-    dropped = np.maximum.accumulate(~held & (below > DROP_DISTANCE))
+    handed_at = np.array([np.interp(hand_over, poses[:, 0], poses[:, c]) for c in (1, 2, 3)])
+    after = poses[:, 0] >= hand_over
+    fell = after & ((poses[:, 1:] - handed_at) @ down > DROP_DISTANCE)
+    first_fall = poses[fell.argmax(), 0] if fell.any() else np.inf
+    dropped = scene_t >= first_fall
+    if fell.any() and not dropped.any():
+        dropped[-1] = True          # it fell after the last tick
     return GraspTrace(fingers=fingers, t=scene_t - scene_t[0], f_d=f_d, f_hat=f_hat,
                       f_true=f_true, directions=directions, grip=np.full(count, float(grip)),
                       object_position=position, held_by_fixture=held, dropped=dropped,
@@ -376,12 +389,15 @@ def grasp_against_direct(hand: HandDescription, kinematics: HandKinematics, scen
     bag = run_session('grasp', scene, obj, out, spec.duration, model_config, seed=seed,
                       extra=('--object', obj, '--grip', f'{grip:g}'))
     trace = grasp_node_trace(bag, hand, kinematics, scene, grip)
+    from tacforce_ros.bringup.processes import unclean_exits
     node_m, direct_m = grasp_metrics(trace), grasp_metrics(direct)
     difference = abs(node_m['finger_error_mean_n'] - direct_m['finger_error_mean_n'])
     tolerance = AGREEMENT_N['grasp_finger_e_tilde']
+    codes = session_exit_codes(out)
     compared = {'object': obj, 'grip_n': grip, 'seed': seed, 'node': node_m, 'direct': direct_m,
                 'difference_n': difference, 'tolerance_n': tolerance,
                 'agree': bool(difference <= tolerance and not node_m['dropped']
-                              and not direct_m['dropped']),
-                'exit_codes': session_exit_codes(out)}
+                              and not direct_m['dropped'] and codes
+                              and not unclean_exits(codes)),
+                'exit_codes': codes}
     return compared, trace, direct, bag

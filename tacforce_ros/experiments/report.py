@@ -274,6 +274,20 @@ def _sim_paper(sim_mean, sim_std, ref: tuple | None, digits: int) -> list[str]:
     return [cell(sim_mean, sim_std, digits), cell(ref[0], ref[1], digits)]
 
 
+def learning_curve_section(curve: dict | None) -> list[str]:
+    """Held-out e_hat against labelled seconds (not in the paper): what calibration costs."""
+    if not curve:
+        return []
+    from tacforce_ros.tools.learning_curve import curve_table
+    return ['## Learning curves — held-out e_hat against labelled seconds (not in the paper)', '',
+            "Leave-one-plate-out e_hat [N] of each model trained on the first seconds of the "
+            "array's training sessions, spread evenly over the five plates (each plate's sessions "
+            "in the order recorded), each fold tested on all of its held-out plate's data; the "
+            "last point is the paper's campaign, Table I's figure. In brackets: the seconds "
+            "recorded where less than asked. `learning_curve` draws the same from any bags or "
+            "campaign. Figure: `learning_curve.png`.", '', *curve_table(curve['rows']), '']
+
+
 def whole_hand_section(rows: dict, settings: dict) -> list[str]:
     lines = ['## Whole hand — M3λ on every array, 5-fold leave-one-plate-out', '',
              f"Every array pressed on the five training plates: the Table I arrays and the "
@@ -320,7 +334,10 @@ def node_path_section(node: dict, tolerance_reason: str) -> list[str]:
                   f"{cell(loop['difference_n'], digits=3)} | {cell(loop['tolerance_n'], digits=3)}"
                   f" | {'yes' if loop['difference_n'] <= loop['tolerance_n'] else 'NO'} |"]
         grasp = node.get('grasp')
-        if grasp is not None:
+        if grasp is not None and grasp.get('ran', True) is False:
+            lines += [f"| grasp through the node graph | did not run: {grasp['reason']} | | | | "
+                      "NO |"]
+        elif grasp is not None:
             n, d = grasp['node'], grasp['direct']
             lines += [f"| grasp, {grasp['object']} at {grasp['grip_n']:g} N, one run: per-finger "
                       f"e~ [N] (drops node / direct: {int(n['dropped'])} / {int(d['dropped'])}"
@@ -342,7 +359,8 @@ def node_path_section(node: dict, tolerance_reason: str) -> list[str]:
         lines += ['', f"Tolerance: {tolerance_reason}", '']
         parts = [(part, name) for part, name in (('calibration', 'calibration'),
                                                   ('closed_loop', 'closed-loop'),
-                                                  ('grasp', 'grasp')) if part in node]
+                                                  ('grasp', 'grasp'))
+                 if 'exit_codes' in node.get(part, {}) or part != 'grasp']
         if all('exit_codes' in node[part] for part, _ in parts):
             unclean = [(name, unclean_exits(node[part]['exit_codes'])) for part, name in parts]
             lines += ['Every node of every session ended cleanly when its session stopped it: '
@@ -456,6 +474,7 @@ def markdown(doc: dict) -> str:
                    cell(sim['tau_full_hand_ms'], digits=3)]) + ' |')
         lines.append('')
 
+    lines += learning_curve_section(doc.get('learning_curve'))
     lines += whole_hand_section(doc['whole_hand'], s)
     lines += ['## Table II — online test, index fingertip on the held-out spherical plate', '',
               f"Models retrained on all five training plates; {doc['online']['samples']} samples "

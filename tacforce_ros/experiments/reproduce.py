@@ -65,11 +65,14 @@ NODE_TOLERANCE_REASON = (
 
 
 def figures(out: Path, cv: dict, table_i: dict, end_to_end: dict, traces: dict,
-            whole_hand: dict) -> list[str]:
+            whole_hand: dict, learning: list[dict]) -> list[str]:
     from tacforce_ros.experiments import plots
     from tacforce_ros.hand.description import load_hand
     from tacforce_ros.hand.figure import hand_errors
+    from tacforce_ros.tools.learning_curve import plot_curves
     names = [plots.accuracy_vs_time(table_i, end_to_end, out / 'accuracy_vs_time.png').name,
+             plot_curves(learning, out / 'learning_curve.png',
+                         'SIMULATION: held-out e_hat against labelled seconds').name,
              plots.per_plate_errors(cv, out / 'per_plate_errors.png').name,
              hand_errors(load_hand(), {a: row['cv']['e_hat_mean'] for a, row in whole_hand.items()},
                          f'SIMULATION, {WHOLE_HAND_MODEL}: held-out e_hat [N]',
@@ -121,6 +124,7 @@ def run(settings: Settings, out: Path, jobs: int) -> dict:
                                log=lambda line: print(line, file=sys.stderr, flush=True))
         layout = calibration.calibration_stage(ctx)
         cv, models = calibration.benchmark_stage(ctx, layout)
+        learning = calibration.learning_curve_stage(ctx, layout)
         whole_hand, whole_hand_models = calibration.whole_hand_stage(ctx, cv)
         timing = estimation.timing_stage(ctx, models)
         online = estimation.online_stage(ctx, layout, models)
@@ -157,7 +161,8 @@ def run(settings: Settings, out: Path, jobs: int) -> dict:
         'node_tolerance_reason': NODE_TOLERANCE_REASON,
         'grasp': {'rows': grasp_rows, 'must_show': grasp.grasp_must_show(grasp_rows),
                   'hand_over_s': grasp.hand_over_after_goal(settings.grasp_objects[0])},
-        'figures': (figures(out, cv, table_i, end_to_end, traces, whole_hand)
+        'learning_curve': {'rows': learning},
+        'figures': (figures(out, cv, table_i, end_to_end, traces, whole_hand, learning)
                     + grasp.grasp_figures(grasp_traces, out)),
     }
     # What differs between two runs of the same inputs lives under 'run' only.

@@ -13,6 +13,7 @@ from typing import Callable
 import yaml
 
 from tacforce_ros.control.force_controller import ForceControllerConfig, shipped_params_file
+from tacforce_ros.estimation.learning_curve import SECONDS as LEARNING_SECONDS
 from tacforce_ros.estimation.registry import paper_configurations
 from tacforce_ros.rig import HELD_OUT_PLATE, RATE_HZ, TRAINING_PLATES
 from tacforce_ros.experiments.cache import StageCache, atomic_write, file_digest
@@ -77,6 +78,10 @@ class Settings:
     grasp_objects: tuple[str, ...] = GRASP_OBJECTS
     grasp_grips: tuple[float, ...] = GRASP_GRIPS
     grasp_repeats: int = 5               # seeds per object and grip (the 5)
+    # Learning curves: labelled seconds per array (estimation/learning_curve.SECONDS; the
+    # paper's campaign is the last, 2000 s) and the models drawn.
+    learning_seconds: tuple[float, ...] = LEARNING_SECONDS
+    learning_models: tuple[str, ...] = ('M3-lambda', 'M4')
 
     @classmethod
     def quick(cls) -> Settings:
@@ -84,7 +89,7 @@ class Settings:
         return cls(sessions_per_plate=1, session_seconds=20.0, online_seconds=20.0, epochs=1,
                    timing_repeats=100, objects=('spherical',), repeats=1, node_path=False,
                    whole_hand_seconds=20.0, grasp_objects=('golf_ball',), grasp_grips=(1.0,),
-                   grasp_repeats=1)
+                   grasp_repeats=1, learning_seconds=(25.0, 100.0))
 
 
 # The simulated skin: the empirical response (sim/taxel_response.py) or the one computed from

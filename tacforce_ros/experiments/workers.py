@@ -16,6 +16,7 @@ from tqdm import tqdm
 from tacforce_ros.control.command_sequence import ForceSequence
 from tacforce_ros.estimation.cross_validation import cross_validate
 from tacforce_ros.estimation.dataset import CalibrationDataset, concatenate
+from tacforce_ros.estimation.learning_curve import learning_curve
 from tacforce_ros.estimation.model_io import save_model
 from tacforce_ros.estimation.model_set import load_model_set
 from tacforce_ros.estimation.preprocessing import SAMPLE_RATE_HZ
@@ -73,6 +74,16 @@ def job_cross_validation(array: str, kind: str, hyper: dict, training_set: str) 
     hand, _ = worker_hand()
     X, F, plates, _ = load_training(training_set)
     return cross_validate(hand.array(array), kind, hyper, X, F, plates).summary()
+
+
+def job_learning_curve(array: str, paths: list[str], label: str, kind: str, hyper: dict,
+                       seconds: float, static_force: float) -> dict:
+    """One point of an array's learning curve (estimation/learning_curve.py) for one model."""
+    hand, _ = worker_hand()
+    dataset = concatenate([CalibrationDataset.load(p) for p in paths])
+    (row,) = learning_curve(hand.array(array), dataset, {label: (kind, hyper)}, (seconds,),
+                            force_threshold=static_force)
+    return row
 
 
 def job_benchmark(array: str, kind: str, hyper: dict, training_set: str, provenance: dict,

@@ -13,6 +13,7 @@ feedback is logged every `log_period` s. On SIGINT or SIGTERM a running goal is 
 from __future__ import annotations
 
 import sys
+import time
 
 import numpy as np
 from action_msgs.msg import GoalStatus
@@ -27,6 +28,7 @@ from tacforce_ros.nodes.parameters import (GRAVITY, HAND_CONFIG, ParamSpec, Para
 from tacforce_ros.nodes.runner import EXIT_FAILURE, EXIT_OK, run_node
 from tacforce_ros.sim.scene import SceneError, load_scene
 
+CANCEL_WAIT_S = 2.0     # wall s a stopping client waits for its cancel to be answered
 OUTCOMES = {Grasp.Result.HELD: 'held', Grasp.Result.RELEASED: 'released',
             Grasp.Result.FAILED: 'failed'}
 
@@ -142,7 +144,16 @@ class GraspClient(TacforceNode):
     def leave_safe(self) -> None:
         if self._handle is not None:
             self.get_logger().info('stopping: canceling the goal')
-            self._handle.cancel_goal_async()
+            cancel = self._handle.cancel_goal_async()
+            # The spin has ended: give the request its answer before the node goes.
+            deadline = time.monotonic() + CANCEL_WAIT_S
+            while not cancel.done() and time.monotonic() < deadline and self.executor:
+                self.executor.spin_once(timeout_sec=0.02)
+        elif not self._sent and self.now_ns() * 1e-9 >= self.params['start_time']:
+            # Due, and never sent: no server answered (a wrong action name, another namespace).
+            self.get_logger().error(f'stopping: the goal was never sent, no server on '
+                                    f'{self.params["action"]}')
+            self.exit_code = max(self.exit_code, EXIT_FAILURE)
 
 
 def main(args: list[str] | None = None) -> None:

@@ -15,21 +15,27 @@ hand's base frame).
 A goal is accepted and then checked: one that cannot run (no fingers, a finger that is not a
 fingertip or has no model in `model_config`, no thumb, more than one finger against the thumb,
 targets that are not 4 angles per finger, a grip outside 0.3 N to what the joints can press at
-the pose, a mass the grip cannot carry, no joint states yet, a grasp already running) ends
+the pose, a mass the grip cannot carry, no fresh joint states, a grasp already running) ends
 aborted with outcome FAILED and the reason: a ROS 2 goal rejection carries no reason, so the
-check runs after acceptance (as nav2's servers report theirs in the result). A running grasp:
-* holds `hold_time` s at its grip, then releases: succeeded, HELD;
+check runs after acceptance (as nav2's servers report theirs in the result). A new goal does not
+preempt a running one (a grasp handed from one goal to the next would restart its approach on a
+held object): cancel first. A running grasp:
+* holds `hold_time` s at its grip with every fingertip's estimate fresh, then releases:
+  succeeded, HELD;
 * is canceled: released, canceled, RELEASED;
 * loses the object (every fingertip's estimate below half its touch force for
-  `grasp.drop_time`): released, aborted, FAILED with the reason.
+  `grasp.drop_time`): released, aborted, FAILED with the reason;
+* is stopped with the node: released, aborted, FAILED.
 Feedback every `feedback_period` s: the phase, the grip asked and each fingertip's stage, mode,
-forces and freshness. Releasing sends zero torque to the grasp's joints once and then nothing
-(allegro_driver keeps zero torque on joints whose commands stop). A stale fingertip holds (its
-watchdog), the others go on; a second goal while one runs is refused (cancel the first).
+forces and freshness. Releasing opens the grasp: each of its fingers goes back to, and holds, the
+pose it had when the goal started (clear of the object) by its law's PD and gravity terms alone
+(mode "hold" on /grasp_controller/state), until the next goal; the fingers do not fall limp onto
+the object. A stale fingertip holds (its watchdog), the others go on.
 """
 from __future__ import annotations
 
 import sys
+import time
 from dataclasses import fields
 
 import numpy as np
@@ -39,7 +45,8 @@ from sensor_msgs.msg import JointState
 from tacforce_msgs.action import Grasp
 from tacforce_msgs.msg import ControllerState, FingerGrasp, ForceEstimateArray
 
-from tacforce_ros.control.force_controller import ControllerConfigError, ForceControllerConfig
+from tacforce_ros.control.force_controller import (MODE_HOLD, MODE_OPEN_LOOP,
+                                                   ControllerConfigError, ForceControllerConfig)
 from tacforce_ros.control.grasp import (PHASE_DROPPED, PHASE_HOLDING, GraspConfig,
                                         GraspController, GraspGoal, GraspGoalError,
                                         finger_configs)
@@ -56,11 +63,13 @@ from tacforce_ros.nodes.parameters import (FRAME_PREFIX, GRAVITY, HAND_CONFIG, P
 from tacforce_ros.nodes.qos import publisher_qos, subscriber_qos
 from tacforce_ros.nodes.realtime import REALTIME_PRIORITY
 from tacforce_ros.nodes.runner import run_node
-from tacforce_ros.rig import FINGERS, RATE_HZ
+from tacforce_ros.rig import FINGERS, RATE_HZ, finger_torque_limits
 from tacforce_ros.topics import (TOPIC_ESTIMATES, TOPIC_GRASP_STATE, TOPIC_JOINTS,
                                  TOPIC_TORQUE_COMMAND, relative)
 
 GRASP_GROUP = 'grasp'
+LEAVE_WAIT_S = 1.0     # wall s a stopping node gives a running goal's result to go out
+ZERO = np.zeros(3)
 # Set per fingertip (ForceControllerConfig.pressing_with, the goal's targets), not parameters.
 PER_FINGER = ('finger', 'force_frame', 'estimate_frame', 'q_d')
 ACTION = '~/grasp'
@@ -76,11 +85,13 @@ def _grasp_parameters() -> tuple[ParamSpec, ...]:
 class _Running:
     """The goal being run: its handle, what the controller got, and how it ends."""
 
-    def __init__(self, handle, goal: GraspGoal, hold_time: float, done: Future) -> None:
+    def __init__(self, handle, goal: GraspGoal, hold_time: float, done: Future,
+                 start: np.ndarray) -> None:
         self.handle = handle
         self.goal = goal
         self.hold_time = hold_time
         self.done = done
+        self.start = start              # q16 when the goal started: where a release goes back
         self.held = 0.0                 # s at the grip so far
         self.last_t: float | None = None
         self.next_feedback = -np.inf
@@ -119,6 +130,7 @@ class GraspControllerNode(TacforceNode):
         self._joints: tuple[np.ndarray, np.ndarray, int] | None = None   # q, qdot, stamp ns
         self._estimates: dict[str, tuple[np.ndarray, int]] = {}          # f_hat, stamp ns
         self._running: _Running | None = None
+        self._parked: dict[str, np.ndarray] = {}    # finger -> the pose it holds after a grasp
         self.refused_joint_states = 0
         self.create_subscription(JointState, relative(TOPIC_JOINTS), self._on_joints,
                                  subscriber_qos(TOPIC_JOINTS, depth=1))
@@ -198,7 +210,8 @@ class GraspControllerNode(TacforceNode):
         if refusal:
             return self._finish(handle, Grasp.Result.FAILED, f'refused: {refusal}', 0.0, 0.0)
         done = Future()
-        self._running = _Running(handle, goal, hold_time, done)
+        self._running = _Running(handle, goal, hold_time, done, self._joints[0].copy())
+        self._parked = {}
         self.get_logger().info(f'grasp with {", ".join(goal.fingers)} at {goal.grip:g} N'
                                + (f', {goal.mass:g} kg' if goal.mass else '')
                                + (f', for {hold_time:g} s' if hold_time else ', until canceled'))
@@ -212,6 +225,11 @@ class GraspControllerNode(TacforceNode):
                                f'{", ".join(self._running.goal.fingers)}); cancel it first')
         if self._joints is None:
             return None, 0.0, f'no joint states yet on {self.topic_name(TOPIC_JOINTS)}'
+        age = (self.now_ns() - self._joints[2]) * 1e-9
+        limit = min(c.joints_timeout for c in self.controller.configs.values())
+        if age > limit:
+            return None, 0.0, (f'the joint states on {self.topic_name(TOPIC_JOINTS)} are '
+                               f'{age:.3f} s old (more than {limit:g} s)')
         fingers = tuple(request.fingers)
         targets = np.asarray(request.targets, np.float64)
         if targets.size != 4 * len(fingers):
@@ -247,35 +265,59 @@ class GraspControllerNode(TacforceNode):
         return result
 
     def _end(self, outcome: int, reason: str) -> None:
-        """Release the running grasp and hand its outcome to its execute callback."""
+        """Release the running grasp (its fingers park at their start poses) and hand its
+        outcome to its execute callback."""
         running = self._running
         grip = self.controller.grip
-        fingers = list(self.controller.sessions)
+        self._parked = {f: running.start[self.kin.finger_joints(f)].copy()
+                        for f in self.controller.sessions}
         self.controller.release()
-        self._release_torques(fingers)
         self._running = None
         running.done.set_result((outcome, reason, grip, running.held))
 
-    def _release_torques(self, fingers: list[str]) -> None:
-        names = [name for f in fingers for name in self.kin.joint_names[
-            self.kin.finger_joints(f)]]
-        if names:
-            command = JointState(name=names, effort=[0.0] * len(names))
-            command.header.stamp = stamp(self.now_ns())
-            self.torque_publisher.publish(command)
+    def _park(self, now: int, q: np.ndarray, qdot: np.ndarray) -> None:
+        """The released fingers back at their start poses: each finger's law's PD toward it
+        plus gravity, within its torque limits; one 'hold' tick per finger on the state topic."""
+        gravity = np.asarray(self.kin.gravity_torques(q), np.float64)
+        names, efforts = [], []
+        base = self.frame(self.hand.base_frame)
+        for finger, target in self._parked.items():
+            cfg = self.controller.configs[finger]
+            joints = self.kin.finger_joints(finger)
+            limit = np.minimum(cfg.torque_cap, finger_torque_limits(finger))
+            tau = np.clip(gravity[joints] + np.asarray(cfg.k_p) * (target - q[joints])
+                          - np.asarray(cfg.k_d) * qdot[joints], -limit, limit)
+            names += list(self.kin.joint_names[joints])
+            efforts += tau.tolist()
+            msg = ControllerState(finger=finger, mode=MODE_HOLD, desired_force=vector3(ZERO),
+                                  estimated_force=vector3(np.full(3, np.nan)),
+                                  integral_error=vector3(ZERO), q=q[joints].tolist(),
+                                  qdot=qdot[joints].tolist(), tau_cmd=tau.tolist(),
+                                  saturation_scale=1.0, estimate_fresh=False,
+                                  estimate_age=float('inf'), joints_fresh=True)
+            msg.header.stamp = stamp(now)
+            msg.header.frame_id = base
+            self.state_publisher.publish(msg)
+        command = JointState(name=names, effort=efforts)
+        command.header.stamp = stamp(now)
+        self.torque_publisher.publish(command)
 
     # --- control tick ------------------------------------------------------------------------
 
     def _control(self) -> None:
         running = self._running
-        if running is None or self._joints is None:
+        if self._joints is None:
+            return
+        now = self.now_ns()
+        q, qdot, q_ns = self._joints
+        if running is None:
+            if self._parked:
+                self._park(now, q, qdot)
             return
         if running.handle.is_cancel_requested:
             self._end(Grasp.Result.RELEASED, 'canceled: released')
             return
-        now = self.now_ns()
         t = now * 1e-9
-        q, qdot, q_ns = self._joints
         estimates = {f: (f_hat, (now - ns) * 1e-9) for f, (f_hat, ns) in self._estimates.items()}
         tau, state = self.controller.update(t, q, qdot, estimates, (now - q_ns) * 1e-9)
         for line in state.transitions:
@@ -290,7 +332,10 @@ class GraspControllerNode(TacforceNode):
             self.state_publisher.publish(controller_state(
                 now, base, finger, fs.controller, q[self.kin.finger_joints(finger)],
                 qdot[self.kin.finger_joints(finger)]))
-        if running.last_t is not None and state.phase == PHASE_HOLDING:
+        # Held: at the grip, every fingertip on a fresh estimate (a stale one holds blind).
+        fresh = all(fs.controller.estimate_fresh or fs.controller.mode == MODE_OPEN_LOOP
+                    for fs in state.fingers.values())
+        if running.last_t is not None and state.phase == PHASE_HOLDING and fresh:
             running.held += max(0.0, t - running.last_t)
         running.last_t = t
         if t >= running.next_feedback:
@@ -314,8 +359,17 @@ class GraspControllerNode(TacforceNode):
                                   for f, s in state.fingers.items()])
 
     def leave_safe(self) -> None:
-        if self._running is not None:
-            self._end(Grasp.Result.FAILED, 'grasp_controller stopped: released')
+        running = self._running
+        if running is None:
+            return
+        self._end(Grasp.Result.FAILED, 'grasp_controller stopped: released')
+        # The spin has ended: let the goal's execute callback finish, so its client gets the
+        # result (aborted) instead of waiting for one that never comes.
+        deadline = time.monotonic() + LEAVE_WAIT_S
+        while running.handle.is_active and time.monotonic() < deadline and self.executor:
+            self.executor.spin_once(timeout_sec=0.02)
+        for _ in range(5):      # the result's answer on its way
+            self.executor.spin_once(timeout_sec=0.01)
 
 
 def main(args: list[str] | None = None) -> None:

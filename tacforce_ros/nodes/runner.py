@@ -153,7 +153,6 @@ def run_nodes(parts: Sequence[tuple[type[TacforceNode], Sequence[str] | None]],
             # Short spin slices: a signal only sets `stop`, which is seen within 0.1 s.
             while not stop.is_set() and rclpy.ok():
                 spinner.spin_once(timeout_sec=0.1)
-            code = max([code, *(node.exit_code for node in nodes)])
         except Exception as exc:    # noqa: BLE001 - report, still leave things safe below
             logger.fatal(f'stopped by an error: {type(exc).__name__}: {exc}')
             code = EXIT_FAILURE
@@ -166,6 +165,8 @@ def run_nodes(parts: Sequence[tuple[type[TacforceNode], Sequence[str] | None]],
                 except Exception as exc:    # noqa: BLE001 - the others must still be left safe
                     node.get_logger().fatal(f'shutdown failed: {type(exc).__name__}: {exc}')
                     code = EXIT_FAILURE
+            # A node that ended its job (finish()) or its stop with an exit code of its own.
+            code = max([code, *(node.exit_code for node in nodes)])
         finally:
             if spinner is not None:
                 spinner.shutdown()      # lets go of the nodes' handles first

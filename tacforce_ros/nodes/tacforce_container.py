@@ -34,7 +34,7 @@ NODE_CLASSES = {'xela_driver': 'XelaDriver', 'ft_bridge': 'FtBridge',
                 'estimator': 'Estimator',
                 'sync_recorder': 'SyncRecorder', 'coverage_view': 'CoverageViewNode',
                 'command_player': 'CommandPlayer',
-                'grasp_controller': 'GraspControllerNode', 'grasp_client': 'GraspClient',
+                'grasp_controller': 'GraspControllerNode',
                 'sim_world': 'SimWorld'}
 USAGE = ('usage: tacforce_container --node NAME [--ros-args ...] [--node NAME ...]; NAME one of '
          + ', '.join(NODE_CLASSES))

@@ -49,7 +49,11 @@ def launch(tmp_path, *arguments: str, timeout: float = 120.0) -> subprocess.Comp
      'model: not an argument of this launch file'),
     (('closed_loop.launch.py', 'seed:=abc'), "seed:='abc': expected an integer"),
     (('closed_loop.launch.py', 'sim:=false', 'seed:=3'), 'seed: only simulation reads it'),
-    (('two_hands_sim.launch.py', 'hand_side:=left'), 'hand_side: not an argument')])
+    (('two_hands_sim.launch.py', 'hand_side:=left'), 'hand_side: not an argument'),
+    (('grasp.launch.py', 'grip:=strong'), "grip:='strong': expected a number"),
+    (('grasp.launch.py', 'sim:=false', 'hold_time:=3'), 'hold_time: only simulation reads it'),
+    (('grasp.launch.py', 'object:=egg'), 'grasp_egg'),
+    (('closed_loop.launch.py', 'object:=golf_ball'), 'object: not an argument')])
 def test_a_bad_argument_starts_nothing_and_names_itself(tmp_path, arguments, message):
     done = launch(tmp_path, *arguments)
     output = done.stdout + done.stderr
@@ -69,3 +73,18 @@ def test_a_node_that_fails_ends_the_launch_non_zero_naming_it(tmp_path):
     assert done.returncode == 1, output
     assert '/sim_world exited with code 1' in output, output
     assert 'process has died' not in output.split('/sim_world exited with code 1')[1], output
+
+
+def test_a_simulated_grasp_ends_the_launch_cleanly_when_its_client_has_the_result(tmp_path):
+    """grasp.launch.py with a hold time: grasp_client gets HELD and exits 0, which shuts the
+    launch down; every node stops cleanly and the launch exits 0."""
+    xela, netft, can = free_ports(offset=10)
+    done = launch(tmp_path, 'grasp.launch.py', 'hold_time:=1.5', f'xela_port:={xela}',
+                  f'netft_port:={netft}', f'can_port:={can}', timeout=300.0)
+    output = done.stdout + done.stderr
+    assert done.returncode == 0, output[-4000:]
+    assert 'grasp held: held' in output, output[-4000:]
+    finished = [line for line in output.splitlines()
+                if 'grasp_client' in line and 'process has finished cleanly' in line]
+    assert finished and 'shutting down' in output.split(finished[0])[1], output[-4000:]
+    assert 'process has died' not in output, output[-4000:]

@@ -7,7 +7,8 @@ from pathlib import Path
 import pytest
 import yaml
 
-from tacforce_ros.bringup.session_plan import MODES, PlanError, SessionArgs, params_node_key, plan
+from tacforce_ros.bringup.session_plan import (MODES, PlanError, SessionArgs, params_node_key,
+                                             plan, shipped_parameters)
 from tacforce_ros.paths import share_dir
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
@@ -326,7 +327,7 @@ def test_a_campaign_session_after_a_poor_one_takes_the_next_seed_and_a_complete_
     (dict(mode='grasp', grasp_object='egg'), 'scene: .*grasp_egg'),
     (dict(mode='grasp', scene='closed_loop_spherical'),
      "scene 'closed_loop_spherical' is a closed_loop scene, not grasp"),
-    (dict(mode='grasp', grip=-1.0), 'the grip must be above 0')])
+    (dict(mode='grasp', grip=0.2), 'the grip must be at least 0.3 N')])
 def test_an_argument_the_session_would_ignore_or_cannot_use_is_refused(args, message):
     """In both modes, simulated or not: what the session would silently ignore (another mode's,
     or simulation's, on the hardware) or could not use is refused before any node starts."""
@@ -402,3 +403,14 @@ def test_a_grasp_session_refuses_models_without_the_thumbs_fingertip(tmp_path):
     models.write_text('models:\n  index_tip: index_tip_M3-lambda.npz\n')
     with pytest.raises(PlanError, match="model: .* a grasp needs the thumb's fingertip"):
         plan(SessionArgs(mode='grasp', model_config=str(models)))
+
+
+def test_a_namespaced_grasp_client_finds_the_server_of_its_own_hand():
+    """The client's action name is relative (shipped file and default), so in /left it is
+    /left/grasp_controller/grasp, where that hand's grasp_controller serves (~/grasp)."""
+    nodes = {n.executable: n for n in plan(SessionArgs(mode='grasp', namespace='/left'))}
+    client = nodes['grasp_client']
+    assert client.namespace == '/left' and nodes['grasp_controller'].namespace == '/left'
+    assert 'action' not in client.overrides
+    shipped = shipped_parameters('grasp_client')['action']
+    assert not shipped.startswith('/') and shipped == 'grasp_controller/grasp'

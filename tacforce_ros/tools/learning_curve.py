@@ -1,0 +1,139 @@
+"""learning_curve: how much calibration a model needs. Calibration bags, campaign folders or
+processed datasets (as `train` reads them) -> per array and model kind, the leave-one-plate-out
+e_hat of models trained on the first `--seconds` of the recording, spread evenly over the plates
+(each plate's sessions in the order recorded: estimation/learning_curve.py); JSON, a Markdown
+table and a figure (learning_curve.png).
+
+    learning_curve CAMPAIGN_DIR --out out/curve --kinds M3-lambda M4
+    learning_curve data/sim/*.npz --out out/curve --arrays index_tip --seconds 25 100 400
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+from typing import Any
+
+from tacforce_ros import results
+from tacforce_ros.estimation.dataset import DatasetError, concatenate
+from tacforce_ros.estimation.learning_curve import SECONDS, learning_curve
+from tacforce_ros.estimation.preprocessing import StaticSegmentError
+from tacforce_ros.estimation.registry import MODEL_KINDS
+from tacforce_ros.hand.description import SIDES
+from tacforce_ros.paths import output_folder
+from tacforce_ros.tools.train import expand_campaigns, load_inputs, model_hyper
+
+
+def curve_table(rows: list[dict[str, Any]]) -> list[str]:
+    """Markdown: a row per array and model, a column per point (e_hat in N; '-' where the cut
+    could not train; the seconds actually recorded where less than asked)."""
+    points = sorted({r['seconds'] for r in rows})
+    lines = ['| array | model | way | ' + ' | '.join(f'{s:g} s' for s in points) + ' |',
+             '|---|---|---|' + '---|' * len(points)]
+    groups = dict.fromkeys((r['array'], r['model'], r.get('way', 'own')) for r in rows)
+    for array, model, way in groups:
+        cells = []
+        for s in points:
+            row = next((r for r in rows if (r['array'], r['model'], r.get('way', 'own'), r[
+                'seconds']) == (array, model, way, s)), None)
+            if row is None or row['e_hat_n'] is None:
+                cells.append('-')
+                continue
+            short = row['recorded_s'] < 0.99 * s
+            cells.append(f"{row['e_hat_n']:.3f}" + (f" ({row['recorded_s']:.0f} s)" if short
+                                                     else ''))
+        lines.append(f'| {array} | {model} | {way} | ' + ' | '.join(cells) + ' |')
+    return lines
+
+
+def plot_curves(rows: list[dict[str, Any]], path: Path, title: str) -> Path:
+    """e_hat against labelled seconds (log axis), a panel per array, a line per model and way."""
+    import matplotlib.pyplot as plt
+    arrays = list(dict.fromkeys(r['array'] for r in rows))
+    fig, axes = plt.subplots(1, len(arrays), figsize=(5.0 * len(arrays), 3.8), squeeze=False)
+    for ax, array in zip(axes[0], arrays):
+        mine = [r for r in rows if r['array'] == array and r['e_hat_n'] is not None]
+        for model, way in dict.fromkeys((r['model'], r.get('way', 'own')) for r in mine):
+            line = sorted((r['recorded_s'], r['e_hat_n']) for r in mine
+                          if (r['model'], r.get('way', 'own')) == (model, way))
+            ax.plot(*zip(*line), marker='o', label=f'{model} ({way})')
+        ax.set_xscale('log')
+        ax.set_xlabel('labelled seconds on the array')
+        ax.set_ylabel('held-out e_hat [N]')
+        ax.set_title(array)
+        ax.grid(True, which='both', alpha=0.3)
+        ax.legend()
+    fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def markdown(result: dict[str, Any]) -> str:
+    return (results.header(result, 'Learning curves: held-out e_hat against labelled seconds',
+                           result['command'])
+            + '\nLeave-one-plate-out e_hat [N] of each model trained on the first seconds of '
+              'the recording, spread evenly over the plates; tested on all of the held-out '
+              "plate's data.\n\n" + '\n'.join(curve_table(result['rows'])) + '\n')
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog='learning_curve', description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument('inputs', nargs='+', type=Path,
+                        help='calibration bag folders, campaign folders and/or dataset .npz files')
+    parser.add_argument('--out', type=output_folder, required=True,
+                        help='folder for learning_curve.json, .md and .png')
+    parser.add_argument('--kinds', nargs='+', default=['M3-lambda', 'M4'],
+                        choices=sorted(MODEL_KINDS), help='model kinds (default M3-lambda M4)')
+    parser.add_argument('--arrays', nargs='+', help='only these arrays (default: all found)')
+    parser.add_argument('--seconds', nargs='+', type=float, default=list(SECONDS),
+                        help='labelled seconds per array of each point (default: %(default)s)')
+    parser.add_argument('--hand-side', choices=SIDES, default=None,
+                        help='the hand of the inputs (default: the one they name)')
+    parser.add_argument('--lam', type=float, default=33.0, help='M3-lambda damping (paper: 33)')
+    parser.add_argument('--seed', type=int, default=0, help='seed of the random models (M4, M5)')
+    parser.add_argument('--static-force', type=float, default=0.3,
+                        help='offsets: force within this of the no-contact reading [N]')
+    args = parser.parse_args(argv)
+    if any(s <= 0 for s in args.seconds):
+        parser.error('--seconds must all be > 0')
+    missing = [str(p) for p in args.inputs if not p.exists()]
+    if missing:
+        parser.error(f'inputs not found: {missing}')
+    result: dict[str, Any] = {'provenance': results.provenance(),
+                              'command': 'learning_curve ' + ' '.join(argv or sys.argv[1:]),
+                              'rows': []}
+    try:
+        read: dict = {}
+        hand, by_array, _ = load_inputs(expand_campaigns(args.inputs, read), args.hand_side,
+                                        read)
+        arrays = args.arrays or sorted(by_array)
+        unknown = [a for a in arrays if a not in by_array]
+        if unknown:
+            raise ValueError(f'no recordings of {unknown} in the inputs (found '
+                             f'{sorted(by_array)})')
+        models = {kind: (kind, model_hyper(kind, args.seed, False, args.lam, 'cpu'))
+                  for kind in args.kinds}
+        for array in arrays:
+            dataset = concatenate(by_array[array])
+            rows = learning_curve(hand.array(array), dataset, models, args.seconds,
+                                  force_threshold=args.static_force)
+            result['rows'] += [{**r, 'way': 'own'} for r in rows]
+            print(f'{array}: ' + ', '.join(
+                f"{r['model']} {r['seconds']:g} s {r['e_hat_n']:.3f} N"
+                if r['e_hat_n'] is not None else f"{r['model']} {r['seconds']:g} s -"
+                for r in rows), flush=True)
+    except (DatasetError, StaticSegmentError, ValueError, OSError) as exc:
+        print(f'learning_curve: {exc}', file=sys.stderr)
+        return 1
+    json_path, md_path = results.write(args.out, 'learning_curve', result, markdown)
+    figure = plot_curves(result['rows'], args.out / 'learning_curve.png',
+                         'held-out e_hat against labelled seconds')
+    print(f'wrote {json_path}, {md_path}, {figure}')
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

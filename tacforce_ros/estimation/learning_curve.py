@@ -4,21 +4,23 @@ of 4 x 100 s, and never measured how much its models need).
 
 A point of the curve is a recording an operator stops after `seconds` in all, spread evenly over
 the plates: on each plate its sessions in the order they were recorded, cut after seconds / plates
-(first_seconds). Offsets come from that cut alone, as the operator has nothing else. The error is
-the paper's leave-one-plate-out e_hat: each fold trains on the cut of the other plates and is
-tested on all of the held-out plate's data (offsets from its full sessions), so a small cut is
-judged on as much data as a large one. At the full recording the point is Table I's.
+(first_seconds). Offsets are each session's, from its rest wherever it falls: the operator's
+rest is not pressing, and one before the first press costs no labelled time (a simulated session
+may press from its first second and rest later: offsets from a 5 s cut of it would not exist).
+The error is the paper's leave-one-plate-out e_hat: each fold trains on the cut of the other
+plates and is tested on all of the held-out plate's data, so a small cut is judged on as much
+data as a large one. At the full recording the point is Table I's.
 """
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from tacforce_ros.estimation.cross_validation import cross_validate
 from tacforce_ros.estimation.dataset import CalibrationDataset
-from tacforce_ros.estimation.preprocessing import StaticSegmentError
 
 if TYPE_CHECKING:
     from tacforce_ros.hand.description import TaxelArray
@@ -39,6 +41,15 @@ def recorded_seconds(dataset: CalibrationDataset) -> float:
 def first_seconds(dataset: CalibrationDataset, per_plate: float) -> CalibrationDataset:
     """The recording cut after `per_plate` seconds on each plate: its sessions in the order they
     were recorded, whole until the budget runs out, then the start of the next."""
+    keep = cut_rows(dataset, per_plate)
+    return CalibrationDataset(array=dataset.array, X=dataset.X[keep], F=dataset.F[keep],
+                              plates=dataset.plates[keep], sessions=dataset.sessions[keep],
+                              time=dataset.time[keep], source=dataset.source,
+                              hand_side=dataset.hand_side)
+
+
+def cut_rows(dataset: CalibrationDataset, per_plate: float) -> np.ndarray:
+    """The rows first_seconds keeps (bool, one per sample)."""
     if not per_plate > 0:
         raise ValueError(f'per_plate {per_plate!r}: must be > 0 s')
     keep = np.zeros(dataset.F.shape[0], bool)
@@ -53,10 +64,7 @@ def first_seconds(dataset: CalibrationDataset, per_plate: float) -> CalibrationD
             left -= float(t[-1]) + period
             if left <= 0:
                 break
-    return CalibrationDataset(array=dataset.array, X=dataset.X[keep], F=dataset.F[keep],
-                              plates=dataset.plates[keep], sessions=dataset.sessions[keep],
-                              time=dataset.time[keep], source=dataset.source,
-                              hand_side=dataset.hand_side)
+    return keep
 
 
 def learning_curve(array: TaxelArray, dataset: CalibrationDataset,
@@ -65,8 +73,8 @@ def learning_curve(array: TaxelArray, dataset: CalibrationDataset,
                    ) -> list[dict[str, Any]]:
     """One row per point and model (models: label -> (kind, hyperparameters)): `seconds` asked,
     `recorded_s` (the cut: less where the recording is shorter), `e_hat_n` and `e_r` (means over
-    the folds), `samples`; `e_hat_n` None with a `reason` where the cut cannot train (no rest to
-    take offsets from). static_kw: how offsets find rest (CalibrationDataset.without_offsets)."""
+    the folds), `samples`. static_kw: how offsets find rest (CalibrationDataset.without_offsets);
+    StaticSegmentError when a session has none."""
     plates = dataset.plate_names()
     if len(plates) < 2:
         raise ValueError(f'{dataset.array}: a learning curve needs >= 2 plates, got {plates}')
@@ -74,18 +82,59 @@ def learning_curve(array: TaxelArray, dataset: CalibrationDataset,
     held_out = (X_all, F_all, dataset.plates)
     rows = []
     for total in seconds:
+        keep = cut_rows(dataset, total / len(plates))
         cut = first_seconds(dataset, total / len(plates))
         point = {'array': dataset.array, 'seconds': float(total),
-                 'recorded_s': recorded_seconds(cut), 'samples': int(cut.F.shape[0])}
-        try:
-            X, F, _ = cut.without_offsets(**static_kw)
-        except StaticSegmentError as exc:
-            rows += [{**point, 'model': label, 'e_hat_n': None, 'e_r': None,
-                      'reason': f'no offsets from the cut: {exc}'} for label in models]
-            continue
+                 'recorded_s': recorded_seconds(cut), 'samples': int(keep.sum())}
         for label, (kind, hyper) in models.items():
-            summary = cross_validate(array, kind, hyper, X, F, cut.plates,
-                                     held_out=held_out).summary()
+            summary = cross_validate(array, kind, hyper, X_all[keep], F_all[keep],
+                                     dataset.plates[keep], held_out=held_out).summary()
             rows.append({**point, 'model': label, 'e_hat_n': summary['e_hat_mean'],
                          'e_r': summary['e_r_mean']})
     return rows
+
+
+def curve_table(rows: list[dict[str, Any]]) -> list[str]:
+    """Markdown: a row per array and model, a column per point (e_hat in N; '-' where the cut
+    could not train; the seconds actually recorded where less than asked)."""
+    points = sorted({r['seconds'] for r in rows})
+    lines = ['| array | model | way | ' + ' | '.join(f'{s:g} s' for s in points) + ' |',
+             '|---|---|---|' + '---|' * len(points)]
+    groups = dict.fromkeys((r['array'], r['model'], r.get('way', 'own')) for r in rows)
+    for array, model, way in groups:
+        cells = []
+        for s in points:
+            row = next((r for r in rows if (r['array'], r['model'], r.get('way', 'own'), r[
+                'seconds']) == (array, model, way, s)), None)
+            if row is None or row['e_hat_n'] is None:
+                cells.append('-')
+                continue
+            short = row['recorded_s'] < 0.99 * s
+            cells.append(f"{row['e_hat_n']:.3f}" + (f" ({row['recorded_s']:.0f} s)" if short
+                                                     else ''))
+        lines.append(f'| {array} | {model} | {way} | ' + ' | '.join(cells) + ' |')
+    return lines
+
+
+def plot_curves(rows: list[dict[str, Any]], path: Path, title: str) -> Path:
+    """e_hat against labelled seconds (log axis), a panel per array, a line per model and way."""
+    import matplotlib.pyplot as plt
+    arrays = list(dict.fromkeys(r['array'] for r in rows))
+    fig, axes = plt.subplots(1, len(arrays), figsize=(5.0 * len(arrays), 3.8), squeeze=False)
+    for ax, array in zip(axes[0], arrays):
+        mine = [r for r in rows if r['array'] == array and r['e_hat_n'] is not None]
+        for model, way in dict.fromkeys((r['model'], r.get('way', 'own')) for r in mine):
+            line = sorted((r['recorded_s'], r['e_hat_n']) for r in mine
+                          if (r['model'], r.get('way', 'own')) == (model, way))
+            ax.plot(*zip(*line), marker='o', label=f'{model} ({way})')
+        ax.set_xscale('log')
+        ax.set_xlabel('labelled seconds on the array')
+        ax.set_ylabel('held-out e_hat [N]')
+        ax.set_title(array)
+        ax.grid(True, which='both', alpha=0.3)
+        ax.legend()
+    fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path

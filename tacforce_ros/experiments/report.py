@@ -278,7 +278,7 @@ def learning_curve_section(curve: dict | None) -> list[str]:
     """Held-out e_hat against labelled seconds (not in the paper): what calibration costs."""
     if not curve:
         return []
-    from tacforce_ros.tools.learning_curve import curve_table
+    from tacforce_ros.estimation.learning_curve import curve_table
     return ['## Learning curves — held-out e_hat against labelled seconds (not in the paper)', '',
             "Leave-one-plate-out e_hat [N] of each model trained on the first seconds of the "
             "array's training sessions, spread evenly over the five plates (each plate's sessions "

@@ -69,7 +69,7 @@ def figures(out: Path, cv: dict, table_i: dict, end_to_end: dict, traces: dict,
     from tacforce_ros.experiments import plots
     from tacforce_ros.hand.description import load_hand
     from tacforce_ros.hand.figure import hand_errors
-    from tacforce_ros.tools.learning_curve import plot_curves
+    from tacforce_ros.estimation.learning_curve import plot_curves
     names = [plots.accuracy_vs_time(table_i, end_to_end, out / 'accuracy_vs_time.png').name,
              plot_curves(learning, out / 'learning_curve.png',
                          'SIMULATION: held-out e_hat against labelled seconds').name,

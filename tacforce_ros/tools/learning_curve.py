@@ -16,58 +16,13 @@ from typing import Any
 
 from tacforce_ros import results
 from tacforce_ros.estimation.dataset import DatasetError, concatenate
-from tacforce_ros.estimation.learning_curve import SECONDS, learning_curve
+from tacforce_ros.estimation.learning_curve import (SECONDS, curve_table, learning_curve,
+                                                    plot_curves)
 from tacforce_ros.estimation.preprocessing import StaticSegmentError
 from tacforce_ros.estimation.registry import MODEL_KINDS
 from tacforce_ros.hand.description import SIDES
 from tacforce_ros.paths import output_folder
-from tacforce_ros.tools.train import expand_campaigns, load_inputs, model_hyper
-
-
-def curve_table(rows: list[dict[str, Any]]) -> list[str]:
-    """Markdown: a row per array and model, a column per point (e_hat in N; '-' where the cut
-    could not train; the seconds actually recorded where less than asked)."""
-    points = sorted({r['seconds'] for r in rows})
-    lines = ['| array | model | way | ' + ' | '.join(f'{s:g} s' for s in points) + ' |',
-             '|---|---|---|' + '---|' * len(points)]
-    groups = dict.fromkeys((r['array'], r['model'], r.get('way', 'own')) for r in rows)
-    for array, model, way in groups:
-        cells = []
-        for s in points:
-            row = next((r for r in rows if (r['array'], r['model'], r.get('way', 'own'), r[
-                'seconds']) == (array, model, way, s)), None)
-            if row is None or row['e_hat_n'] is None:
-                cells.append('-')
-                continue
-            short = row['recorded_s'] < 0.99 * s
-            cells.append(f"{row['e_hat_n']:.3f}" + (f" ({row['recorded_s']:.0f} s)" if short
-                                                     else ''))
-        lines.append(f'| {array} | {model} | {way} | ' + ' | '.join(cells) + ' |')
-    return lines
-
-
-def plot_curves(rows: list[dict[str, Any]], path: Path, title: str) -> Path:
-    """e_hat against labelled seconds (log axis), a panel per array, a line per model and way."""
-    import matplotlib.pyplot as plt
-    arrays = list(dict.fromkeys(r['array'] for r in rows))
-    fig, axes = plt.subplots(1, len(arrays), figsize=(5.0 * len(arrays), 3.8), squeeze=False)
-    for ax, array in zip(axes[0], arrays):
-        mine = [r for r in rows if r['array'] == array and r['e_hat_n'] is not None]
-        for model, way in dict.fromkeys((r['model'], r.get('way', 'own')) for r in mine):
-            line = sorted((r['recorded_s'], r['e_hat_n']) for r in mine
-                          if (r['model'], r.get('way', 'own')) == (model, way))
-            ax.plot(*zip(*line), marker='o', label=f'{model} ({way})')
-        ax.set_xscale('log')
-        ax.set_xlabel('labelled seconds on the array')
-        ax.set_ylabel('held-out e_hat [N]')
-        ax.set_title(array)
-        ax.grid(True, which='both', alpha=0.3)
-        ax.legend()
-    fig.suptitle(title)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+from tacforce_ros.tools.calibration_inputs import expand_campaigns, load_inputs, model_hyper
 
 
 def markdown(result: dict[str, Any]) -> str:

@@ -18,89 +18,22 @@ import argparse
 import json
 import sys
 import time
-from collections import defaultdict
 from pathlib import Path
 
 from tqdm import tqdm
 
 from tacforce_ros import results
 from tacforce_ros.estimation.cross_validation import cross_validate
-from tacforce_ros.estimation.dataset import CalibrationDataset, DatasetError, concatenate
+from tacforce_ros.estimation.dataset import DatasetError, concatenate
 from tacforce_ros.estimation.m1_rotation_linear import NORMAL_INPUT_NOTE, normal_input_per_newton
-from tacforce_ros.estimation.m3_lambda import DEFAULT_GRID
 from tacforce_ros.estimation.model_io import save_model
 from tacforce_ros.estimation.model_set import write_model_config
 from tacforce_ros.estimation.preprocessing import StaticSegmentError
 from tacforce_ros.estimation.registry import MODEL_KINDS, TORCH_KINDS
 from tacforce_ros.estimation.training import fit_bundle, for_deployment
-from tacforce_ros.hand.description import (ARRAY_KIND_TITLES, DEFAULT_SIDE, SIDES,
-                                           HandDescription, hand_config, load_hand, side_of)
+from tacforce_ros.hand.description import ARRAY_KIND_TITLES, SIDES
 from tacforce_ros.paths import output_folder
-
-
-def model_hyper(kind: str, seed: int, lambda_cv: bool, lam: float, device: str) -> dict:
-    if kind in TORCH_KINDS:
-        return {'seed': seed, 'device': device}
-    if kind == 'M3-lambda':
-        return {'lam': lam, 'lambda_grid': list(DEFAULT_GRID) if lambda_cv else None}
-    return {}
-
-
-def expand_campaigns(paths: list[Path], read: dict | None = None) -> list[Path]:
-    """Each campaign folder replaced by the bags of it that count; other paths kept. `read`
-    receives the datasets of the bags judging them read (Campaign.check)."""
-    from tacforce_ros.hand.kinematics import HandKinematics
-    from tacforce_ros.recording.campaign import Campaign, is_campaign, verdict_line
-
-    expanded = []
-    for path in paths:
-        if not is_campaign(path):
-            expanded.append(path)
-            continue
-        campaign = Campaign(path)
-        hand = load_hand(hand_config(campaign.plan.hand_side))
-        # Judged as `campaign status` judges, but the campaign is left as it is.
-        records = campaign.check(hand, HandKinematics(hand.urdf_path), write=False, read=read,
-                                 progress=lambda *judged: print(verdict_line(*judged),
-                                                                file=sys.stderr))
-        due = campaign.due(records)
-        if due:
-            print(f'train: campaign {path} is missing {len(due)} sessions (`campaign status '
-                  f'{path}`); training on what it has', file=sys.stderr)
-        if not records:
-            raise ValueError(f'campaign {path} has no bag that counts yet (`campaign status '
-                             f'{path}`)')
-        expanded += campaign.counted_bags(records)
-    return expanded
-
-
-def load_inputs(paths: list[Path], side: str | None, read: dict | None = None
-                ) -> tuple[HandDescription, dict[str, list[CalibrationDataset]], int]:
-    """The hand the inputs are of (the one their bags and datasets name, all the same, or
-    `side`), their datasets by array name, and the malformed messages dropped. `read`: bag
-    path -> (dataset, dropped) already read (expand_campaigns), not read again."""
-    from tacforce_ros.bagio import read_session_metadata
-    bags = [p for p in paths if p.is_dir()]
-    datasets = [CalibrationDataset.load(p) for p in paths if not p.is_dir()]
-    sides = ({side_of(read_session_metadata(p).get('hand_side')) for p in bags}
-             | {d.hand_side for d in datasets} | ({side} if side is not None else set()))
-    if len(sides) > 1:
-        raise ValueError(f'inputs of more than one hand ({sorted(sides)}): train each hand '
-                         'on its own')
-    hand = load_hand(hand_config(sides.pop() if sides else DEFAULT_SIDE))
-    by_array: dict[str, list[CalibrationDataset]] = defaultdict(list)
-    dropped = 0
-    if bags:
-        from tacforce_ros.estimation.bag_dataset import dataset_from_bag
-        from tacforce_ros.hand.kinematics import HandKinematics
-        kinematics = HandKinematics(hand.urdf_path)
-        for bag in tqdm(bags, desc='bags', unit='bag'):
-            dataset, n_dropped = (read or {}).get(bag) or dataset_from_bag(bag, hand, kinematics)
-            by_array[dataset.array].append(dataset)
-            dropped += n_dropped
-    for dataset in datasets:
-        by_array[dataset.array].append(dataset)
-    return hand, by_array, dropped
+from tacforce_ros.tools.calibration_inputs import expand_campaigns, load_inputs, model_hyper
 
 
 def markdown_report(report: dict) -> str:

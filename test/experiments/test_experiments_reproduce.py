@@ -177,13 +177,29 @@ def test_report_holds_every_stage_and_labels_it_simulation(runs):
 def test_figures_are_png_images(runs):
     import matplotlib.image
     out, doc, _, _ = runs
-    assert len(doc['figures']) == 3 + len(doc['settings']['objects']) + len(
+    assert len(doc['figures']) == 4 + len(doc['settings']['objects']) + len(
         doc['settings']['grasp_objects'])
     for name in doc['figures']:
         path = out / name
         assert path.read_bytes()[:8] == b'\x89PNG\r\n\x1a\n', name
         image = matplotlib.image.imread(path)
         assert image.ndim == 3 and min(image.shape[:2]) > 100 and np.ptp(image) > 0, name
+
+
+def test_the_learning_curves_hold_every_array_model_and_point_as_the_table_shows(runs):
+    _, doc, md, _ = runs
+    rows, s = doc['learning_curve']['rows'], doc['settings']
+    assert {(r['array'], r['model'], r['seconds']) for r in rows} == {
+        (a, m, t) for a in ('index_tip', 'index_middle') for m in s['learning_models']
+        for t in s['learning_seconds']}
+    assert all(r['way'] == 'own' and r['e_hat_n'] > 0 for r in rows)
+    assert '## Learning curves' in md and 'learning_curve.png' in doc['figures']
+    for r in rows:
+        line = next(x for x in md.splitlines() if x.startswith(f"| {r['array']} | {r['model']} |"))
+        assert f"{r['e_hat_n']:.3f}" in line, (r, line)
+    # The quick run records 20 s per plate: its 100 s point is the whole recording.
+    full = [r for r in rows if r['seconds'] == 100.0]
+    assert all(abs(r['recorded_s'] - 100.0) < 1.0 for r in full)
 
 
 def test_second_run_comes_from_the_cache_with_the_same_results(runs):

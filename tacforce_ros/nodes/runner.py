@@ -18,7 +18,7 @@ import rclpy
 from rclpy.executors import Executor, MultiThreadedExecutor, SingleThreadedExecutor
 from rclpy.utilities import remove_ros_args
 
-from tacforce_ros.nodes.node_base import StopFlag, StopRequested, TacforceNode
+from tacforce_ros.nodes.node_base import StopFlag, StopRequested, TacforceNode, half_built
 from tacforce_ros.nodes.parameters import ParameterError, unmatched_params_files
 
 EXIT_OK = 0
@@ -72,6 +72,15 @@ def events_executor() -> Executor:
     except ImportError:         # Humble
         return SingleThreadedExecutor()
     return EventsExecutor()
+
+
+def _destroy_half_built(nodes: list[TacforceNode]) -> None:
+    half = half_built(nodes)
+    if half is not None:
+        try:
+            half.destroy_node()
+        except Exception:   # noqa: BLE001 - a constructor that failed may have left it partial
+            pass
 
 
 def run_node(node_cls: type[TacforceNode], args: Sequence[str] | None = None, *,
@@ -138,9 +147,11 @@ def run_nodes(parts: Sequence[tuple[type[TacforceNode], Sequence[str] | None]],
                 except ParameterError as exc:
                     logger.fatal(f'refusing to start: {exc}')
                     code = EXIT_BAD_PARAMETERS
+                    _destroy_half_built(nodes)
                     return code
                 except StopRequested as exc:
                     logger.info(f'{exc}: not started')
+                    _destroy_half_built(nodes)
                     return code
                 for message in unmatched_params_files(node, args if node_args is None
                                                       else node_args):

@@ -35,19 +35,22 @@ from tacforce_msgs.msg import ControllerState, ForceEstimateArray
 from tacforce_ros.control.finger_session import FingerSession
 from tacforce_ros.control.force_controller import ControllerConfigError, ForceControllerConfig
 from tacforce_ros.devices.allegro import MAX_JOINT_RATE_HZ
-from tacforce_ros.devices.allegro_codec import N_JOINTS
+from tacforce_ros.rig import RATE_HZ
 from tacforce_ros.nodes.node_base import TacforceNode
 from tacforce_ros.nodes.parameters import (FRAME_PREFIX, GRAVITY, HAND_CONFIG, ParamSpec,
                                            ParameterError, hand_parameter, kinematics_parameter)
 from tacforce_ros.nodes.qos import publisher_qos, subscriber_qos
 from tacforce_ros.nodes.realtime import REALTIME_PRIORITY
 from tacforce_ros.nodes.runner import run_node
-from tacforce_ros.nodes.messages import controller_state, stamp, stamp_ns
-from tacforce_ros.rig import RATE_HZ
+from tacforce_ros.nodes.messages import JointIntake, controller_state, stamp, stamp_ns
 from tacforce_ros.topics import (TOPIC_CONTROLLER_STATE, TOPIC_DESIRED, TOPIC_ESTIMATES,
                                  TOPIC_JOINTS, TOPIC_TORQUE_COMMAND, relative)
 
 CONTROLLER_GROUP = 'force_controller'
+# A controller's loop on the node clock, at most the hand's joint stream (this node's and
+# grasp_controller's).
+CONTROL_RATE = ParamSpec('control_rate_hz', RATE_HZ, 'controller loop rate (Hz, node clock), up '
+                         'to the 333 Hz joint stream', range=(1.0, MAX_JOINT_RATE_HZ))
 
 
 def controller_parameters(leave_out: tuple[str, ...] = ()) -> tuple[ParamSpec, ...]:
@@ -64,14 +67,24 @@ def controller_parameters(leave_out: tuple[str, ...] = ()) -> tuple[ParamSpec, .
     return tuple(specs)
 
 
-class ForceControllerNode(TacforceNode):
+def group_config(params: dict) -> ForceControllerConfig:
+    """The law of the node's force_controller.* parameters (the others its defaults), or the
+    ParameterError that names the bad one."""
+    group = {name.split('.', 1)[1]: value for name, value in params.items()
+             if name.startswith(CONTROLLER_GROUP + '.')}
+    try:
+        return ForceControllerConfig.from_mapping(group)
+    except ControllerConfigError as exc:
+        raise ParameterError(f'{CONTROLLER_GROUP}.{exc}') from None
+
+
+class ForceControllerNode(JointIntake, TacforceNode):
     """The fingertip force controller of one finger, between the topics and the hand driver."""
 
     NODE_NAME = 'force_controller'
     PARAMETERS = (
         HAND_CONFIG, FRAME_PREFIX,
-        ParamSpec('control_rate_hz', RATE_HZ, 'controller loop rate (Hz, node clock), up to the '
-                  '333 Hz joint stream', range=(1.0, MAX_JOINT_RATE_HZ)),
+        CONTROL_RATE,
         ParamSpec('estimate_array', 'index_tip', 'array whose estimate closes the loop'),
         GRAVITY,
         REALTIME_PRIORITY,
@@ -108,12 +121,7 @@ class ForceControllerNode(TacforceNode):
             f'{p["estimate_array"]}; torques to {self.topic_name(TOPIC_TORQUE_COMMAND)}')
 
     def _controller_config(self) -> ForceControllerConfig:
-        group = {name.split('.', 1)[1]: value for name, value in self.params.items()
-                 if name.startswith(CONTROLLER_GROUP + '.')}
-        try:
-            config = ForceControllerConfig.from_mapping(group)
-        except ControllerConfigError as exc:
-            raise ParameterError(f'{CONTROLLER_GROUP}.{exc}') from None
+        config = group_config(self.params)
         array = self.params['estimate_array']
         if array not in {a.name for a in self.hand.arrays}:
             raise ParameterError(f'estimate_array: {array!r} is not an array of the hand')
@@ -135,18 +143,6 @@ class ForceControllerNode(TacforceNode):
         return config
 
     # --- inputs ------------------------------------------------------------------------------
-
-    def _on_joints(self, msg: JointState) -> None:
-        if (list(msg.name) != self.kin.joint_names or len(msg.position) != N_JOINTS
-                or len(msg.velocity) != N_JOINTS):
-            self.refused_joint_states += 1
-            self.get_logger().warn(f'joint state refused ({self.refused_joint_states} so far): '
-                                   f'expected the 16 joints {self.kin.joint_names[0]}.. in '
-                                   'order with positions and velocities',
-                                   throttle_duration_sec=5.0)
-            return
-        self._joints = (np.asarray(msg.position, np.float64),
-                        np.asarray(msg.velocity, np.float64), stamp_ns(msg.header.stamp))
 
     def _on_desired(self, msg: Vector3Stamped) -> None:
         frame = self.frame(self.session.config.force_frame)

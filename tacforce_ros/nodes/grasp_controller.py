@@ -50,20 +50,20 @@ from tacforce_ros.control.force_controller import (MODE_HOLD, MODE_OPEN_LOOP,
 from tacforce_ros.control.grasp import (PHASE_DROPPED, PHASE_HOLDING, GraspConfig,
                                         GraspController, GraspGoal, GraspGoalError,
                                         finger_configs)
-from tacforce_ros.devices.allegro import MAX_JOINT_RATE_HZ
 from tacforce_ros.devices.allegro_codec import N_JOINTS
 from tacforce_ros.estimation.model_set import (ModelConfigError, default_model_config,
                                                model_files)
 from tacforce_ros.hand.pinch import pad
-from tacforce_ros.nodes.force_controller import CONTROLLER_GROUP, controller_parameters
-from tacforce_ros.nodes.messages import controller_state, stamp, stamp_ns, vector3
+from tacforce_ros.nodes.force_controller import (CONTROL_RATE, CONTROLLER_GROUP,
+                                                 controller_parameters, group_config)
+from tacforce_ros.nodes.messages import JointIntake, controller_state, stamp, stamp_ns, vector3
 from tacforce_ros.nodes.node_base import TacforceNode
 from tacforce_ros.nodes.parameters import (FRAME_PREFIX, GRAVITY, HAND_CONFIG, ParamSpec,
                                            ParameterError, hand_parameter, kinematics_parameter)
 from tacforce_ros.nodes.qos import publisher_qos, subscriber_qos
 from tacforce_ros.nodes.realtime import REALTIME_PRIORITY
 from tacforce_ros.nodes.runner import run_node
-from tacforce_ros.rig import FINGERS, RATE_HZ, finger_torque_limits
+from tacforce_ros.rig import FINGERS, finger_torque_limits
 from tacforce_ros.topics import (TOPIC_ESTIMATES, TOPIC_GRASP_STATE, TOPIC_JOINTS,
                                  TOPIC_TORQUE_COMMAND, relative)
 
@@ -97,14 +97,13 @@ class _Running:
         self.next_feedback = -np.inf
 
 
-class GraspControllerNode(TacforceNode):
+class GraspControllerNode(JointIntake, TacforceNode):
     """Thumb-and-fingertip grasps under force control, as a ROS 2 action server."""
 
     NODE_NAME = 'grasp_controller'
     PARAMETERS = (
         HAND_CONFIG, FRAME_PREFIX,
-        ParamSpec('control_rate_hz', RATE_HZ, 'controller loop rate (Hz, node clock), up to the '
-                  '333 Hz joint stream', range=(1.0, MAX_JOINT_RATE_HZ)),
+        CONTROL_RATE,
         ParamSpec('model_config', '', 'the estimator\'s models YAML: the fingertips with a model '
                   'may grasp; empty: the hand\'s default (config/models/)'),
         ParamSpec('feedback_period', 0.1, 'action feedback every this many seconds (node clock)',
@@ -157,12 +156,7 @@ class GraspControllerNode(TacforceNode):
     def _finger_configs(self) -> dict[str, ForceControllerConfig]:
         """Each fingertip's law (force_controller.*, on that fingertip, in the base frame), for
         the fingertips the estimator has a model of."""
-        group = {name.split('.', 1)[1]: value for name, value in self.params.items()
-                 if name.startswith(CONTROLLER_GROUP + '.')}
-        try:
-            base = ForceControllerConfig.from_mapping(group)
-        except ControllerConfigError as exc:
-            raise ParameterError(f'{CONTROLLER_GROUP}.{exc}') from None
+        base = group_config(self.params)
         models_yaml = self.params['model_config'] or str(default_model_config(self.hand))
         try:
             modelled = model_files(models_yaml)
@@ -178,18 +172,6 @@ class GraspControllerNode(TacforceNode):
             raise ParameterError(f'{CONTROLLER_GROUP}: {exc}') from None
 
     # --- inputs ------------------------------------------------------------------------------
-
-    def _on_joints(self, msg: JointState) -> None:
-        if (list(msg.name) != self.kin.joint_names or len(msg.position) != N_JOINTS
-                or len(msg.velocity) != N_JOINTS):
-            self.refused_joint_states += 1
-            self.get_logger().warn(f'joint state refused ({self.refused_joint_states} so far): '
-                                   f'expected the 16 joints {self.kin.joint_names[0]}.. in '
-                                   'order with positions and velocities',
-                                   throttle_duration_sec=5.0)
-            return
-        self._joints = (np.asarray(msg.position, np.float64),
-                        np.asarray(msg.velocity, np.float64), stamp_ns(msg.header.stamp))
 
     def _on_estimates(self, msg: ForceEstimateArray) -> None:
         for item in msg.estimates:

@@ -96,3 +96,22 @@ def controller_state(ns: int, frame_id: str, finger: str, state, q: np.ndarray,
     msg.header.stamp = stamp(ns)
     msg.header.frame_id = frame_id
     return msg
+
+
+class JointIntake:
+    """/joint_states as the controllers take it: the hand's 16 joints in order, with positions
+    and velocities, into `_joints` (q, qdot, header stamp ns); any other message is refused,
+    counted in `refused_joint_states` and warned about (throttled). For a TacforceNode with
+    `kin` (the hand's kinematics)."""
+
+    def _on_joints(self, msg: JointState) -> None:
+        names = self.kin.joint_names
+        if list(msg.name) != names or len(msg.position) != len(names) \
+                or len(msg.velocity) != len(names):
+            self.refused_joint_states = getattr(self, 'refused_joint_states', 0) + 1
+            self.get_logger().warn(f'joint state refused ({self.refused_joint_states} so far): '
+                                   f'expected the {len(names)} joints {names[0]}.. in order '
+                                   'with positions and velocities', throttle_duration_sec=5.0)
+            return
+        self._joints = (np.asarray(msg.position, np.float64),
+                        np.asarray(msg.velocity, np.float64), stamp_ns(msg.header.stamp))

@@ -6,7 +6,7 @@ import yaml
 
 from tacforce_ros.control.force_controller import finger_params_file
 from tacforce_ros.bringup.session_plan import params_node_key
-from tacforce_ros.nodes.tacforce_container import NODE_CLASSES, node_class
+from tacforce_ros.nodes.parameters_page import NODE_MODULES, node_class
 from tacforce_ros.paths import config_dir
 
 ROS_DECLARED = {'use_sim_time'}         # declared by rclpy itself
@@ -29,10 +29,10 @@ OVERLAYS = {finger_params_file('thumb').stem: 'force_controller'}
 
 def test_every_node_has_a_shipped_parameter_file():
     assert sorted(p.stem for p in (config_dir() / 'params').glob('*.yaml')) == sorted(
-        [*NODE_CLASSES, *OVERLAYS])
+        [*NODE_MODULES, *OVERLAYS])
 
 
-@pytest.mark.parametrize('stem, node', [(n, n) for n in sorted(NODE_CLASSES)]
+@pytest.mark.parametrize('stem, node', [(n, n) for n in sorted(NODE_MODULES)]
                          + sorted(OVERLAYS.items()))
 def test_a_shipped_parameter_file_holds_only_declared_parameters_of_valid_values(stem, node):
     doc = yaml.safe_load((config_dir() / 'params' / f'{stem}.yaml').read_text())

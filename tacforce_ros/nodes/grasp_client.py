@@ -22,6 +22,7 @@ from tacforce_msgs.action import Grasp
 
 from tacforce_ros.control.grasp import approach_targets
 from tacforce_ros.hand.pinch import joint_limits
+from tacforce_ros.nodes.grasp_controller import STOPPED
 from tacforce_ros.nodes.node_base import TacforceNode
 from tacforce_ros.nodes.parameters import (GRAVITY, HAND_CONFIG, ParamSpec, ParameterError,
                                            hand_parameter, kinematics_parameter)
@@ -133,8 +134,14 @@ class GraspClient(TacforceNode):
         self._handle = None
         text = (f'{OUTCOMES.get(result.outcome, result.outcome)}: {result.reason} (grip '
                 f'{result.grip_force:.2f} N, held {result.held_time:.2f} s)')
-        if result.outcome not in (Grasp.Result.HELD, Grasp.Result.RELEASED) or \
-                response.status not in (GoalStatus.STATUS_SUCCEEDED, GoalStatus.STATUS_CANCELED):
+        # Stopped together (a session's end stops every node at once), the controller may
+        # answer the goal as stopped before this client's cancel: that is the session's end,
+        # not a failed grasp.
+        both_stopping = self.stop_event.is_set() and result.reason == STOPPED
+        if not both_stopping and (
+                result.outcome not in (Grasp.Result.HELD, Grasp.Result.RELEASED)
+                or response.status not in (GoalStatus.STATUS_SUCCEEDED,
+                                           GoalStatus.STATUS_CANCELED)):
             self.get_logger().error(f'grasp {text}')
             self.finish(EXIT_FAILURE)
         else:

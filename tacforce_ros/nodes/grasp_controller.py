@@ -68,6 +68,7 @@ from tacforce_ros.topics import (TOPIC_ESTIMATES, TOPIC_GRASP_STATE, TOPIC_JOINT
                                  TOPIC_TORQUE_COMMAND, relative)
 
 GRASP_GROUP = 'grasp'
+STOPPED = 'grasp_controller stopped: released'    # the reason of a goal ended by the node's stop
 LEAVE_WAIT_S = 1.0     # wall s a stopping node gives a running goal's result to go out
 ZERO = np.zeros(3)
 # Set per fingertip (ForceControllerConfig.pressing_with, the goal's targets), not parameters.
@@ -344,7 +345,7 @@ class GraspControllerNode(JointIntake, TacforceNode):
         running = self._running
         if running is None:
             return
-        self._end(Grasp.Result.FAILED, 'grasp_controller stopped: released')
+        self._end(Grasp.Result.FAILED, STOPPED)
         # The spin has ended: let the goal's execute callback finish, so its client gets the
         # result (aborted) instead of waiting for one that never comes.
         deadline = time.monotonic() + LEAVE_WAIT_S

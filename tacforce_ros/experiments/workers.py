@@ -4,6 +4,7 @@ input recomputes only the units whose key it enters.
 """
 from __future__ import annotations
 
+import signal
 import sys
 import time
 import warnings
@@ -32,8 +33,13 @@ _WORKER: dict[str, Any] = {}
 
 
 def init_worker() -> None:
-    """Per-process hand and kinematics (loaded once per worker)."""
-
+    """Per-process hand and kinematics (loaded once per worker). The main process decides when
+    the job stops: a worker ignores SIGINT (a Ctrl-C reaches the whole process group) and dies of
+    SIGTERM (the main process's terminate()). Inheriting the main process's SIGTERM-as-SIGINT, a
+    worker turned each into a KeyboardInterrupt of its current unit, which the pool returns as
+    that unit's result, and went on to the next (test_experiments_workers)."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
     warnings.simplefilter('ignore')     # sim warnings repeat per run; the report states effects
     _WORKER['hand'] = load_hand()
     _WORKER['kinematics'] = HandKinematics.for_hand(_WORKER['hand'])

@@ -41,7 +41,10 @@ def recorded_seconds(dataset: CalibrationDataset) -> float:
 def first_seconds(dataset: CalibrationDataset, per_plate: float) -> CalibrationDataset:
     """The recording cut after `per_plate` seconds on each plate: its sessions in the order they
     were recorded, whole until the budget runs out, then the start of the next."""
-    keep = cut_rows(dataset, per_plate)
+    return _rows_of(dataset, cut_rows(dataset, per_plate))
+
+
+def _rows_of(dataset: CalibrationDataset, keep: np.ndarray) -> CalibrationDataset:
     return CalibrationDataset(array=dataset.array, X=dataset.X[keep], F=dataset.F[keep],
                               plates=dataset.plates[keep], sessions=dataset.sessions[keep],
                               time=dataset.time[keep], source=dataset.source,
@@ -83,7 +86,7 @@ def learning_curve(array: TaxelArray, dataset: CalibrationDataset,
     rows = []
     for total in seconds:
         keep = cut_rows(dataset, total / len(plates))
-        cut = first_seconds(dataset, total / len(plates))
+        cut = _rows_of(dataset, keep)
         point = {'array': dataset.array, 'seconds': float(total),
                  'recorded_s': recorded_seconds(cut), 'samples': int(keep.sum())}
         for label, (kind, hyper) in models.items():

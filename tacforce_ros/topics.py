@@ -28,17 +28,17 @@ TOPIC_TORQUE_COMMAND = '/allegro_driver/torque_command'
 # Health of the device links (diagnostic_msgs/DiagnosticArray), where ROS tools look for it.
 TOPIC_DIAGNOSTICS = '/diagnostics'
 
-# Sensor streams are published reliable and subscribed best-effort (sensor-data QoS); commands,
-# calibration samples and controller states are reliable both ways (nodes/qos.py builds the
-# profiles).
-SENSOR, RELIABLE = 'sensor', 'reliable'
+# Sensor streams are published reliable and subscribed best-effort (sensor-data QoS); commands
+# and controller states are reliable both ways; the recorder's calibration samples are reliable
+# and kept for late joiners (nodes/qos.py builds the profiles).
+SENSOR, RELIABLE, KEPT = 'sensor', 'reliable', 'kept'
 TOPIC_QOS = {
     TOPIC_TACTILE: SENSOR,
     TOPIC_WRENCH: SENSOR,
     TOPIC_JOINTS: SENSOR,
     TOPIC_ESTIMATES: SENSOR,
     TOPIC_SIM_CONTACT: SENSOR,
-    TOPIC_SAMPLE: RELIABLE,
+    TOPIC_SAMPLE: KEPT,
     TOPIC_DESIRED: RELIABLE,
     TOPIC_CONTROLLER_STATE: RELIABLE,
     TOPIC_GRASP_STATE: RELIABLE,
@@ -48,10 +48,14 @@ TOPIC_QOS = {
 }
 
 
-# What every publisher of the graph offers, whatever the topic's kind: keep-last, this deep,
-# reliable, volatile (nodes/qos.py builds the rclpy profiles; bagio writes it into a bag's
-# metadata as each recorded topic's offered QoS, as `ros2 bag record` does).
+# What the graph's publishers offer: keep-last, this deep, reliable, volatile (nodes/qos.py
+# builds the rclpy profiles; bagio writes them into a bag's metadata as each recorded topic's
+# offered QoS, as `ros2 bag record` does); KEPT topics are transient-local, KEPT_DEPTH deep.
 PUBLISHER_DEPTH = 10
+# 10 s of samples at the 100 Hz tactile rate: the operator's coverage view starts with the
+# session but may match the recorder after its first samples, and must still judge the session
+# from its first sample (volatile, a CI host's view judged 1305 of the bag's 1486 samples).
+KEPT_DEPTH = 1000
 
 
 def relative(topic: str) -> str:
@@ -69,7 +73,7 @@ def array_wrench_topic(array: str) -> str:
 
 
 def qos_kind(topic: str) -> str:
-    """SENSOR or RELIABLE; a topic nobody decided for is refused, naming this module."""
+    """SENSOR, RELIABLE or KEPT; a topic nobody decided for is refused, naming this module."""
     if topic.startswith('/tactile/') and topic.endswith('/wrench'):
         return SENSOR       # the per-array wrenches are sensor streams too
     try:

@@ -19,8 +19,9 @@ from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 from tacforce_ros import message_build as build
 from tacforce_ros.paths import share_dir
-from tacforce_ros.topics import (PUBLISHER_DEPTH, TOPIC_JOINTS, TOPIC_SAMPLE, TOPIC_SESSION,
-                                 TOPIC_SIM_CONTACT, TOPIC_TACTILE, TOPIC_WRENCH, qos_kind)
+from tacforce_ros.topics import (KEPT, KEPT_DEPTH, PUBLISHER_DEPTH, TOPIC_JOINTS, TOPIC_SAMPLE,
+                                 TOPIC_SESSION, TOPIC_SIM_CONTACT, TOPIC_TACTILE, TOPIC_WRENCH,
+                                 qos_kind)
 
 TOPIC_TYPES = {
     TOPIC_TACTILE: 'tacforce_msgs/msg/TactileHand',
@@ -43,21 +44,27 @@ MCAP_MAGIC = b'\x89MCAP0\r\n'
 # typestore holds (rosbags would write its own name into the metadata).
 ROS_DISTRO = 'kilted'
 _INFINITE = QosTime(sec=9223372036, nsec=854775807)    # rmw's "infinite" duration
-# What the graph's publishers offer (topics.PUBLISHER_DEPTH), in a bag's metadata.
-OFFERED_QOS = Qos(history=QosHistory.KEEP_LAST, depth=PUBLISHER_DEPTH,
-                  reliability=QosReliability.RELIABLE, durability=QosDurability.VOLATILE,
-                  deadline=_INFINITE, lifespan=_INFINITE, liveliness=QosLiveliness.AUTOMATIC,
-                  liveliness_lease_duration=_INFINITE, avoid_ros_namespace_conventions=False)
+# What the graph's publishers offer (topics.PUBLISHER_DEPTH; KEPT topics: KEPT_DEPTH,
+# transient-local), in a bag's metadata.
+def _offered(depth: int, durability: QosDurability) -> Qos:
+    return Qos(history=QosHistory.KEEP_LAST, depth=depth, reliability=QosReliability.RELIABLE,
+               durability=durability, deadline=_INFINITE, lifespan=_INFINITE,
+               liveliness=QosLiveliness.AUTOMATIC, liveliness_lease_duration=_INFINITE,
+               avoid_ros_namespace_conventions=False)
+
+
+OFFERED_QOS = _offered(PUBLISHER_DEPTH, QosDurability.VOLATILE)
+KEPT_OFFERED_QOS = _offered(KEPT_DEPTH, QosDurability.TRANSIENT_LOCAL)
 
 
 def offered_qos(topic: str) -> list[Qos]:
     """The offered QoS profiles of a recorded topic: its publishers' (none for the session
     metadata, which the recorder writes itself)."""
     try:
-        qos_kind(topic)
+        kind = qos_kind(topic)
     except KeyError:
         return []
-    return [OFFERED_QOS]
+    return [KEPT_OFFERED_QOS if kind == KEPT else OFFERED_QOS]
 
 
 class BagError(RuntimeError):

@@ -30,10 +30,6 @@ from tacforce_ros.recording.campaign import (CampaignError, CampaignPlan, Covera
                                              LiveCoverage, coverage_view)
 from tacforce_ros.topics import TOPIC_SAMPLE, relative
 
-# 2 s of samples at the 100 Hz tactile rate: a view that falls behind on a busy CPU (drawing,
-# kinematics) catches up instead of judging fewer samples than the bag holds (the default depth
-# 10 lost 16 of 1010 on 2 cores with three busy loops beside the session).
-SAMPLE_DEPTH = 200
 DRAIN_S = 0.5           # the most a stop waits for queued samples (a stop must take < 2 s)
 
 
@@ -75,7 +71,7 @@ class CoverageViewNode(TacforceNode):
         self.drawn_samples = -1
         self.tty = sys.stdout.isatty()
         self.create_subscription(CalibrationSample, relative(TOPIC_SAMPLE), self._on_sample,
-                                 subscriber_qos(TOPIC_SAMPLE, depth=SAMPLE_DEPTH))
+                                 subscriber_qos(TOPIC_SAMPLE))
         self.create_timer(p['period'], self._draw, clock=Clock(clock_type=ClockType.STEADY_TIME))
 
     def _on_sample(self, msg: CalibrationSample) -> None:

@@ -25,7 +25,10 @@ world), rejoining when it speaks again; both are logged. lockstep false: free-ru
 what was asked, with how long each gated stream held time. `stop_after` > 0 ends the scene once
 that many simulated seconds have run: time stands still, the devices are still served, and the
 log line "scene done: ..." (session_plan.SCENE_DONE_MARKER) tells whoever runs the session to
-stop the nodes, drivers first, so a session ends when its scene does.
+stop the nodes, drivers first, so a session ends when its scene does. Stopped itself, it stops
+simulated time at once and serves the devices until the drivers have let go (DEVICE_LINGER_S
+at most): stopped together, as a session or launch stops them, a driver never sees its device
+vanish.
 
 In closed-loop scenes simulated time starts when the hand's servos are first switched on (the
 allegro_driver's start-up ends with SYSTEM_ON), with `start_with_servos`: the scene's t = 0 is
@@ -47,6 +50,7 @@ from __future__ import annotations
 
 import sys
 import threading
+import time
 from dataclasses import replace
 
 import numpy as np
@@ -84,6 +88,7 @@ CLOCK_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT,
 # While held, /clock repeats the current time this often (wall s): /clock is best effort, and a
 # node whose copy was lost would otherwise never see the time its next tick is due.
 HELD_CLOCK_REPEAT_S = 0.02
+DEVICE_LINGER_S = 2.0   # the most a stop waits for the drivers to disconnect (wall s)
 SLOW_FRACTION = 0.9     # an achieved factor below this fraction of the asked one is warned about
 
 
@@ -364,6 +369,13 @@ class SimWorld(TacforceNode):
         with self._tactile:
             self._tactile.notify_all()
         self._thread.join(timeout=2.0)
+        # Devices outlive the graph that stops: the emulators serve until the drivers stopped
+        # with this node have let go (a driver that saw its hand vanish first ended with code 1,
+        # a lost link, in 1 of 4 test suites), DEVICE_LINGER_S at most.
+        deadline = time.monotonic() + DEVICE_LINGER_S
+        while (self.allegro.server.client_count or self.xela.client_count) and (
+                time.monotonic() < deadline):
+            time.sleep(0.01)
         for emulator in (self.xela, self.netft, self.allegro):
             emulator.close()
 

@@ -12,9 +12,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from std_msgs.msg import Float64
 
 from tacforce_ros.hand.description import load_hand
 from tacforce_ros.nodes import entry
+from tacforce_ros.nodes.qos import RELIABLE_QOS
 from tacforce_ros.sim.emulators.xela_server import XelaServerEmulator
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
@@ -105,6 +107,44 @@ def test_a_xela_driver_whose_server_hangs_ends_when_asked():
     assert 'link counters at close' in output, output
 
 
+def test_the_simulator_serves_its_hand_until_the_driver_lets_go():
+    """A session stops every node at once; the simulated hand, like a real one, is still there
+    for a driver that has not yet closed its link (otherwise the driver ends on a lost link, code
+    1), and the simulator ends once the driver has gone."""
+    with socket.socket() as probe:
+        probe.bind(('127.0.0.1', 0))
+        port = probe.getsockname()[1]
+    sim = OutputLines(start([executable('sim_world'), '--ros-args', '-p', 'xela_port:=0',
+                             '-p', 'netft_port:=0', '-p', f'can_port:={port}',
+                             '-p', 'report_period:=0.5'], DOMAIN, start_new_session=True))
+    try:
+        with rclpy_node('sim_probe', DOMAIN) as node:     # running: its timers report
+            factors = []
+            node.create_subscription(Float64, '/sim_world/real_time_factor', factors.append,
+                                     RELIABLE_QOS)
+            assert spin_until(node, lambda: factors, READY_S), sim.text()
+        deadline = time.monotonic() + READY_S
+        while True:
+            try:
+                link = socket.create_connection(('127.0.0.1', port), timeout=5.0)
+                break
+            except OSError:
+                assert time.monotonic() < deadline and sim.proc.poll() is None, sim.text()
+                time.sleep(0.1)
+        with link:
+            assert link.recv(64).startswith(b'< hi >')
+            sim.proc.send_signal(signal.SIGINT)
+            assert sim.wait_for('stopped:', READY_S), sim.text()
+            time.sleep(0.5)     # without the wait, the simulator had closed and ended by now
+            link.sendall(b'< open can0 >')
+            assert b'< ok >' in link.recv(64), sim.text()       # still served
+            assert sim.proc.poll() is None
+        code = sim.proc.wait(timeout=ENDS_WITHIN_S)
+    finally:
+        output = sim.stop()
+    assert code == 0, output
+
+
 def test_an_ended_lifecycle_driver_leaves_the_ros_graph():
     """rclpy's lifecycle node keeps its node alive until garbage collection, which the process
     no longer waits for: the driver destroys it, so the graph does not list a node that ended
@@ -130,6 +170,7 @@ def test_an_ended_lifecycle_driver_leaves_the_ros_graph():
 STUCK_NODE = """
 import time
 from tacforce_ros.nodes import entry
+from tacforce_ros.nodes.qos import RELIABLE_QOS
 from tacforce_ros.nodes.node_base import TacforceNode
 from tacforce_ros.nodes.runner import run_node
 

@@ -169,6 +169,15 @@ def test_session_started_and_stopped_by_services_records_everything(ros_node, st
         stopped = call_service(ros_node, Trigger, '/sync_recorder/stop', Trigger.Request())
         assert stopped.success, stopped.message
         assert not call_service(ros_node, Trigger, '/sync_recorder/stop', Trigger.Request()).success
+        # A late joiner (the operator's coverage view, started with the session) still gets
+        # the session's samples from the first: the topic keeps them (nodes/qos.py).
+        late = []
+        late_sub = ros_node.create_subscription(CalibrationSample, topics.TOPIC_SAMPLE,
+                                                late.append, subscriber_qos(topics.TOPIC_SAMPLE))
+        assert len(live) < topics.KEPT_DEPTH
+        spin_until(ros_node, lambda: len(late) >= len(live), 20.0)
+        ros_node.destroy_subscription(late_sub)
+        assert [m.header.stamp for m in late] == [m.header.stamp for m in live]
     finally:
         output = stop(proc)
         ros_node.destroy_subscription(sub)

@@ -51,6 +51,11 @@ class XelaServerEmulator:
         return self.host, self.port
 
     @property
+    def client_count(self) -> int:
+        with self._lock:
+            return len(self._injected)      # one pending queue per connected client
+
+    @property
     def url(self) -> str:
         return f'ws://{self.host}:{self.port}'
 

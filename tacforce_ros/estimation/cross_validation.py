@@ -57,6 +57,26 @@ def cross_validate(array: TaxelArray, kind: str, hyper: dict[str, Any], X: np.nd
     folds: the model to ship is one more member of the stacked network, not a training alone.
     """
     plates = np.asarray(plates)
+    folds, bundles, seconds = fold_models(array, kind, hyper, X, F, plates, together, final)
+    result = CrossValidation(kind=kind)
+    for (plate, test), bundle, fold_seconds in zip(folds, bundles, seconds):
+        X_test, F_test = (X[test], F[test]) if held_out is None else \
+            (held_out[0][held_out[2] == plate], held_out[1][held_out[2] == plate])
+        pred = bundle.predict(X_test)
+        result.folds.append(Fold(test_plate=str(plate), stats=error_stats(F_test, pred),
+                                 train_seconds=fold_seconds,
+                                 hyperparameters=bundle.model.hyperparameters()))
+        result.n_parameters = bundle.model.n_parameters()
+    if final:
+        result.final = bundles[-1]
+    return result
+
+
+def fold_models(array: TaxelArray, kind: str, hyper: dict[str, Any], X: np.ndarray,
+                F: np.ndarray, plates: np.ndarray, together: bool = True, final: bool = False
+                ) -> tuple[list[tuple[str, np.ndarray]], list[ModelBundle], list[float]]:
+    """The folds (plate, its rows), a model per fold trained on the other plates (with `final`
+    one more, on every plate) and each fit's seconds (cross_validate's `together`)."""
     labels = list(dict.fromkeys(plates.tolist()))
     if len(labels) < 2:
         raise ValueError(f'cross-validation needs >= 2 plates, got {labels}')
@@ -74,15 +94,29 @@ def cross_validate(array: TaxelArray, kind: str, hyper: dict[str, Any], X: np.nd
             started = time.perf_counter()
             bundles += fit_bundles(array, kind, hyper, [fold])
             seconds.append(time.perf_counter() - started)
-    result = CrossValidation(kind=kind)
-    for (plate, test), bundle, fold_seconds in zip(folds, bundles, seconds):
-        X_test, F_test = (X[test], F[test]) if held_out is None else \
-            (held_out[0][held_out[2] == plate], held_out[1][held_out[2] == plate])
-        pred = bundle.predict(X_test)
-        result.folds.append(Fold(test_plate=str(plate), stats=error_stats(F_test, pred),
-                                 train_seconds=fold_seconds,
-                                 hyperparameters=bundle.model.hyperparameters()))
-        result.n_parameters = bundle.model.n_parameters()
-    if final:
-        result.final = bundles[-1]
-    return result
+    return folds, bundles, seconds
+
+
+def transfer(array: TaxelArray, kind: str, hyper: dict[str, Any], X: np.ndarray, F: np.ndarray,
+             plates: np.ndarray, targets: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]
+             ) -> dict[str, CrossValidation]:
+    """This array's model applied unadapted to other arrays of its kind (the same taxel layout,
+    each with its own offsets removed): each fold's model, trained on this array's other plates,
+    is tested on each target's (X, F, plates) rows of the held-out plate, as cross_validate
+    tests it on this array's own. The folds are fitted once for all targets."""
+    plates = np.asarray(plates)
+    folds, bundles, seconds = fold_models(array, kind, hyper, X, F, plates)
+    results = {}
+    for name, (X_t, F_t, plates_t) in targets.items():
+        result = CrossValidation(kind=kind)
+        for (plate, _), bundle, fold_seconds in zip(folds, bundles, seconds):
+            rows = np.asarray(plates_t) == plate
+            if not rows.any():
+                raise ValueError(f'transfer: {name} has no data on the plate {plate}')
+            result.folds.append(Fold(test_plate=str(plate),
+                                     stats=error_stats(F_t[rows], bundle.predict(X_t[rows])),
+                                     train_seconds=fold_seconds,
+                                     hyperparameters=bundle.model.hyperparameters()))
+            result.n_parameters = bundle.model.n_parameters()
+        results[name] = result
+    return results

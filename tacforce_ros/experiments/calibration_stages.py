@@ -6,8 +6,9 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
+import numpy as np
 
-from tacforce_ros.estimation.cross_validation import cross_validate
+from tacforce_ros.estimation.cross_validation import cross_validate, transfer
 from tacforce_ros.estimation.dataset import concatenate
 from tacforce_ros.estimation.training import fit_bundles, for_deployment
 from tacforce_ros.rig import HELD_OUT_PLATE
@@ -20,8 +21,8 @@ from tacforce_ros.experiments.settings import (ARRAYS, GRASP_ARRAYS, PLATES, WHO
                                              Context, Settings, hand_digest, model_hyper,
                                              scene_for)
 from tacforce_ros.experiments.workers import (job_benchmark, job_calibration, job_cross_validation,
-                                            job_learning_curve, job_training_set, run_units,
-                                            worker_hand)
+                                            job_learning_curve, job_training_set, job_transfer,
+                                            run_units, worker_hand)
 
 
 def calibration_unit(ctx: Context, array: str, plate: str, session: int, seconds: float,
@@ -120,13 +121,15 @@ def benchmark_stage(ctx: Context, layout: dict) -> tuple[dict, dict]:
     return {a: {label: cv[a][label] for label in s.models} for a in ARRAYS}, models
 
 
-def whole_hand_stage(ctx: Context, cv: dict) -> tuple[dict, dict[str, str]]:
+def whole_hand_stage(ctx: Context, cv: dict, table_i_layout: dict
+                     ) -> tuple[dict, dict[str, str], dict[str, str]]:
     """The whole-hand campaign: every array not in Table I, one session per training plate of
     `whole_hand_seconds`, M3-lambda leave-one-plate-out; the Table I arrays keep their rows. The
     fingertips a grasp needs (GRASP_ARRAYS) have Table I's sessions instead, and keep the model
     fitted on all five plates.
     Returns ({array: {'type', 'sessions', 'seconds', 'cv'}} in hand order, {array: model path}
-    of those fingertips)."""
+    of those fingertips, {array: training set path} of every array, Table I's from
+    `table_i_layout`)."""
     s = ctx.settings
     hand, _ = worker_hand()
     others = [a.name for a in hand.arrays if a.name not in ARRAYS]
@@ -170,6 +173,9 @@ def whole_hand_stage(ctx: Context, cv: dict) -> tuple[dict, dict[str, str]]:
     for array, value in run_units(ctx, 'whole-hand cross-validations', cv_jobs).items():
         ctx.cache.store_json('cross_validation', keys[array], value)
         results[array] = value
+    sets.update(training_sets(ctx, 'training sets', {
+        array: [p for plate in PLATES for p in table_i_layout[array][plate]]
+        for array in ARRAYS}))
     rows = {}
     for array in hand.arrays:
         if array.name in ARRAYS:
@@ -182,7 +188,62 @@ def whole_hand_stage(ctx: Context, cv: dict) -> tuple[dict, dict[str, str]]:
         else:
             rows[array.name] = {'type': array.kind, 'sessions': 1,
                                 'seconds': s.whole_hand_seconds, 'cv': results[array.name]}
-    return rows, final
+    return rows, final, sets
+
+
+def cross_array_stage(ctx: Context, sets: dict[str, str], whole_hand: dict) -> dict:
+    """Each array's WHOLE_HAND_MODEL applied unadapted to every other array of its kind
+    (estimation/cross_validation.transfer: held-out plate by held-out plate, as the array's own
+    model is judged), against each array's own held-out e_hat (the whole-hand rows). A unit per
+    source array. Returns report.json's `cross_array`."""
+    s = ctx.settings
+    kind, hyper = model_hyper(WHOLE_HAND_MODEL, s)
+    by_kind: dict[str, list[str]] = {}
+    for array, row in whole_hand.items():
+        by_kind.setdefault(row['type'], []).append(array)
+    jobs, keys = [], {}
+    for arrays in by_kind.values():
+        for source in arrays:
+            targets = {t: sets[t] for t in arrays if t != source}
+            if not targets:
+                continue
+            keys[source] = digest({'source': Path(sets[source]).stem,
+                                   'targets': {t: Path(p).stem for t, p in targets.items()},
+                                   'model': [kind, hyper],
+                                   'code': source_digest(job_transfer, transfer)})
+            if ctx.cache.load_json('transfer', keys[source]) is None:
+                jobs.append((source, job_transfer, (source, kind, hyper, sets[source], targets)))
+    ctx.log(f'stage cross-array: {len(keys)} source arrays, {len(jobs)} to fit')
+    for source, value in run_units(ctx, 'cross-array transfer', jobs).items():
+        ctx.cache.store_json('transfer', keys[source], value)
+    pairs = [{'source': source, 'target': target, 'kind': whole_hand[source]['type'],
+              'e_hat_n': summary['e_hat_mean']}
+             for source in keys
+             for target, summary in ctx.cache.load_json('transfer', keys[source]).items()]
+    return cross_array_summary(WHOLE_HAND_MODEL, pairs, whole_hand)
+
+
+def cross_array_summary(model: str, pairs: list[dict], whole_hand: dict) -> dict:
+    """Per target array: its own held-out e_hat, the other arrays' models' on it (mean, least,
+    most) and their ratio; per kind the means and the ratio of the means."""
+    rows = []
+    for array, row in whole_hand.items():
+        unadapted = [p['e_hat_n'] for p in pairs if p['target'] == array]
+        if not unadapted:
+            continue
+        own = row['cv']['e_hat_mean']
+        rows.append({'array': array, 'kind': row['type'], 'own_e_hat_n': own,
+                     'unadapted_e_hat_n': float(np.mean(unadapted)),
+                     'unadapted_min_n': float(min(unadapted)),
+                     'unadapted_max_n': float(max(unadapted)),
+                     'ratio': float(np.mean(unadapted)) / own})
+    kinds = {}
+    for kind in dict.fromkeys(r['kind'] for r in rows):
+        own = float(np.mean([r['own_e_hat_n'] for r in rows if r['kind'] == kind]))
+        unadapted = float(np.mean([r['unadapted_e_hat_n'] for r in rows if r['kind'] == kind]))
+        kinds[kind] = {'arrays': sum(r['kind'] == kind for r in rows), 'own_e_hat_n': own,
+                       'unadapted_e_hat_n': unadapted, 'ratio': unadapted / own}
+    return {'model': model, 'pairs': pairs, 'rows': rows, 'by_kind': kinds}
 
 
 def learning_curve_stage(ctx: Context, layout: dict) -> list[dict]:

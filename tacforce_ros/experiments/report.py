@@ -312,6 +312,36 @@ def whole_hand_section(rows: dict, settings: dict) -> list[str]:
     return lines + ['']
 
 
+def cross_array_section(cross: dict | None) -> list[str]:
+    """Each array's model on the other arrays of its kind, unadapted (not in the paper): how
+    far the arrays of one hand differ, which a model shared across them must bridge."""
+    if not cross:
+        return []
+    model = MODEL_NAMES.get(cross['model'], cross['model'])
+    lines = [f'## Across arrays — {model} applied unadapted to another array of its kind '
+             '(not in the paper)', '',
+             f"Each array's {model} (trained on its whole-hand data above) tested, held-out plate "
+             "by held-out plate, on every other array of its kind (the same taxel layout, each "
+             "array's own offsets removed), against the array's own held-out e_hat. Ratio: the "
+             "other arrays' mean over the array's own; above 1, the arrays differ by that margin "
+             "and a model must be adapted to carry over. The Table I and grasp arrays' models "
+             "saw four times the data of the others'.", '',
+             '| array | own e_hat [N] | unadapted e_hat [N]: mean (least - most) | ratio |',
+             '|---|---|---|---|']
+    for group, title in ARRAY_KIND_TITLES.items():
+        summary = cross['by_kind'].get(group)
+        if summary is None:
+            continue
+        lines.append(f"| **{title}** ({summary['arrays']}) | {summary['own_e_hat_n']:.3f} | "
+                     f"{summary['unadapted_e_hat_n']:.3f} | **{summary['ratio']:.2f}** |")
+        for row in cross['rows']:
+            if row['kind'] == group:
+                lines.append(f"| {row['array']} | {row['own_e_hat_n']:.3f} | "
+                             f"{row['unadapted_e_hat_n']:.3f} ({row['unadapted_min_n']:.3f} - "
+                             f"{row['unadapted_max_n']:.3f}) | {row['ratio']:.2f} |")
+    return lines + ['']
+
+
 def node_path_section(node: dict, tolerance_reason: str) -> list[str]:
     """The node graph's runs against the direct path: both checks, and how every node of
     their sessions ended."""
@@ -476,6 +506,7 @@ def markdown(doc: dict) -> str:
 
     lines += learning_curve_section(doc.get('learning_curve'))
     lines += whole_hand_section(doc['whole_hand'], s)
+    lines += cross_array_section(doc.get('cross_array'))
     lines += ['## Table II — online test, index fingertip on the held-out spherical plate', '',
               f"Models retrained on all five training plates; {doc['online']['samples']} samples "
               f"({doc['online']['seconds']:.0f} s). Last column: the same models on their own "

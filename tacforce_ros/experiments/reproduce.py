@@ -125,7 +125,8 @@ def run(settings: Settings, out: Path, jobs: int) -> dict:
         layout = calibration.calibration_stage(ctx)
         cv, models = calibration.benchmark_stage(ctx, layout)
         learning = calibration.learning_curve_stage(ctx, layout)
-        whole_hand, whole_hand_models = calibration.whole_hand_stage(ctx, cv)
+        whole_hand, whole_hand_models, sets = calibration.whole_hand_stage(ctx, cv, layout)
+        cross_array = calibration.cross_array_stage(ctx, sets, whole_hand)
         timing = estimation.timing_stage(ctx, models)
         online = estimation.online_stage(ctx, layout, models)
         end_to_end = estimation.end_to_end_stage(ctx, layout, models, timing,
@@ -162,6 +163,7 @@ def run(settings: Settings, out: Path, jobs: int) -> dict:
         'grasp': {'rows': grasp_rows, 'must_show': grasp.grasp_must_show(grasp_rows),
                   'hand_over_s': grasp.hand_over_after_goal(settings.grasp_objects[0])},
         'learning_curve': {'rows': learning},
+        'cross_array': cross_array,
         'figures': (figures(out, cv, table_i, end_to_end, traces, whole_hand, learning)
                     + grasp.grasp_figures(grasp_traces, out)),
     }

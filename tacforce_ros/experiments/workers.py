@@ -15,7 +15,7 @@ import numpy as np
 from tqdm import tqdm
 
 from tacforce_ros.control.command_sequence import ForceSequence
-from tacforce_ros.estimation.cross_validation import cross_validate
+from tacforce_ros.estimation.cross_validation import cross_validate, transfer
 from tacforce_ros.estimation.dataset import CalibrationDataset, concatenate
 from tacforce_ros.estimation.learning_curve import learning_curve
 from tacforce_ros.estimation.model_io import save_model
@@ -80,6 +80,17 @@ def job_cross_validation(array: str, kind: str, hyper: dict, training_set: str) 
     hand, _ = worker_hand()
     X, F, plates, _ = load_training(training_set)
     return cross_validate(hand.array(array), kind, hyper, X, F, plates).summary()
+
+
+def job_transfer(source: str, kind: str, hyper: dict, training_set: str,
+                 targets: dict[str, str]) -> dict[str, dict]:
+    """`source`'s model applied unadapted to each target array of its kind (training sets by
+    name): {target: cross-validation summary}."""
+    hand, _ = worker_hand()
+    X, F, plates, _ = load_training(training_set)
+    data = {name: load_training(path)[:3] for name, path in targets.items()}
+    return {name: result.summary() for name, result in
+            transfer(hand.array(source), kind, hyper, X, F, plates, data).items()}
 
 
 def job_learning_curve(array: str, paths: list[str], label: str, kind: str, hyper: dict,

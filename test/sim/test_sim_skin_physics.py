@@ -198,7 +198,11 @@ def skin(hand):
     def make(array='index_middle', **params):
         effect = MagneticSkin(**params)
         arr = hand.array(array)
-        ctx = SimpleNamespace(n_taxels=hand.n_taxels, array=arr, rows=arr.flat_indices, dt=0.01)
+        array_of = np.empty(hand.n_taxels, np.int64)
+        for index, each in enumerate(hand.arrays):
+            array_of[each.flat_indices] = index
+        ctx = SimpleNamespace(hand=hand, n_taxels=hand.n_taxels, array=arr,
+                              rows=arr.flat_indices, array_of_taxel=array_of, dt=0.01)
         effect.draw_hand(np.random.default_rng(0), ctx)
         effect.reset(np.random.default_rng(0), ctx)
         centre = np.argmin(np.linalg.norm(arr.positions - arr.positions.mean(0), axis=1))
@@ -224,10 +228,11 @@ def test_a_magnet_is_placed_where_its_field_reads_the_rest_value(skin):
     effect, _, _ = skin()
     lateral = np.array([[0.0, 0.0], [1e-12, 0.0], [0.0, -3e-9], [3e-4, -2e-4], [-6e-4, 1e-4]])
     height = np.array([0.0023, 0.0035, 0.0041, 0.0027, 0.0039])
-    field = effect.field(np.column_stack([lateral, height]))
+    rows = np.arange(len(height))       # five of the hand's magnets, each with its remanence
+    field = effect.field(np.column_stack([lateral, height]), rows)
     rest = CHIP_ZERO + field / np.array([effect.sensitivity_xy, effect.sensitivity_xy,
                                          effect.sensitivity_z])
-    placed_lateral, placed_height = effect.placement(rest)
+    placed_lateral, placed_height = effect.placement(rest, rows)
     np.testing.assert_allclose(placed_height, height, rtol=1e-9)
     np.testing.assert_allclose(placed_lateral, lateral, rtol=0, atol=1e-9 * height.max())
 
@@ -288,8 +293,7 @@ def test_a_magnet_pressed_past_its_chip_stays_above_it(skin):
         displacement[:, 2] = ratio * (height - half)      # the column under the magnet
         stretch = float(phys.neo_hookean_stretch(np.array(ratio)))
         position = np.column_stack([effect.lateral[rows], stretch * (height - half) + half])
-        expected = phys.cylinder_field(effect.remanence, effect.magnet_diameter,
-                                       effect.magnet_thickness, -position) / np.array(
+        expected = effect.field(position, rows) / np.array(
             [effect.sensitivity_xy, effect.sensitivity_xy, effect.sensitivity_z])
         unclipped = np.abs(expected).max(axis=1) < CHIP_RANGE
         assert unclipped.sum() > len(rows) // 4
@@ -338,3 +342,25 @@ def test_the_magnetic_skin_reads_as_before_it_was_made_faster(tmp_path):
         assert off.max() <= 1, f'{case}: {off.max()} counts from the reference'
         # A Young's modulus 0.1 % off moves 4-21 % of a case's readings, by up to 5 counts.
         assert np.mean(off > 0) <= 0.01, f'{case}: {np.mean(off > 0):.1%} of readings moved'
+
+
+def test_each_module_and_magnet_is_its_own_and_the_same_in_every_session(skin, hand):
+    """Arrays are cast apart (layer thickness, elastomer modulus) and magnets differ within
+    their grade; a hand (its sensor seed) keeps them; the pressed array's layer is its own."""
+    effect, arr, _ = skin()
+    modules = len(hand.arrays)
+    assert len(np.unique(effect.module_layer)) == modules
+    assert len(np.unique(effect.module_modulus)) == modules
+    remanence = effect.remanence * effect._remanence_scale
+    assert 1.32 <= remanence.min() and remanence.max() <= 1.37
+    other, _, _ = skin('middle_middle')
+    np.testing.assert_array_equal(other.module_layer, effect.module_layer)
+    np.testing.assert_array_equal(other.height, effect.height)
+    index = [a.name for a in hand.arrays].index(arr.name)
+    np.testing.assert_allclose(effect._layer.depths,
+                               effect.module_layer[index] - effect.height[arr.flat_indices])
+    assert effect.contact_modulus == pytest.approx(
+        effect.module_modulus[index] / (1.0 - effect.poisson ** 2))
+    alike, _, _ = skin(module_layer_spread=0.0, module_modulus_spread=0.0, remanence_spread=0.0)
+    assert np.all(alike.module_layer == alike.layer_thickness)
+    np.testing.assert_allclose(alike.rest_counts, effect.rest_counts, rtol=1e-12)   # as drawn

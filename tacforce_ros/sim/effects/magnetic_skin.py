@@ -8,6 +8,10 @@ elastomer's creep and hysteresis; the field of the displaced magnet (a uniformly
 cylinder) at the chip, converted to counts by the chip's sensitivity. Pieces:
 sim/skin_physics.py, sim/elastic_layer.py. Parameter sources: docs/SKIN_PHYSICS.md.
 
+A hand's arrays differ as modules do: each magnet its own remanence within its grade and its own
+place (from its drawn rest reading), each array its own layer thickness and elastomer modulus,
+drawn once per hand (sensor seed).
+
 It supersedes what the empirical chain stood in for: the foundation-spring pressure weights
 and the tanh response (sim/contact.py, sim/taxel_response.py), `taxel_variation` (here the
 spread of rest readings and gains comes from where each magnet sits), `deformation` (the
@@ -46,7 +50,7 @@ PLACEMENT_ITERATIONS = 20
 # field scales with the remanence as with 1 / the chip's sensitivities, which stand for it.
 ESTIMATES = ('magnet_diameter', 'magnet_thickness', 'layer_thickness', 'youngs_modulus', 'poisson',
              'sensitivity_xy', 'sensitivity_z', 'play_relative', 'play_width',
-             'creep_share', 'creep_time_constant')
+             'creep_share', 'creep_time_constant', 'module_layer_spread', 'module_modulus_spread')
 
 
 @functools.lru_cache(maxsize=64)
@@ -69,6 +73,8 @@ class MagneticSkin(Effect):
     magnet_diameter: float = 0.002          # m, estimate
     magnet_thickness: float = 0.0005        # m, estimate
     remanence: float = 1.345                # T, N45 sintered NdFeB (grade an estimate)
+    # Each magnet's remanence anywhere in its grade's window, 1.32-1.37 T (uniform: estimate).
+    remanence_spread: float = 0.025         # T, +/- about `remanence`
     layer_thickness: float = 0.005          # m, skin surface to the chip's board, estimate
     youngs_modulus: float = 87e3            # Pa, Ecoflex 00-50 (grade an estimate)
     poisson: float = 0.49                   # estimate (near-incompressible silicone)
@@ -86,10 +92,17 @@ class MagneticSkin(Effect):
     play_width: float = 1e-6                # m, estimate
     creep_share: float = 0.1                # estimate
     creep_time_constant: float = 1.0        # s, estimate
+    # No two modules are cast alike: each array's layer thickness and elastomer modulus are
+    # its own, lognormal about the values above with these relative spreads (estimates: a cast
+    # 5 mm layer within +/- 0.25 mm, a silicone's batch and cure within +/- 10 %).
+    module_layer_spread: float = 0.05
+    module_modulus_spread: float = 0.1
 
     def __post_init__(self) -> None:
-        self.shear_modulus = self.youngs_modulus / (2.0 * (1.0 + self.poisson))
-        self.contact_modulus = self.youngs_modulus / (1.0 - self.poisson ** 2)
+        if not 0.0 <= self.remanence_spread < self.remanence:
+            raise ValueError('magnetic_skin: remanence_spread must lie in [0, remanence)')
+        if self.module_layer_spread < 0.0 or self.module_modulus_spread < 0.0:
+            raise ValueError('magnetic_skin: module spreads must be >= 0')
         self._sensitivity = np.array([self.sensitivity_xy, self.sensitivity_xy,
                                       self.sensitivity_z])
         self._zero = CHIP_ZERO + np.array([*self.readout_offset_xy, 0.0])
@@ -99,15 +112,17 @@ class MagneticSkin(Effect):
 
     # -- the hand: where each magnet sits ------------------------------------------------------
 
-    def field(self, position: np.ndarray) -> np.ndarray:
-        """(n, 3) T at the chips of magnets centred at `position` (n, 3) m from them."""
+    def field(self, position: np.ndarray, rows=slice(None)) -> np.ndarray:
+        """(n, 3) T at the chips of the magnets `rows` (of the hand's taxels) centred at
+        `position` (n, 3) m from them; each magnet's remanence is its own."""
         return phys.cylinder_field(self.remanence, self.magnet_diameter, self.magnet_thickness,
-                                   -position)
+                                   -position) * self._remanence_scale[rows, None]
 
-    def placement(self, rest: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(lateral (n, 2), height (n,)) m of magnets whose fields read `rest` (n, 3) counts
-        at their chips. Newton's method from where a point dipole of the same moment would
-        read them: with the offset d = c h, B_xy / B_z = 3 c_xy / (2 - |c|^2) and
+    def placement(self, rest: np.ndarray, rows=slice(None)
+                  ) -> tuple[np.ndarray, np.ndarray]:
+        """(lateral (n, 2), height (n,)) m of the magnets `rows` whose fields read `rest`
+        (n, 3) counts at their chips. Newton's method from where a point dipole of the same
+        moment would read them: with the offset d = c h, B_xy / B_z = 3 c_xy / (2 - |c|^2) and
         B_z = mu0 m (2 - |c|^2) / (4 pi h^3 (1 + |c|^2)^(5/2)). Near its chip a disc as thin as
         this one reads less than its dipole at the same place, so it sits a little closer.
         Done when the field reads the rest value to 1e-12 of it."""
@@ -119,8 +134,8 @@ class MagneticSkin(Effect):
         r2 = np.sum(ratio * ratio, axis=1, keepdims=True)
         c = ratio * 4.0 / (3.0 + np.sqrt(9.0 + 8.0 * r2))
         c2 = np.sum(c * c, axis=1)
-        moment = self.remanence * np.pi * (0.5 * self.magnet_diameter) ** 2 \
-            * self.magnet_thickness / phys.MU0
+        moment = self.remanence * self._remanence_scale[rows] * np.pi \
+            * (0.5 * self.magnet_diameter) ** 2 * self.magnet_thickness / phys.MU0
         height = (phys.MU0 * moment * (2.0 - c2)
                   / (4.0 * np.pi * target[:, 2] * (1.0 + c2) ** 2.5)) ** (1.0 / 3.0)
         position = np.column_stack([c * height[:, None], height])
@@ -128,11 +143,11 @@ class MagneticSkin(Effect):
         step = 1e-6 * self.magnet_diameter
         tolerance = 1e-12 * np.linalg.norm(target, axis=1)
         for _ in range(PLACEMENT_ITERATIONS):
-            residual = target - self.field(position)
+            residual = target - self.field(position, rows)
             if np.all(np.linalg.norm(residual, axis=1) <= tolerance):
                 return position[:, :2], position[:, 2]
-            jacobian = np.stack([(self.field(position + step * axis)
-                                  - self.field(position - step * axis)) / (2.0 * step)
+            jacobian = np.stack([(self.field(position + step * axis, rows)
+                                  - self.field(position - step * axis, rows)) / (2.0 * step)
                                  for axis in np.eye(3)], axis=-1)
             try:
                 position = position + np.linalg.solve(jacobian, residual[..., None])[..., 0]
@@ -144,20 +159,32 @@ class MagneticSkin(Effect):
             'the measured rest readings')
 
     def draw_hand(self, rng: np.random.Generator, ctx) -> None:
-        """Where each magnet sits: at the place whose field reads a rest value drawn from the
-        measured ranges (docs/PROTOCOLS.md), so a taxel's gain follows from its height as on the
-        real skin."""
+        """Each module's layer and elastomer, each magnet's remanence, and where each magnet
+        sits: at the place whose field reads a rest value drawn from the measured ranges
+        (docs/PROTOCOLS.md), so a taxel's gain follows from its height and magnet as on the
+        real skin, and an array's from its module."""
         n = ctx.n_taxels
         rest = np.column_stack([
             CHIP_ZERO + rng.uniform(-self.rest_xy_spread, self.rest_xy_spread, (n, 2)),
             rng.uniform(*self.rest_z_range, n)])
+        # Drawn after the rest readings, which then stay those of a hand without these spreads.
+        self._remanence_scale = 1.0 + rng.uniform(-1.0, 1.0, n) * (self.remanence_spread
+                                                                    / self.remanence)
+        modules = len(ctx.hand.arrays)
+        self.module_layer = self.layer_thickness * np.exp(
+            rng.normal(0.0, self.module_layer_spread, modules))
+        self.module_modulus = self.youngs_modulus * np.exp(
+            rng.normal(0.0, self.module_modulus_spread, modules))
+        self._module_of = np.asarray(ctx.array_of_taxel)
         self.lateral, self.height = self.placement(rest)
-        top = self.height.max() + 0.5 * self.magnet_thickness
-        if top >= self.layer_thickness:
+        top = self.height + 0.5 * self.magnet_thickness
+        over = np.argmax(top - self.module_layer[self._module_of])
+        if top[over] >= self.module_layer[self._module_of[over]]:
             raise SkinPlacementError(
-                f'magnetic_skin: a magnet must reach {top * 1e3:.2f} mm above its chip to read '
-                f'the rest values, above the {self.layer_thickness * 1e3:.2f} mm layer: these '
-                'magnet, chip and layer parameters do not fit the measured rest readings')
+                f'magnetic_skin: a magnet must reach {top[over] * 1e3:.2f} mm above its chip to '
+                f'read the rest values, above its module\'s '
+                f'{self.module_layer[self._module_of[over]] * 1e3:.2f} mm layer: these magnet, '
+                'chip and layer parameters do not fit the measured rest readings')
         bottom = self.height.min() - 0.5 * self.magnet_thickness
         if bottom <= 0.0:
             raise SkinPlacementError(
@@ -176,7 +203,7 @@ class MagneticSkin(Effect):
         squeezed = column * phys.neo_hookean_stretch(displacement[:, 2] / column)
         position = np.column_stack([self.lateral[rows] + displacement[:, :2],
                                     squeezed + 0.5 * self.magnet_thickness])
-        counts = self.field(position) / self._sensitivity
+        counts = self.field(position, rows) / self._sensitivity
         return self._zero + np.minimum(np.maximum(counts, -CHIP_RANGE), CHIP_RANGE)   # np.clip
 
     # -- a session -------------------------------------------------------------------------------
@@ -190,9 +217,12 @@ class MagneticSkin(Effect):
         self._pitch = float(np.min(np.sqrt(np.sum(
             (self._positions[:, None] - self._positions[None]) ** 2, axis=-1))
             + np.eye(array.n_taxels)))
-        depth = self.layer_thickness - self.height[self._rows]
-        self._layer = bonded_layer(self.layer_thickness, self.shear_modulus, self.poisson,
-                                   depth.tobytes())
+        module = int(self._module_of[self._rows][0])
+        thickness, modulus = float(self.module_layer[module]), float(self.module_modulus[module])
+        self.contact_modulus = modulus / (1.0 - self.poisson ** 2)
+        depth = thickness - self.height[self._rows]
+        self._layer = bonded_layer(thickness, modulus / (2.0 * (1.0 + self.poisson)),
+                                   self.poisson, depth.tobytes())
         self.creep.reset((array.n_taxels, 3), ctx.dt)
         self.play.reset((array.n_taxels, 3))
         self._location_key, self._location_plate = b'', None

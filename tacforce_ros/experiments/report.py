@@ -339,6 +339,11 @@ def cross_array_section(cross: dict | None) -> list[str]:
                 lines.append(f"| {row['array']} | {row['own_e_hat_n']:.3f} | "
                              f"{row['unadapted_e_hat_n']:.3f} ({row['unadapted_min_n']:.3f} - "
                              f"{row['unadapted_max_n']:.3f}) | {row['ratio']:.2f} |")
+    alike = [ARRAY_KIND_TITLES.get(k, k) for k, v in cross['by_kind'].items() if v['ratio'] <= 1.0]
+    if alike:
+        lines += ['', f"On the {', '.join(alike)} another array's model errs no more than the "
+                  "array's own: those arrays do not differ beyond their own error, and a model "
+                  "carried over to them shows no transfer."]
     return lines + ['']
 
 

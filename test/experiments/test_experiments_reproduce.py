@@ -255,3 +255,32 @@ def test_the_grasp_table_holds_its_rows_as_the_json_says(runs):
     for obj in settings['grasp_objects']:
         assert f'grasp_{obj}.png' in doc['figures']
     assert second['grasp'] == doc['grasp']
+
+
+def test_the_cross_array_table_holds_every_pair_of_a_kind_and_shows_each_row(runs):
+    _, doc, md, second = runs
+    cross, rows = doc['cross_array'], doc['whole_hand']
+    kinds: dict[str, list[str]] = {}
+    for name, row in rows.items():
+        kinds.setdefault(row['type'], []).append(name)
+    assert {(p['source'], p['target']) for p in cross['pairs']} == {
+        (a, b) for arrays in kinds.values() for a in arrays for b in arrays if a != b}
+    assert [r['array'] for r in cross['rows']] == list(rows)
+    shown = {r[0]: r for r in next(v for h, v in tables(md).items()
+                                   if h.startswith('Across arrays'))}
+    for row in cross['rows']:
+        on_it = [p['e_hat_n'] for p in cross['pairs'] if p['target'] == row['array']]
+        assert row['own_e_hat_n'] == rows[row['array']]['cv']['e_hat_mean']
+        assert row['unadapted_e_hat_n'] == pytest.approx(np.mean(on_it))
+        assert row['ratio'] == pytest.approx(row['unadapted_e_hat_n'] / row['own_e_hat_n'])
+        cells = shown[row['array']]
+        assert_shows(cells[1], row['own_e_hat_n'], None, 3)
+        assert numbers(cells[2]) == pytest.approx(
+            [row['unadapted_e_hat_n'], row['unadapted_min_n'], row['unadapted_max_n']],
+            abs=5e-4)
+    for kind, summary in cross['by_kind'].items():
+        members = [r for r in cross['rows'] if r['kind'] == kind]
+        assert summary['arrays'] == len(members) == len(kinds[kind])
+        assert summary['ratio'] == pytest.approx(summary['unadapted_e_hat_n']
+                                                 / summary['own_e_hat_n'])
+    assert second['cross_array'] == cross             # from the cache, the same

@@ -201,14 +201,17 @@ def test_skin_sensitivity_refuses_a_parameter_set_twice(tmp_path, capsys):
 
 def test_a_skin_setting_reaches_the_simulated_skin(tmp_path):
     from tacforce_ros.experiments import skin_sensitivity
-    # A 1 mm layer cannot hold magnets that read the measured rest values: every row says so.
+    # A 1 mm layer cannot hold magnets that read the measured rest values: every row says so
+    # (each module's layer about the 1 mm: no module spread here, so exactly 1 mm).
     assert skin_sensitivity.main(['--out', str(tmp_path), '--arrays', 'index_middle',
                                   '--seconds', '5', '--models', 'M3', '--params', 'poisson',
                                   '--factors', '1.2', '--closed-loop', '--jobs', '1',
-                                  '--set', 'layer_thickness=0.001']) == 0
+                                  '--set', 'layer_thickness=0.001',
+                                  '--set', 'module_layer_spread=0']) == 0
     result = json.loads((tmp_path / 'skin_sensitivity.json').read_text())
     assert len(result['variants']) == 2
-    assert all('above the 1.00 mm layer' in v['infeasible'] for v in result['variants'])
+    assert all("above its module's 1.00 mm layer" in v['infeasible']
+               for v in result['variants'])
 
 
 def test_a_skin_setting_takes_the_parameters_shape():

@@ -26,7 +26,7 @@ def test_a_worker_dies_of_terminate_in_the_middle_of_a_long_unit():
         worker.terminate()
         # The pool's own thread reaps a worker that died (Process.join) as this one does: the
         # loser of the two waitpid calls reads None until the winner has stored the exit code
-        # (1 fresh-clone suite in 5 failed on reading it once).
+        # (1 of 6 fresh-clone suites failed on reading it once).
         deadline = time.monotonic() + 10.0
         while worker.exitcode is None and time.monotonic() < deadline:
             worker.join(timeout=0.1)

@@ -21,6 +21,7 @@ import numpy as np
 
 from tacforce_ros.estimation.cross_validation import cross_validate
 from tacforce_ros.estimation.dataset import CalibrationDataset
+from tacforce_ros.estimation.shared_model import shared_folds
 
 if TYPE_CHECKING:
     from tacforce_ros.hand.description import TaxelArray
@@ -92,8 +93,34 @@ def learning_curve(array: TaxelArray, dataset: CalibrationDataset,
         for label, (kind, hyper) in models.items():
             summary = cross_validate(array, kind, hyper, X_all[keep], F_all[keep],
                                      dataset.plates[keep], held_out=held_out).summary()
-            rows.append({**point, 'model': label, 'e_hat_n': summary['e_hat_mean'],
+            rows.append({**point, 'model': label, 'way': 'own', 'e_hat_n': summary['e_hat_mean'],
                          'e_r': summary['e_r_mean']})
+    return rows
+
+
+def shared_learning_curve(array: TaxelArray, dataset: CalibrationDataset, label: str, kind: str,
+                          hyper: dict[str, Any], others: Mapping[str, tuple[np.ndarray, ...]],
+                          seconds: Sequence[float] = SECONDS, **static_kw: Any
+                          ) -> list[dict[str, Any]]:
+    """learning_curve's points for the model shared by the kind's other arrays (`others`:
+    name -> (X offsets removed, F, plates)) and adapted to the array's cut (shared_model.py):
+    the same cuts, folds and held-out data as the array's own model. Rows as learning_curve's,
+    `way` 'shared', with each fold's adaptation weight (None: unadapted)."""
+    plates = dataset.plate_names()
+    if len(plates) < 2:
+        raise ValueError(f'{dataset.array}: a learning curve needs >= 2 plates, got {plates}')
+    X_all, F_all, _ = dataset.without_offsets(**static_kw)
+    keeps = [cut_rows(dataset, total / len(plates)) for total in seconds]
+    results = shared_folds(array, kind, hyper, (X_all, F_all, dataset.plates), keeps, others)
+    rows = []
+    for total, keep, result in zip(seconds, keeps, results):
+        summary = result.summary()
+        rows.append({'array': dataset.array, 'seconds': float(total),
+                     'recorded_s': recorded_seconds(_rows_of(dataset, keep)),
+                     'samples': int(keep.sum()), 'model': label, 'way': 'shared',
+                     'e_hat_n': summary['e_hat_mean'], 'e_r': summary['e_r_mean'],
+                     'adapt_weights': [f['hyperparameters']['adapt_weight']
+                                       for f in summary['per_fold']]})
     return rows
 
 

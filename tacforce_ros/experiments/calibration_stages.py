@@ -10,6 +10,8 @@ import numpy as np
 
 from tacforce_ros.estimation.cross_validation import cross_validate, transfer
 from tacforce_ros.estimation.dataset import concatenate
+from tacforce_ros.estimation.learning_curve import shared_learning_curve
+from tacforce_ros.estimation.shared_model import shared_folds
 from tacforce_ros.estimation.training import fit_bundles, for_deployment
 from tacforce_ros.rig import HELD_OUT_PLATE
 from tacforce_ros.experiments.cache import digest, scene_digest, source_digest
@@ -17,11 +19,13 @@ from tacforce_ros.experiments.calibration_data import simulate_calibration
 from tacforce_ros.hand.description import load_hand
 from tacforce_ros.hand.kinematics import HandKinematics
 from tacforce_ros.sim.scene import calibration_scene_name, session_seed
-from tacforce_ros.experiments.settings import (ARRAYS, GRASP_ARRAYS, PLATES, WHOLE_HAND_MODEL,
+from tacforce_ros.experiments.settings import (ARRAYS, GRASP_ARRAYS, PLATES, SHARED_MODEL,
+                                             WHOLE_HAND_MODEL,
                                              Context, Settings, hand_digest, model_hyper,
                                              scene_for)
 from tacforce_ros.experiments.workers import (job_benchmark, job_calibration, job_cross_validation,
-                                            job_learning_curve, job_training_set, job_transfer,
+                                            job_learning_curve, job_shared_curve,
+                                            job_training_set, job_transfer,
                                             run_units, worker_hand)
 
 
@@ -271,3 +275,31 @@ def learning_curve_stage(ctx: Context, layout: dict) -> list[dict]:
         ctx.cache.store_json('learning_curve', keys[name], row)
     return [{**ctx.cache.load_json('learning_curve', keys[name]), 'way': 'own'}
             for name in names]
+
+
+def shared_curve_stage(ctx: Context, layout: dict, sets: dict[str, str]) -> list[dict]:
+    """The learning curve of SHARED_MODEL shared by each Table I array's kind and adapted to it
+    (estimation/shared_model.py): the other arrays of the kind give the whole-hand training sets
+    (`sets`), the array its training sessions cut as for its own curve. A unit per array. Rows as
+    report.json `learning_curve.rows`, `way` 'shared'."""
+    s = ctx.settings
+    hand, _ = worker_hand()
+    kind, hyper = model_hyper(SHARED_MODEL, s)
+    jobs, keys = [], {}
+    for array in ARRAYS:
+        paths = [p for plate in PLATES for p in layout[array][plate]]
+        others = {a.name: sets[a.name] for a in hand.arrays
+                  if a.kind == hand.array(array).kind and a.name != array and a.name in sets}
+        keys[array] = digest({'data': [Path(p).stem for p in paths],
+                              'others': {n: Path(p).stem for n, p in others.items()},
+                              'model': [kind, hyper], 'seconds': list(s.learning_seconds),
+                              'static_force': s.static_force,
+                              'code': source_digest(job_shared_curve, shared_learning_curve,
+                                                    shared_folds)})
+        if ctx.cache.load_json('shared_curve', keys[array]) is None:
+            jobs.append((array, job_shared_curve, (array, paths, others, SHARED_MODEL, kind, hyper,
+                                                   list(s.learning_seconds), s.static_force)))
+    ctx.log(f'stage shared models: {len(keys)} arrays, {len(jobs)} to fit')
+    for array, rows in run_units(ctx, 'shared models', jobs).items():
+        ctx.cache.store_json('shared_curve', keys[array], rows)
+    return [row for array in keys for row in ctx.cache.load_json('shared_curve', keys[array])]

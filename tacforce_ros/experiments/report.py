@@ -285,7 +285,44 @@ def learning_curve_section(curve: dict | None) -> list[str]:
             "in the order recorded), each fold tested on all of its held-out plate's data; the "
             "last point is the paper's campaign, Table I's figure. In brackets: the seconds "
             "recorded where less than asked. `learning_curve` draws the same from any bags or "
-            "campaign. Figure: `learning_curve.png`.", '', *curve_table(curve['rows']), '']
+            "campaign. Figure: `learning_curve.png`.", '', *curve_table(curve['rows']), '',
+            *shared_verdict(curve['rows'])]
+
+
+def shared_verdict(rows: list[dict], short_s: float = 400.0) -> list[str]:
+    """Where the model the kind's other arrays share (`way` shared: fitted on their whole-hand
+    training sets, adapted to the array's cut; estimation/shared_model.py) stands against the
+    array's own model of the same kind: below it at every point up to `short_s`, and not above
+    it at the last point."""
+    shared = [r for r in rows if r.get('way') == 'shared' and r['e_hat_n'] is not None]
+    if not shared:
+        return []
+    lines = ["Way *shared*: the model fitted on the other arrays of the kind (their whole-hand "
+             "training sets, without the held-out plate) and adapted to the array's cut by "
+             "damped least squares centred on it, its weight chosen by leave-one-array-out "
+             "(`estimation/shared_model.py`).", '']
+    for array, model in dict.fromkeys((r['array'], r['model']) for r in shared):
+        own = {r['seconds']: r['e_hat_n'] for r in rows if (r['array'], r['model'],
+               r.get('way', 'own')) == (array, model, 'own') and r['e_hat_n'] is not None}
+        mine = {r['seconds']: r['e_hat_n'] for r in shared
+                if (r['array'], r['model']) == (array, model) and r['seconds'] in own}
+        if not mine:
+            continue
+        best = {t: min(r['e_hat_n'] for r in rows if (r['array'], r.get('way', 'own'),
+                                                       r['seconds']) == (array, 'own', t)
+                       and r['e_hat_n'] is not None) for t in mine}
+        short = [t for t in sorted(mine) if t <= short_s]
+        last = max(mine)
+        for against, name in ((own, f'own {model}'), (best, 'the best own model')):
+            wins = [t for t in short if mine[t] < against[t]]
+            lines.append(
+                f"* {array}, {model}: shared below {name} at {len(wins)} of {len(short)} "
+                f"points up to {short_s:g} s"
+                + ('' if len(wins) == len(short) else ' (NOT at '
+                   + ', '.join(f'{t:g} s' for t in short if t not in wins) + ')')
+                + f"; at {last:g} s {mine[last]:.3f} N against {against[last]:.3f} N "
+                + ('(not worse)' if mine[last] <= against[last] else '(WORSE)') + '.')
+    return lines + ['']
 
 
 def whole_hand_section(rows: dict, settings: dict) -> list[str]:

@@ -127,6 +127,7 @@ def run(settings: Settings, out: Path, jobs: int) -> dict:
         learning = calibration.learning_curve_stage(ctx, layout)
         whole_hand, whole_hand_models, sets = calibration.whole_hand_stage(ctx, cv, layout)
         cross_array = calibration.cross_array_stage(ctx, sets, whole_hand)
+        learning += calibration.shared_curve_stage(ctx, layout, sets)
         timing = estimation.timing_stage(ctx, models)
         online = estimation.online_stage(ctx, layout, models)
         end_to_end = estimation.end_to_end_stage(ctx, layout, models, timing,

@@ -127,6 +127,8 @@ def skin_scene(folder: Path, name: str, skin: str) -> str:
 
 
 WHOLE_HAND_MODEL = 'M3-lambda'
+# The model a kind's arrays share and adapt (estimation/shared_model.py: a linear one).
+SHARED_MODEL = 'M3-lambda'
 
 
 def controller_config(controller: str):

@@ -17,7 +17,7 @@ from tqdm import tqdm
 from tacforce_ros.control.command_sequence import ForceSequence
 from tacforce_ros.estimation.cross_validation import cross_validate, transfer
 from tacforce_ros.estimation.dataset import CalibrationDataset, concatenate
-from tacforce_ros.estimation.learning_curve import learning_curve
+from tacforce_ros.estimation.learning_curve import learning_curve, shared_learning_curve
 from tacforce_ros.estimation.model_io import save_model
 from tacforce_ros.estimation.model_set import load_model_set
 from tacforce_ros.estimation.preprocessing import SAMPLE_RATE_HZ
@@ -101,6 +101,17 @@ def job_learning_curve(array: str, paths: list[str], label: str, kind: str, hype
     (row,) = learning_curve(hand.array(array), dataset, {label: (kind, hyper)}, (seconds,),
                             force_threshold=static_force)
     return row
+
+
+def job_shared_curve(array: str, paths: list[str], others: dict[str, str], label: str, kind: str,
+                     hyper: dict, seconds: list[float], static_force: float) -> list[dict]:
+    """An array's learning curve with the model its kind's other arrays share, adapted to it
+    (estimation/shared_model.py); others: name -> training set."""
+    hand, _ = worker_hand()
+    dataset = concatenate([CalibrationDataset.load(p) for p in paths])
+    data = {name: load_training(path)[:3] for name, path in others.items()}
+    return shared_learning_curve(hand.array(array), dataset, label, kind, hyper, data,
+                                 tuple(seconds), force_threshold=static_force)
 
 
 def job_benchmark(array: str, kind: str, hyper: dict, training_set: str, provenance: dict,

@@ -189,14 +189,27 @@ def test_figures_are_png_images(runs):
 def test_the_learning_curves_hold_every_array_model_and_point_as_the_table_shows(runs):
     _, doc, md, _ = runs
     rows, s = doc['learning_curve']['rows'], doc['settings']
-    assert {(r['array'], r['model'], r['seconds']) for r in rows} == {
-        (a, m, t) for a in ('index_tip', 'index_middle') for m in s['learning_models']
-        for t in s['learning_seconds']}
-    assert all(r['way'] == 'own' and r['e_hat_n'] > 0 for r in rows)
+    arrays = ('index_tip', 'index_middle')
+    assert {(r['array'], r['model'], r['way'], r['seconds']) for r in rows} == {
+        (a, m, 'own', t) for a in arrays for m in s['learning_models']
+        for t in s['learning_seconds']} | {
+        (a, 'M3-lambda', 'shared', t) for a in arrays for t in s['learning_seconds']}
+    assert all(r['e_hat_n'] > 0 for r in rows)
     assert '## Learning curves' in md and 'learning_curve.png' in doc['figures']
     for r in rows:
-        line = next(x for x in md.splitlines() if x.startswith(f"| {r['array']} | {r['model']} |"))
+        line = next(x for x in md.splitlines()
+                    if x.startswith(f"| {r['array']} | {r['model']} | {r['way']} |"))
         assert f"{r['e_hat_n']:.3f}" in line, (r, line)
+    # The same cuts as the array's own model, each fold with the weight it chose.
+    for r in rows:
+        if r['way'] == 'shared':
+            own = next(o for o in rows if (o['array'], o['model'], o['way'], o['seconds'])
+                       == (r['array'], r['model'], 'own', r['seconds']))
+            assert (r['samples'], r['recorded_s']) == (own['samples'], own['recorded_s'])
+            assert len(r['adapt_weights']) == 5
+    for array in arrays:
+        assert any(line.startswith(f'* {array}, M3-lambda: shared below own M3-lambda at ')
+                   for line in md.splitlines()), array
     # The quick run records 20 s per plate: its 100 s point is the whole recording.
     full = [r for r in rows if r['seconds'] == 100.0]
     assert all(abs(r['recorded_s'] - 100.0) < 1.0 for r in full)

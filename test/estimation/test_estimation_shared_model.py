@@ -1,0 +1,91 @@
+"""A model shared by the arrays of a kind and adapted to one (shared_model.py): the two ends of
+the adaptation weight, its gain where the array's own data are few, and the refusals."""
+import numpy as np
+import pytest
+
+from tacforce_ros.estimation.cross_validation import cross_validate
+from tacforce_ros.estimation.learning_curve import learning_curve, shared_learning_curve
+from tacforce_ros.estimation.least_squares import fit_affine
+from tacforce_ros.estimation.shared_model import adapt, fit_shared, shared_folds
+
+HYPER = {'lam': 1e-3, 'lambda_grid': None}
+
+
+def module(X, seed):
+    """X as another module of the kind reads the same presses: its taxels' gains differ (the
+    simulated skin's magnets and layers; lognormal, 15 %)."""
+    return X * np.random.default_rng(seed).lognormal(0.0, 0.15, X.shape[1:])
+
+
+@pytest.fixture(scope='module')
+def kind(tip_data):
+    """The array (the fixture's data) and three others of its kind reading the same presses."""
+    data, X, F, _ = tip_data
+    others = {f'other_{k}': (module(X, 10 + k), F, data.plates) for k in range(3)}
+    return (module(X, 9), F, data.plates), others
+
+
+def first_rows(plates, n):
+    keep = np.zeros(len(plates), bool)
+    for plate in dict.fromkeys(plates.tolist()):
+        keep[np.flatnonzero(plates == plate)[:n]] = True
+    return keep
+
+
+def test_weight_inf_is_the_shared_model_and_zero_the_arrays_own_fit(tip, kind):
+    (X, F, plates), others = kind
+    shared = fit_shared(tip, 'M3-lambda', HYPER, list(others.values()))
+    np.testing.assert_array_equal(adapt(shared, np.inf, X, F).predict(X), shared.predict(X))
+    # Weight 0: the prior no longer counts; what is left is the array's own least squares in
+    # the shared model's units.
+    xs = shared.x_scaler.transform(X)
+    coef, intercept = fit_affine(shared.model.features(xs), shared.f_scaler.transform(F), 0.0)
+    own = shared.f_scaler.inverse(shared.model.features(xs) @ coef.T + intercept)
+    np.testing.assert_allclose(adapt(shared, 0.0, X, F).predict(X), own, atol=1e-6)
+    # In between it moves from the shared model toward the array's own, and not past it.
+    err = [np.abs(adapt(shared, w, X, F).predict(X) - F).mean() for w in (np.inf, 1.0, 0.0)]
+    assert err[0] > err[1] > err[2]
+
+
+def test_adapted_from_a_few_seconds_it_beats_the_arrays_own_model(tip, kind):
+    (X, F, plates), others = kind
+    keep = first_rows(plates, 150)                          # 1.5 s per plate of the array's own
+    own = cross_validate(tip, 'M3-lambda', HYPER, X[keep], F[keep], plates[keep],
+                         held_out=(X, F, plates)).summary()['e_hat_mean']
+    (shared,) = shared_folds(tip, 'M3-lambda', HYPER, (X, F, plates), [keep], others)
+    summary = shared.summary()
+    print(f'own {own:.3f} N, shared and adapted {summary["e_hat_mean"]:.3f} N, weights',
+          [f['hyperparameters']['adapt_weight'] for f in summary['per_fold']])
+    assert summary['e_hat_mean'] < 0.8 * own
+    assert [f['test_plate'] for f in summary['per_fold']] == list(dict.fromkeys(plates.tolist()))
+
+
+def test_the_shared_curve_cuts_as_the_own_curve(tip, tip_data):
+    data, X, F, _ = tip_data
+    others = {f'other_{k}': (module(X, 20 + k), F, data.plates) for k in range(2)}
+    seconds = (5.0, 20.0)
+    own = learning_curve(tip, data, {'M3-lambda': ('M3-lambda', HYPER)}, seconds)
+    shared = shared_learning_curve(tip, data, 'M3-lambda', 'M3-lambda', HYPER, others, seconds)
+    assert [r['way'] for r in own + shared] == ['own'] * 2 + ['shared'] * 2
+    for a, b in zip(own, shared):
+        assert (a['seconds'], a['recorded_s'], a['samples']) == \
+            (b['seconds'], b['recorded_s'], b['samples'])
+        assert len(b['adapt_weights']) == len(data.plate_names())
+
+
+def test_what_cannot_be_shared_is_refused(tip, kind):
+    (X, F, plates), others = kind
+    with pytest.raises(ValueError, match='only the linear models'):
+        fit_shared(tip, 'M4', {}, list(others.values()))
+    with pytest.raises(ValueError, match='needs the data of another array'):
+        fit_shared(tip, 'M3-lambda', HYPER, [])
+    with pytest.raises(ValueError, match='two other arrays'):
+        shared_folds(tip, 'M3-lambda', HYPER, (X, F, plates), [np.ones(len(F), bool)],
+                     {'other_0': others['other_0']})
+    short = plates != plates[0]
+    lacking = {**others, 'other_0': (X[short], F[short], plates[short])}
+    with pytest.raises(ValueError, match=f"other_0 has no data on the plates \\['{plates[0]}'\\]"):
+        shared_folds(tip, 'M3-lambda', HYPER, (X, F, plates), [np.ones(len(F), bool)], lacking)
+    shared = fit_shared(tip, 'M3-lambda', HYPER, list(others.values()))
+    with pytest.raises(ValueError, match='must be >= 0'):
+        adapt(shared, -1.0, X, F)

@@ -6,7 +6,8 @@ import pytest
 from tacforce_ros.estimation.cross_validation import cross_validate
 from tacforce_ros.estimation.learning_curve import learning_curve, shared_learning_curve
 from tacforce_ros.estimation.least_squares import fit_affine
-from tacforce_ros.estimation.shared_model import adapt, fit_shared, shared_folds
+from tacforce_ros.estimation.shared_model import (ADAPT_WEIGHTS, KindBlocks, adapt, fit_adapted,
+                                                  fit_shared, shared_folds)
 
 HYPER = {'lam': 1e-3, 'lambda_grid': None}
 
@@ -89,3 +90,32 @@ def test_what_cannot_be_shared_is_refused(tip, kind):
     shared = fit_shared(tip, 'M3-lambda', HYPER, list(others.values()))
     with pytest.raises(ValueError, match='must be >= 0'):
         adapt(shared, -1.0, X, F)
+
+
+def test_the_blocks_fit_what_the_pooled_rows_fit(tip, kind):
+    """KindBlocks: a union of (array, plate) blocks, the held-out plate left out, gives the
+    model fit_shared fits on those rows: the same standardisation and predictions."""
+    (X, F, plates), others = kind
+    blocks = KindBlocks(tip, 'M3-lambda', HYPER, {'new': (X, F, plates), **others})
+    plate = plates[0]
+    names = ['other_0', 'other_2']
+    rows = [(d[0][d[2] != plate], d[1][d[2] != plate], d[2][d[2] != plate])
+            for name, d in others.items() if name in names]
+    direct = fit_shared(tip, 'M3-lambda', HYPER, rows)
+    fast = blocks.fit(names, without=plate)
+    np.testing.assert_allclose(fast.x_scaler.mean, direct.x_scaler.mean, rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(fast.x_scaler.std, direct.x_scaler.std, rtol=1e-9)
+    np.testing.assert_allclose(fast.f_scaler.std, direct.f_scaler.std, rtol=1e-9)
+    np.testing.assert_allclose(fast.predict(X), direct.predict(X), atol=1e-7)
+    with pytest.raises(ValueError, match='only'):
+        KindBlocks(tip, 'M3-lambda', {'lam': 33.0, 'lambda_grid': [1.0, 10.0]}, others)
+
+
+def test_the_shipped_adapted_model_is_the_weight_its_folds_liked(tip, kind):
+    (X, F, plates), others = kind
+    bundle, weight, cv = fit_adapted(tip, 'M3-lambda', HYPER, (X, F, plates), others)
+    scores = np.mean([f.hyperparameters['weight_scores'] for f in cv.folds], axis=0)
+    assert weight == ADAPT_WEIGHTS[int(np.argmin(scores))]
+    expected = adapt(fit_shared(tip, 'M3-lambda', HYPER, list(others.values())), weight, X, F)
+    np.testing.assert_allclose(bundle.predict(X), expected.predict(X), atol=1e-7)
+    assert len(cv.folds) == len(set(plates.tolist()))

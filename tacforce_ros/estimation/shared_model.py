@@ -95,9 +95,10 @@ class KindBlocks:
     def plates(self, name: str) -> list[str]:
         return [plate for n, plate in self._factors if n == name]
 
-    def fit(self, names: Sequence[str], without: str | None = None) -> ModelBundle:
+    def fit(self, names: Sequence[str], without: str | None = None,
+            array: TaxelArray | None = None) -> ModelBundle:
         """The shared model of `names`' data, all plates but `without`: fit_shared's, to
-        rounding."""
+        rounding; for `array` (default: the one the blocks were made with), of the kind."""
         keys = [key for key in self._factors if key[0] in names and key[1] != without]
         if not keys:
             raise ValueError(f'{self.array.name}: a shared model needs the data of another array')
@@ -112,9 +113,13 @@ class KindBlocks:
         stacked = np.vstack([self._factors[key] for key in keys]) @ to_union
         coef, intercept = CentredSVD.of_factor(np.linalg.qr(stacked, mode='r')).solve(
             self.model.damping)
-        model = model_class(self.kind)(self.array, **self.hyper)
+        array = self.array if array is None else array
+        if array.n_taxels != self.array.n_taxels:
+            raise ValueError(f'{array.name} has {array.n_taxels} taxels, the kind '
+                             f'{self.array.n_taxels}')
+        model = model_class(self.kind)(array, **self.hyper)
         model.coef_, model.intercept_ = coef, intercept
-        n = self.array.n_taxels
+        n = array.n_taxels
         return ModelBundle(
             model=model, x_scaler=Standardiser(mean=mean[:p].reshape(n, 3),
                                                std=std[:p].reshape(n, 3),
@@ -199,7 +204,7 @@ def shared_folds(array: TaxelArray, kind: str, hyper: dict[str, Any], own: Data,
     blocks = KindBlocks(array, kind, hyper, others) if blocks is None else blocks
     results = [CrossValidation(kind=kind) for _ in cuts]
     for plate in dict.fromkeys(plates.tolist()):
-        shared = blocks.fit(list(others), without=plate)
+        shared = blocks.fit(list(others), without=plate, array=array)
         pooled_without = {name: blocks.fit([o for o in others if o != name], without=plate)
                           for name in others}
         on = plates == plate
@@ -233,7 +238,7 @@ def fit_adapted(array: TaxelArray, kind: str, hyper: dict[str, Any], own: Data,
                          weights, blocks)
     scores = np.mean([f.hyperparameters['weight_scores'] for f in cv.folds], axis=0)
     weight = float(weights[int(np.argmin(scores))])
-    return adapt(blocks.fit(list(others)), weight, own[0], own[1]), weight, cv
+    return adapt(blocks.fit(list(others), array=array), weight, own[0], own[1]), weight, cv
 
 
 def _without(data: Data, plate: str) -> Data:

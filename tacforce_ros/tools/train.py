@@ -6,6 +6,10 @@ the datasets' headers; none named: the right hand), or `--hand-side`; the models
 A campaign folder (`campaign`) stands for the bags of it that count (coverage verdict passed).
 Per array: offsets from static segments per session, optional leave-one-plate-out
 cross-validation (metrics go into the model's provenance), then a final fit on all plates.
+With `--shared`, an array's model is instead the one the other arrays of its kind share,
+adapted to its own data (estimation/shared_model.py): fewer seconds of pressing per array.
+Each model's provenance says which way it was made (`way`: own, shared or adapted) and how many
+seconds of its own array's data went into it (`own_seconds`).
 Writes `<array>_<kind>.npz`, a models list per kind for the estimator (`models_<kind>.yaml`),
 report.md/json (arrays grouped by type: curved fingertips, flat phalanx pads, palm pads; and
 M1's normal input per newton per array and plate, to set beside skin_sensitivity's for the
@@ -20,16 +24,19 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
 from tqdm import tqdm
 
 from tacforce_ros import results
 from tacforce_ros.estimation.cross_validation import cross_validate
 from tacforce_ros.estimation.dataset import DatasetError, concatenate
+from tacforce_ros.estimation.learning_curve import recorded_seconds
 from tacforce_ros.estimation.m1_rotation_linear import NORMAL_INPUT_NOTE, normal_input_per_newton
 from tacforce_ros.estimation.model_io import save_model
 from tacforce_ros.estimation.model_set import write_model_config
 from tacforce_ros.estimation.preprocessing import StaticSegmentError
 from tacforce_ros.estimation.registry import MODEL_KINDS, TORCH_KINDS
+from tacforce_ros.estimation.shared_model import BLOCK_KINDS, KindBlocks, fit_adapted
 from tacforce_ros.estimation.training import fit_bundle, for_deployment
 from tacforce_ros.hand.description import ARRAY_KIND_TITLES, SIDES
 from tacforce_ros.paths import output_folder
@@ -40,13 +47,13 @@ def markdown_report(report: dict) -> str:
     lines = ['# Training report', '', f"code {report['code_version']}, {report['date']}, "
              f"seed {report['seed']}, {report['hand_side']} hand; held-out errors from the "
              'leave-one-plate-out benchmark', '',
-             '| array | kind | plates | samples | e_r [%] | e_hat [N] | MAE x/y/z [N] | file |',
-             '|---|---|---|---|---|---|---|---|']
+             '| array | kind | made | plates | samples | e_r [%] | e_hat [N] | MAE x/y/z [N] '
+             '| file |', '|---|---|---|---|---|---|---|---|---|']
     for group, title in ARRAY_KIND_TITLES.items():
         entries = [e for e in report['models'] if e['array_type'] == group]
         if entries:
             lines.append(f'| **{title}** ({len({e["array"] for e in entries})}) '
-                         '| | | | | | | |')
+                         '| | | | | | | | |')
         lines += [_report_row(entry) for entry in entries]
     gains = report['normal_input_per_newton']
     plates = list(dict.fromkeys(p for g in gains.values() for p in g))
@@ -71,6 +78,16 @@ def write_model_lists(folder: Path, report: dict) -> list[Path]:
     return paths
 
 
+def made(entry: dict) -> str:
+    """Which way the model was made, with how much of its own array's data."""
+    own = f"{entry['own_seconds']:g} s of its own"
+    if entry['way'] == 'own':
+        return f'own data, {own}'
+    weight = '' if entry['adapt_weight'] is None else f" (weight {entry['adapt_weight']:g})"
+    return (f"{entry['way']}{weight}: from {len(entry['shared_from'])} other arrays, "
+            f"{'adapted to ' if entry['way'] == 'adapted' else 'not adapted to '}{own}")
+
+
 def _report_row(entry: dict) -> str:
     cv = entry['cross_validation']
     if cv:
@@ -80,7 +97,8 @@ def _report_row(entry: dict) -> str:
         axes = ' / '.join(f'{v:.3f}' for v in cv['mae_axis'])
     else:
         e_r = e_hat = axes = 'not run'
-    return (f"| {entry['array']} | {entry['kind']} | {', '.join(entry['plates'])} | "
+    return (f"| {entry['array']} | {entry['kind']} | {made(entry)} | "
+            f"{', '.join(entry['plates'])} | "
             f"{entry['samples']} | {e_r} | {e_hat} | {axes} | {entry['file']} |")
 
 
@@ -101,6 +119,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--lambda-cv', action='store_true',
                         help='choose the M3-lambda damping by CV nested in the training plates')
     parser.add_argument('--no-cv', action='store_true', help='skip leave-one-plate-out CV')
+    parser.add_argument('--shared', action='store_true',
+                        help='each array: the model the other arrays of its kind share, adapted '
+                             'to its own data (an array whose kind has fewer than 3 arrays in '
+                             f'the inputs: its own); kinds {", ".join(BLOCK_KINDS)} only, a '
+                             'fixed damping')
     parser.add_argument('--seed', type=int, default=0, help='seed of the random models (M4, M5)')
     parser.add_argument('--device', default='cpu',
                         help="torch device that trains M4 and M5: 'cpu' (default) or 'cuda', "
@@ -116,6 +139,10 @@ def main(argv: list[str] | None = None) -> int:
                         help='also write the processed dataset of each array (<out>/<array>.npz)')
     args = parser.parse_args(argv)
 
+    if args.shared and (set(args.kinds) - set(BLOCK_KINDS) or args.lambda_cv):
+        parser.error(f'--shared adapts {", ".join(BLOCK_KINDS)} with a fixed damping only, not '
+                     f'{", ".join(sorted(set(args.kinds) - set(BLOCK_KINDS)))}'
+                     + (' nor --lambda-cv' if args.lambda_cv else ''))
     missing = [str(p) for p in args.inputs if not p.exists()]
     if missing:
         parser.error(f'inputs not found: {missing}')
@@ -144,45 +171,74 @@ def main(argv: list[str] | None = None) -> int:
     report = {'code_version': version, 'date': date, 'seed': args.seed, 'hand_side': hand.side,
               'inputs': [str(p) for p in args.inputs], 'dropped_messages': dropped, 'models': [],
               'normal_input_per_newton': {}}
-    jobs = [(name, kind) for name in names for kind in args.kinds]
     prepared = {}
-    for name, kind in tqdm(jobs, desc='models', unit='model'):
+    for name in names:
         array = hand.array(name)
-        if name not in prepared:
-            dataset = concatenate(by_array[name])
-            if dataset.n_taxels != array.n_taxels:
-                print(f'train: dataset for {name} has {dataset.n_taxels} taxels, the hand '
-                      f'description {array.n_taxels}', file=sys.stderr)
-                return 2
-            if args.save_dataset:
-                dataset.save(args.out / f'{name}.npz')
-            try:
-                X, F, x_offset = dataset.without_offsets(
-                    force_threshold=args.static_force, activity_threshold=args.static_activity,
-                    min_duration=args.static_seconds)
-            except StaticSegmentError as exc:
-                print(f'train: {name}: {exc}', file=sys.stderr)
-                return 2
-            prepared[name] = (dataset, X, F, x_offset)
-            report['normal_input_per_newton'][name] = normal_input_per_newton(
-                X, F, dataset.plates, array.rotations)
+        dataset = concatenate(by_array[name])
+        if dataset.n_taxels != array.n_taxels:
+            print(f'train: dataset for {name} has {dataset.n_taxels} taxels, the hand '
+                  f'description {array.n_taxels}', file=sys.stderr)
+            return 2
+        if args.save_dataset:
+            dataset.save(args.out / f'{name}.npz')
+        try:
+            X, F, x_offset = dataset.without_offsets(
+                force_threshold=args.static_force, activity_threshold=args.static_activity,
+                min_duration=args.static_seconds)
+        except StaticSegmentError as exc:
+            print(f'train: {name}: {exc}', file=sys.stderr)
+            return 2
+        prepared[name] = (dataset, X, F, x_offset)
+        report['normal_input_per_newton'][name] = normal_input_per_newton(
+            X, F, dataset.plates, array.rotations)
+    # --shared: the arrays of each kind of module, by kind of model (KindBlocks built once).
+    kinship = {name: [n for n in names if hand.array(n).kind == hand.array(name).kind]
+               for name in names}
+    blocks: dict = {}
+    for name, kind in tqdm([(n, k) for n in names for k in args.kinds], desc='models',
+                           unit='model'):
+        array = hand.array(name)
         dataset, X, F, x_offset = prepared[name]
         hyper = model_hyper(kind, args.seed, args.lambda_cv, args.lam, args.device)
-        # The shipped model trains in the cross-validation's own fit (final=True).
-        validation = None if args.no_cv else cross_validate(array, kind, hyper, X, F,
-                                                            dataset.plates, final=True)
-        cv = None if validation is None else validation.summary()
+        own_seconds = round(recorded_seconds(dataset), 1)
         provenance = {'dataset': sorted({str(p) for p in args.inputs}),
                       'source': dataset.source, 'plates': dataset.plate_names(),
                       'samples': int(X.shape[0]), 'date': date, 'seed': args.seed,
-                      'code_version': version, 'metrics': cv,
+                      'code_version': version, 'way': 'own', 'own_seconds': own_seconds,
                       **({'trained_on': args.device} if kind in TORCH_KINDS else {})}
-        bundle = (fit_bundle(array, kind, hyper, X, F, dataset.plates, x_offset=x_offset,
-                             provenance=provenance) if validation is None else
-                  for_deployment(validation.final, x_offset, provenance))
+        others = [n for n in kinship[name] if n != name]
+        if args.shared and len(others) >= 2:
+            # The model the kind's other arrays share, adapted to this one's data; its folds
+            # choose the weight, so it has a cross-validation even with --no-cv.
+            key = (kind, array.kind)
+            if key not in blocks:
+                blocks[key] = KindBlocks(array, kind, hyper, {
+                    n: (prepared[n][1], prepared[n][2], prepared[n][0].plates)
+                    for n in kinship[name]})
+            bundle, weight, validation = fit_adapted(
+                array, kind, hyper, (X, F, dataset.plates),
+                {n: (prepared[n][1], prepared[n][2], prepared[n][0].plates) for n in others},
+                blocks=blocks[key])
+            cv = validation.summary()
+            provenance.update(way='shared' if np.isinf(weight) else 'adapted',
+                              adapt_weight=None if np.isinf(weight) else weight,
+                              shared_from=others, metrics=cv)
+            bundle = for_deployment(bundle, x_offset, provenance)
+        else:
+            # The shipped model trains in the cross-validation's own fit (final=True).
+            validation = None if args.no_cv else cross_validate(array, kind, hyper, X, F,
+                                                                dataset.plates, final=True)
+            cv = None if validation is None else validation.summary()
+            provenance['metrics'] = cv
+            bundle = (fit_bundle(array, kind, hyper, X, F, dataset.plates, x_offset=x_offset,
+                                 provenance=provenance) if validation is None else
+                      for_deployment(validation.final, x_offset, provenance))
         path = save_model(args.out / f"{name}_{kind}.npz", bundle)
         report['models'].append({'array': name, 'array_type': array.kind, 'kind': kind,
-                                 'file': path.name,
+                                 'file': path.name, 'way': provenance['way'],
+                                 'own_seconds': own_seconds,
+                                 'adapt_weight': provenance.get('adapt_weight'),
+                                 'shared_from': provenance.get('shared_from', []),
                                  'plates': provenance['plates'], 'samples': provenance['samples'],
                                  'hyperparameters': bundle.model.hyperparameters(),
                                  'n_parameters': bundle.model.n_parameters(),

@@ -170,6 +170,35 @@ def test_bags_train_the_hand_they_name(bags, tmp_path, capsys):
     assert "more than one hand (['left', 'right'])" in capsys.readouterr().err
 
 
+def test_train_shared_adapts_the_kinds_model_and_says_how_each_was_made(hand, tmp_path, capsys):
+    """--shared: three phalanx pads share a model, each adapted to its own data; the lone
+    fingertip is trained on its own. Provenance and report say which way, with how many seconds
+    of the array's own data."""
+    pads = ('index_middle', 'middle_middle', 'ring_middle')
+    paths = [synthetic_dataset(hand.array(name), seconds=4.0, seed=k).save(tmp_path / f'{name}.npz')
+             for k, name in enumerate((*pads, 'index_tip'))]
+    out = tmp_path / 'models'
+    assert train.main([*map(str, paths), '--out', str(out), '--shared']) == 0
+    report = json.loads((out / 'report.json').read_text())
+    ways = {m['array']: m['way'] for m in report['models']}
+    assert ways['index_tip'] == 'own'
+    assert all(ways[p] in ('adapted', 'shared') for p in pads), ways
+    for name in pads:
+        bundle = load_model(out / f'{name}_M3-lambda.npz', hand.array(name))
+        assert bundle.provenance['way'] == ways[name]
+        assert sorted(bundle.provenance['shared_from']) == sorted(set(pads) - {name})
+        assert bundle.provenance['own_seconds'] == pytest.approx(20.0, abs=0.5)   # 5 x 4 s
+        assert bundle.provenance['metrics']['folds'] == 5
+    assert load_model(out / 'index_tip_M3-lambda.npz', hand.array('index_tip')).provenance[
+        'own_seconds'] == pytest.approx(20.0, abs=0.5)
+    md = (out / 'report.md').read_text()
+    assert 'from 2 other arrays' in md and 'own data, 20 s of its own' in md
+    with pytest.raises(SystemExit):
+        train.main([*map(str, paths), '--out', str(out), '--shared', '--kinds', 'M4'])
+    assert '--shared adapts M3, M3-lambda with a fixed damping only, not M4' in \
+        capsys.readouterr().err
+
+
 def test_train_refuses_unknown_arrays_and_missing_inputs(phalanx, tmp_path, capsys):
     path = synthetic_dataset(phalanx, plates=('flat', 'edge'), seconds=4.0, seed=1).save(
         tmp_path / 'd.npz')

@@ -325,6 +325,25 @@ def shared_verdict(rows: list[dict], short_s: float = 400.0) -> list[str]:
     return lines + ['']
 
 
+def shipped_models_section(rows: list[dict] | None) -> list[str]:
+    """The models the job ships (its model lists under models/), and which way each was made."""
+    if not rows:
+        return []
+    lines = ['## Shipped models — which way each was made', '',
+             "The model lists this job writes (the closed loops' and the grasp's), each model's "
+             "way from its provenance: own (fitted on its array's data alone), shared or adapted "
+             "(the model the other arrays of its kind share, `train --shared`), and the seconds of "
+             "its own array's data it was fitted on.", '',
+             '| list | array | model | way | own data [s] |', '|---|---|---|---|---|']
+    for r in rows:
+        way = r['way'] or 'not recorded'
+        if r.get('shared_from'):
+            way += f" (from {', '.join(r['shared_from'])})"
+        seconds = '-' if r['own_seconds'] is None else f"{r['own_seconds']:g}"
+        lines.append(f"| {r['set']} | {r['array']} | {r['kind']} | {way} | {seconds} |")
+    return lines + ['']
+
+
 def whole_hand_section(rows: dict, settings: dict) -> list[str]:
     lines = ['## Whole hand — M3λ on every array, 5-fold leave-one-plate-out', '',
              f"Every array pressed on the five training plates: the Table I arrays and the "
@@ -549,6 +568,7 @@ def markdown(doc: dict) -> str:
     lines += learning_curve_section(doc.get('learning_curve'))
     lines += whole_hand_section(doc['whole_hand'], s)
     lines += cross_array_section(doc.get('cross_array'))
+    lines += shipped_models_section(doc.get('shipped_models'))
     lines += ['## Table II — online test, index fingertip on the held-out spherical plate', '',
               f"Models retrained on all five training plates; {doc['online']['samples']} samples "
               f"({doc['online']['seconds']:.0f} s). Last column: the same models on their own "

@@ -101,6 +101,22 @@ def workers(jobs: int):
     pool.shutdown()
 
 
+def shipped_models(folder: Path) -> list[dict]:
+    """Each model the job's model lists (`out/models/*.yaml`) ship: which way it was made and
+    with how many seconds of its own array's data, from its provenance."""
+    from tacforce_ros.estimation.model_io import read_header
+    from tacforce_ros.estimation.model_set import model_files
+    rows = []
+    for config in sorted(folder.glob('*.yaml')):
+        for array, path in model_files(config).items():
+            header = read_header(path)
+            made = header['provenance']
+            rows.append({'set': f'models/{config.name}', 'array': array, 'kind': header['kind'],
+                         'way': made.get('way'), 'own_seconds': made.get('own_seconds'),
+                         'shared_from': made.get('shared_from', [])})
+    return rows
+
+
 def physics_step_us(steps: int = 2000, repeats: int = 3) -> float:
     """Wall us of one bare MuJoCo step of the closed-loop hand model, best of `repeats`: how
     fast the machine ran at the start and end of a run, so wall times taken on a shared machine
@@ -164,6 +180,7 @@ def run(settings: Settings, out: Path, jobs: int) -> dict:
         'grasp': {'rows': grasp_rows, 'must_show': grasp.grasp_must_show(grasp_rows),
                   'hand_over_s': grasp.hand_over_after_goal(settings.grasp_objects[0])},
         'learning_curve': {'rows': learning},
+        'shipped_models': shipped_models(out / 'models'),
         'cross_array': cross_array,
         'figures': (figures(out, cv, table_i, end_to_end, traces, whole_hand, learning)
                     + grasp.grasp_figures(grasp_traces, out)),

@@ -124,7 +124,8 @@ def job_benchmark(array: str, kind: str, hyper: dict, training_set: str, provena
     summary = cv.summary()
     bundle = for_deployment(cv.final, offset, {
         **provenance, 'plates': list(dict.fromkeys(plates.tolist())), 'samples': int(X.shape[0]),
-        'metrics': summary})
+        'metrics': summary, 'way': 'own',
+        'own_seconds': round(X.shape[0] / SAMPLE_RATE_HZ, 1)})   # training sets: one row a tick
     atomic_write(target, lambda tmp: save_model(tmp, bundle))
     return summary
 

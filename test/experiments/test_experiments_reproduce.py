@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from tacforce_ros.estimation.causal_filter import BatchLowPass
+from tacforce_ros.estimation.model_set import model_files
 from tacforce_ros.experiments import paper_reference as paper
 from tacforce_ros.experiments.settings import FILTER_CUTOFFS_HZ
 from tacforce_ros.experiments.report import MODEL_NAMES
@@ -213,6 +214,22 @@ def test_the_learning_curves_hold_every_array_model_and_point_as_the_table_shows
     # The quick run records 20 s per plate: its 100 s point is the whole recording.
     full = [r for r in rows if r['seconds'] == 100.0]
     assert all(abs(r['recorded_s'] - 100.0) < 1.0 for r in full)
+
+
+def test_the_shipped_models_say_which_way_each_was_made(runs):
+    out, doc, md, _ = runs
+    rows = doc['shipped_models']
+    listed = {(f'models/{c.name}', a) for c in (out / 'models').glob('*.yaml')
+              for a in model_files(c)}
+    assert {(r['set'], r['array']) for r in rows} == listed and listed
+    # Every model the job ships is fitted on its own array's data: the training set's seconds.
+    assert all(r['way'] == 'own' and r['own_seconds'] > 0 for r in rows)
+    tip = next(r for r in rows if r['array'] == 'index_tip' and r['kind'] == 'M3-lambda')
+    s = doc['settings']
+    assert tip['own_seconds'] == pytest.approx(
+        len(doc['plates']) * s['sessions_per_plate'] * s['session_seconds'], rel=0.02)
+    for r in rows:
+        assert f"| {r['set']} | {r['array']} | {r['kind']} | own | {r['own_seconds']:g} |" in md
 
 
 def test_second_run_comes_from_the_cache_with_the_same_results(runs):

@@ -28,14 +28,12 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from tacforce_ros.estimation.affine import AffineModel
 from tacforce_ros.estimation.cross_validation import CrossValidation, Fold
 from tacforce_ros.estimation.least_squares import CentredSVD, augmented_factor, fit_affine
 from tacforce_ros.estimation.metrics import error_stats
 from tacforce_ros.estimation.model_io import ModelBundle
 from tacforce_ros.estimation.preprocessing import FORCE_STD_FLOOR, TAXEL_STD_FLOOR, Standardiser
 from tacforce_ros.estimation.registry import model_class
-from tacforce_ros.estimation.training import fit_bundles
 
 if TYPE_CHECKING:
     from tacforce_ros.hand.description import TaxelArray
@@ -48,26 +46,14 @@ ADAPT_WEIGHTS = (0.0, 1e-3, 1e-2, 0.1, 1.0, float('inf'))
 BLOCK_KINDS = ('M3', 'M3-lambda')
 
 
-def fit_shared(array: TaxelArray, kind: str, hyper: dict[str, Any],
-               others: Sequence[Data]) -> ModelBundle:
-    """The kind's model on the pooled data of `others` (arrays of `array`'s kind)."""
-    if not issubclass(model_class(kind), AffineModel):
-        raise ValueError(f'{kind}: only the linear models (M1-M3, M3-lambda) are shared and '
-                         'adapted here')
-    if not others:
-        raise ValueError(f'{array.name}: a shared model needs the data of another array')
-    pooled = tuple(np.concatenate([np.asarray(d[i]) for d in others]) for i in range(3))
-    (bundle,) = fit_bundles(array, kind, hyper, [pooled])
-    return bundle
-
-
 class KindBlocks:
     """The data of a kind's arrays as one block per (array, plate): its sample count, means and
     centred sums of squares, and the triangular factor of [1 | x | F] in a reference
     standardisation (least_squares.augmented_factor). The shared model of any union of blocks,
-    with the standardisation fit_shared would fit on its rows, follows from these without
-    another pass over the rows: the leave-one-array-out choice of the weight needs a pooled fit
-    per other array and plate (55 for a flat pad among eleven; 2-4 s each on the rows)."""
+    with the standardisation training.fit_bundles would fit on its rows, follows from these
+    without another pass over the rows: the leave-one-array-out choice of the weight needs a
+    pooled fit per other array and plate (55 for a flat pad among eleven; 2-4 s each on the
+    rows)."""
 
     def __init__(self, array: TaxelArray, kind: str, hyper: dict[str, Any],
                  data: Mapping[str, Data]) -> None:
@@ -97,8 +83,9 @@ class KindBlocks:
 
     def fit(self, names: Sequence[str], without: str | None = None,
             array: TaxelArray | None = None) -> ModelBundle:
-        """The shared model of `names`' data, all plates but `without`: fit_shared's, to
-        rounding; for `array` (default: the one the blocks were made with), of the kind."""
+        """The shared model of `names`' data, all plates but `without`: fit_bundles' on their
+        pooled rows, to rounding; for `array` (default: the one the blocks were made with), of
+        the kind."""
         keys = [key for key in self._factors if key[0] in names and key[1] != without]
         if not keys:
             raise ValueError(f'{self.array.name}: a shared model needs the data of another array')

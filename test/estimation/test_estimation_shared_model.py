@@ -7,7 +7,8 @@ from tacforce_ros.estimation.cross_validation import cross_validate
 from tacforce_ros.estimation.learning_curve import learning_curve, shared_learning_curve
 from tacforce_ros.estimation.least_squares import fit_affine
 from tacforce_ros.estimation.shared_model import (ADAPT_WEIGHTS, KindBlocks, adapt, fit_adapted,
-                                                  fit_shared, shared_folds)
+                                                  shared_folds)
+from tacforce_ros.estimation.training import fit_bundles
 
 HYPER = {'lam': 1e-3, 'lambda_grid': None}
 
@@ -26,6 +27,12 @@ def kind(tip_data):
     return (module(X, 9), F, data.plates), others
 
 
+def fit_shared(array, others):
+    """The shared model as the definition has it: M3-lambda fitted on the pooled rows."""
+    pooled = tuple(np.concatenate([d[i] for d in others]) for i in range(3))
+    return fit_bundles(array, 'M3-lambda', HYPER, [pooled])[0]
+
+
 def first_rows(plates, n):
     keep = np.zeros(len(plates), bool)
     for plate in dict.fromkeys(plates.tolist()):
@@ -35,7 +42,7 @@ def first_rows(plates, n):
 
 def test_weight_inf_is_the_shared_model_and_zero_the_arrays_own_fit(tip, kind):
     (X, F, plates), others = kind
-    shared = fit_shared(tip, 'M3-lambda', HYPER, list(others.values()))
+    shared = fit_shared(tip, list(others.values()))
     np.testing.assert_array_equal(adapt(shared, np.inf, X, F).predict(X), shared.predict(X))
     # Weight 0: the prior no longer counts; what is left is the array's own least squares in
     # the shared model's units.
@@ -76,10 +83,10 @@ def test_the_shared_curve_cuts_as_the_own_curve(tip, tip_data):
 
 def test_what_cannot_be_shared_is_refused(tip, kind):
     (X, F, plates), others = kind
-    with pytest.raises(ValueError, match='only the linear models'):
-        fit_shared(tip, 'M4', {}, list(others.values()))
+    with pytest.raises(ValueError, match='only'):
+        KindBlocks(tip, 'M4', {}, others)
     with pytest.raises(ValueError, match='needs the data of another array'):
-        fit_shared(tip, 'M3-lambda', HYPER, [])
+        KindBlocks(tip, 'M3-lambda', HYPER, others).fit([])
     with pytest.raises(ValueError, match='two other arrays'):
         shared_folds(tip, 'M3-lambda', HYPER, (X, F, plates), [np.ones(len(F), bool)],
                      {'other_0': others['other_0']})
@@ -87,7 +94,7 @@ def test_what_cannot_be_shared_is_refused(tip, kind):
     lacking = {**others, 'other_0': (X[short], F[short], plates[short])}
     with pytest.raises(ValueError, match=f"other_0 has no data on the plates \\['{plates[0]}'\\]"):
         shared_folds(tip, 'M3-lambda', HYPER, (X, F, plates), [np.ones(len(F), bool)], lacking)
-    shared = fit_shared(tip, 'M3-lambda', HYPER, list(others.values()))
+    shared = fit_shared(tip, list(others.values()))
     with pytest.raises(ValueError, match='must be >= 0'):
         adapt(shared, -1.0, X, F)
 
@@ -101,7 +108,7 @@ def test_the_blocks_fit_what_the_pooled_rows_fit(tip, kind):
     names = ['other_0', 'other_2']
     rows = [(d[0][d[2] != plate], d[1][d[2] != plate], d[2][d[2] != plate])
             for name, d in others.items() if name in names]
-    direct = fit_shared(tip, 'M3-lambda', HYPER, rows)
+    direct = fit_shared(tip, rows)
     fast = blocks.fit(names, without=plate)
     np.testing.assert_allclose(fast.x_scaler.mean, direct.x_scaler.mean, rtol=1e-9, atol=1e-9)
     np.testing.assert_allclose(fast.x_scaler.std, direct.x_scaler.std, rtol=1e-9)
@@ -116,6 +123,6 @@ def test_the_shipped_adapted_model_is_the_weight_its_folds_liked(tip, kind):
     bundle, weight, cv = fit_adapted(tip, 'M3-lambda', HYPER, (X, F, plates), others)
     scores = np.mean([f.hyperparameters['weight_scores'] for f in cv.folds], axis=0)
     assert weight == ADAPT_WEIGHTS[int(np.argmin(scores))]
-    expected = adapt(fit_shared(tip, 'M3-lambda', HYPER, list(others.values())), weight, X, F)
+    expected = adapt(fit_shared(tip, list(others.values())), weight, X, F)
     np.testing.assert_allclose(bundle.predict(X), expected.predict(X), atol=1e-7)
     assert len(cv.folds) == len(set(plates.tolist()))

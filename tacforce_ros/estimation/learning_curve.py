@@ -19,9 +19,9 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from tacforce_ros.estimation.cross_validation import cross_validate
+from tacforce_ros.estimation.cross_validation import CrossValidation, cross_validate
 from tacforce_ros.estimation.dataset import CalibrationDataset
-from tacforce_ros.estimation.shared_model import shared_folds
+from tacforce_ros.estimation.shared_model import Data, KindBlocks, shared_folds
 
 if TYPE_CHECKING:
     from tacforce_ros.hand.description import TaxelArray
@@ -124,6 +124,55 @@ def shared_learning_curve(array: TaxelArray, dataset: CalibrationDataset, label:
     return rows
 
 
+def kind_folds(arrays: Mapping[str, TaxelArray], kind: str, hyper: dict[str, Any],
+               recorded: Mapping[str, Data], held_out: Mapping[str, Data]
+               ) -> dict[str, CrossValidation]:
+    """Leave-one-plate-out of each array's model in a campaign where every array of a kind
+    recorded `recorded` (name -> (X offsets removed, F, plates), three or more arrays): the
+    model the other arrays' recordings share, adapted to its own (shared_model.py, the weight
+    chosen on the recordings alone, as the campaign would have it), tested on `held_out[name]`'s
+    rows of each plate."""
+    if len(arrays) < 3:
+        raise ValueError(f'a kind of three or more arrays is needed, got {sorted(arrays)}')
+    blocks = KindBlocks(next(iter(arrays.values())), kind, hyper, recorded)
+    results = {}
+    for name, array in arrays.items():
+        others = {o: data for o, data in recorded.items() if o != name}
+        (results[name],) = shared_folds(array, kind, hyper, recorded[name],
+                                        [np.ones(len(recorded[name][1]), bool)], others,
+                                        blocks=blocks, held_out=held_out[name])
+    return results
+
+
+def kind_curve(arrays: Mapping[str, tuple[TaxelArray, CalibrationDataset]], label: str,
+               kind: str, hyper: dict[str, Any], seconds: Sequence[float] = SECONDS,
+               **static_kw: Any) -> list[dict[str, Any]]:
+    """The curve a campaign with a budget plans on: every array of a kind (`arrays`: name ->
+    (array, its recording), three or more) cut to the same `seconds`, judged by kind_folds on
+    all of its held-out plate's data. Rows as learning_curve's, `way` 'shared-kind', with the
+    array's `kind`."""
+    plates = {name: tuple(dataset.plate_names()) for name, (_, dataset) in arrays.items()}
+    if len(set(plates.values())) != 1 or len(next(iter(plates.values()))) < 2:
+        raise ValueError(f'the arrays of a kind curve need the same two or more plates: {plates}')
+    per_plate = len(next(iter(plates.values())))
+    full = {name: dataset.without_offsets(**static_kw)[:2] + (dataset.plates,)
+            for name, (_, dataset) in arrays.items()}
+    rows = []
+    for total in seconds:
+        keeps = {name: cut_rows(dataset, total / per_plate)
+                 for name, (_, dataset) in arrays.items()}
+        cut = {name: tuple(part[keeps[name]] for part in full[name]) for name in arrays}
+        results = kind_folds({n: a for n, (a, _) in arrays.items()}, kind, hyper, cut, full)
+        for name, (array, dataset) in arrays.items():
+            summary = results[name].summary()
+            rows.append({'array': name, 'kind': array.kind, 'seconds': float(total),
+                         'recorded_s': recorded_seconds(_rows_of(dataset, keeps[name])),
+                         'samples': int(keeps[name].sum()), 'model': label,
+                         'way': 'shared-kind', 'e_hat_n': summary['e_hat_mean'],
+                         'e_r': summary['e_r_mean']})
+    return rows
+
+
 def curve_table(rows: list[dict[str, Any]]) -> list[str]:
     """Markdown: a row per array and model, a column per point (e_hat in N; '-' where the cut
     could not train; the seconds actually recorded where less than asked)."""
@@ -146,21 +195,27 @@ def curve_table(rows: list[dict[str, Any]]) -> list[str]:
     return lines
 
 
-def plot_curves(rows: list[dict[str, Any]], path: Path, title: str) -> Path:
-    """e_hat against labelled seconds (log axis), a panel per array, a line per model and way."""
+def plot_curves(rows: list[dict[str, Any]], path: Path, title: str, panel: str = 'array'
+                ) -> Path:
+    """e_hat against labelled seconds (log axis), a panel per array (or per `panel` key: 'kind'
+    for kind curves, a line per array), a line per model and way."""
     import matplotlib.pyplot as plt
-    arrays = list(dict.fromkeys(r['array'] for r in rows))
-    fig, axes = plt.subplots(1, len(arrays), figsize=(5.0 * len(arrays), 3.8), squeeze=False)
-    for ax, array in zip(axes[0], arrays):
-        mine = [r for r in rows if r['array'] == array and r['e_hat_n'] is not None]
-        for model, way in dict.fromkeys((r['model'], r.get('way', 'own')) for r in mine):
-            line = sorted((r['recorded_s'], r['e_hat_n']) for r in mine
-                          if (r['model'], r.get('way', 'own')) == (model, way))
-            ax.plot(*zip(*line), marker='o', label=f'{model} ({way})')
+    panels = list(dict.fromkeys(r[panel] for r in rows))
+    fig, axes = plt.subplots(1, len(panels), figsize=(5.0 * len(panels), 3.8), squeeze=False)
+
+    def line_of(r: dict[str, Any]) -> tuple[str, ...]:
+        return (r['model'], r.get('way', 'own')) + ((r['array'],) if panel != 'array' else ())
+
+    for ax, name in zip(axes[0], panels):
+        mine = [r for r in rows if r[panel] == name and r['e_hat_n'] is not None]
+        for key in dict.fromkeys(line_of(r) for r in mine):
+            line = sorted((r['recorded_s'], r['e_hat_n']) for r in mine if line_of(r) == key)
+            label = f'{key[0]} ({key[1]})' + (f' {key[2]}' if len(key) > 2 else '')
+            ax.plot(*zip(*line), marker='o', label=label)
         ax.set_xscale('log')
         ax.set_xlabel('labelled seconds on the array')
         ax.set_ylabel('held-out e_hat [N]')
-        ax.set_title(array)
+        ax.set_title(name)
         ax.grid(True, which='both', alpha=0.3)
         ax.legend()
     fig.suptitle(title)

@@ -170,13 +170,16 @@ def choose_weight(plate: str, rows_per_plate: Mapping[str, int],
 def shared_folds(array: TaxelArray, kind: str, hyper: dict[str, Any], own: Data,
                  cuts: Sequence[np.ndarray], others: Mapping[str, Data],
                  weights: Sequence[float] = ADAPT_WEIGHTS,
-                 blocks: KindBlocks | None = None) -> list[CrossValidation]:
+                 blocks: KindBlocks | None = None,
+                 held_out: Data | None = None) -> list[CrossValidation]:
     """Leave-one-plate-out of the shared model adapted to each cut of `own` (bool rows), judged
     as a learning curve judges the array's own model: for each plate of `own` the shared model
     is fitted on the other arrays' data of the other plates (the held-out plate is new to it as
     to the array's own model), adapted on the cut's rows of the other plates with the weight
     choose_weight picks, and tested on all of `own`'s rows of the held-out plate. `blocks`: the
-    KindBlocks of (at least) `others`, when the caller has them. One CrossValidation per cut;
+    KindBlocks of (at least) `others`, when the caller has them. `held_out`: the data each fold
+    is tested on, plate by plate, when not `own` (a simulated campaign judged on more of the
+    array's data than it recorded). One CrossValidation per cut;
     each fold's hyperparameters hold the weight (None: unadapted), the damping and the mean
     e_hat of each of `weights` in the choice."""
     if len(others) < 2:
@@ -189,12 +192,18 @@ def shared_folds(array: TaxelArray, kind: str, hyper: dict[str, Any], own: Data,
         if missing:
             raise ValueError(f'{name} has no data on the plates {sorted(missing)}')
     blocks = KindBlocks(array, kind, hyper, others) if blocks is None else blocks
+    X_test, F_test, test_plates = own if held_out is None else held_out
+    test_plates = np.asarray(test_plates)
+    untested = set(plates.tolist()) - set(test_plates.tolist())
+    if untested:
+        raise ValueError(f'{array.name}: the held-out data has no rows on {sorted(untested)}')
     results = [CrossValidation(kind=kind) for _ in cuts]
     for plate in dict.fromkeys(plates.tolist()):
         shared = blocks.fit(list(others), without=plate, array=array)
         pooled_without = {name: blocks.fit([o for o in others if o != name], without=plate)
                           for name in others}
         on = plates == plate
+        tested = test_plates == plate
         for cut, result in zip(cuts, results):
             train = np.asarray(cut, bool) & ~on
             rows_per_plate = {str(p): int(np.sum(train & (plates == p)))
@@ -203,7 +212,8 @@ def shared_folds(array: TaxelArray, kind: str, hyper: dict[str, Any], own: Data,
                                            weights)
             bundle = adapt(shared, weight, X[train], F[train])
             result.folds.append(Fold(
-                test_plate=str(plate), stats=error_stats(F[on], bundle.predict(X[on])),
+                test_plate=str(plate), stats=error_stats(F_test[tested],
+                                                         bundle.predict(X_test[tested])),
                 train_seconds=0.0, hyperparameters={
                     'adapt_weight': None if np.isinf(weight) else weight,
                     'damping': None if np.isinf(weight) else weight * int(train.sum()),

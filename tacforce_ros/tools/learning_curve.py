@@ -6,6 +6,12 @@ table and a figure (learning_curve.png).
 
     learning_curve CAMPAIGN_DIR --out out/curve --kinds M3-lambda M4
     learning_curve data/sim/*.npz --out out/curve --arrays index_tip --seconds 25 100 400
+    learning_curve CAMPAIGN_DIR --out out/kinds --kind-curve --seconds 100 200 400 1000
+
+--kind-curve draws, for each kind of array with three or more arrays in the inputs, the curve a
+campaign with a budget plans on (`campaign plan --budget ... --curves out/kinds/
+learning_curve.json`): every array of the kind cut to the same seconds, each one's model the
+M3-lambda the others' cuts share, adapted to its own cut (estimation/learning_curve.kind_curve).
 """
 from __future__ import annotations
 
@@ -16,8 +22,8 @@ from typing import Any
 
 from tacforce_ros import results
 from tacforce_ros.estimation.dataset import DatasetError, concatenate
-from tacforce_ros.estimation.learning_curve import (SECONDS, curve_table, learning_curve,
-                                                    plot_curves)
+from tacforce_ros.estimation.learning_curve import (SECONDS, curve_table, kind_curve,
+                                                    learning_curve, plot_curves)
 from tacforce_ros.estimation.preprocessing import StaticSegmentError
 from tacforce_ros.estimation.registry import MODEL_KINDS
 from tacforce_ros.hand.description import SIDES
@@ -31,6 +37,28 @@ def markdown(result: dict[str, Any]) -> str:
             + '\nLeave-one-plate-out e_hat [N] of each model trained on the first seconds of '
               'the recording, spread evenly over the plates; tested on all of the held-out '
               "plate's data.\n\n" + '\n'.join(curve_table(result['rows'])) + '\n')
+
+
+def _kind_curves(hand, datasets: dict[str, Any], args) -> list[dict[str, Any]]:
+    """kind_curve of each kind with three or more of `datasets`' arrays."""
+    kinds: dict[str, dict[str, Any]] = {}
+    for name, dataset in datasets.items():
+        kinds.setdefault(hand.array(name).kind, {})[name] = (hand.array(name), dataset)
+    usable = {kind: arrays for kind, arrays in kinds.items() if len(arrays) >= 3}
+    if not usable:
+        raise ValueError(f'--kind-curve needs three or more arrays of a kind, found '
+                         f'{ {k: sorted(v) for k, v in kinds.items()} }')
+    kind, hyper = 'M3-lambda', model_hyper('M3-lambda', args.seed, False, args.lam, 'cpu')
+    rows = []
+    for name, arrays in usable.items():
+        mine = kind_curve(arrays, kind, kind, hyper, args.seconds,
+                          force_threshold=args.static_force)
+        rows += mine
+        for seconds in args.seconds:
+            values = [r['e_hat_n'] for r in mine if r['seconds'] == seconds]
+            print(f'{name} ({len(arrays)} arrays) {seconds:g} s: mean e_hat '
+                  f'{sum(values) / len(values):.3f} N', flush=True)
+    return rows
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -51,6 +79,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--seed', type=int, default=0, help='seed of the random models (M4, M5)')
     parser.add_argument('--static-force', type=float, default=0.3,
                         help='offsets: force within this of the no-contact reading [N]')
+    parser.add_argument('--kind-curve', action='store_true',
+                        help='instead of each array\'s own models: per kind of array, the '
+                             'M3-lambda shared and adapted when every array has the seconds')
     args = parser.parse_args(argv)
     if any(s <= 0 for s in args.seconds):
         parser.error('--seconds must all be > 0')
@@ -71,6 +102,10 @@ def main(argv: list[str] | None = None) -> int:
                              f'{sorted(by_array)})')
         models = {kind: (kind, model_hyper(kind, args.seed, False, args.lam, 'cpu'))
                   for kind in args.kinds}
+        if args.kind_curve:
+            result['rows'] = _kind_curves(hand, {a: concatenate(by_array[a]) for a in arrays},
+                                          args)
+            arrays = []
         for array in arrays:
             dataset = concatenate(by_array[array])
             rows = learning_curve(hand.array(array), dataset, models, args.seconds,
@@ -85,7 +120,8 @@ def main(argv: list[str] | None = None) -> int:
         return 1
     json_path, md_path = results.write(args.out, 'learning_curve', result, markdown)
     figure = plot_curves(result['rows'], args.out / 'learning_curve.png',
-                         'held-out e_hat against labelled seconds')
+                         'held-out e_hat against labelled seconds',
+                         'kind' if args.kind_curve else 'array')
     print(f'wrote {json_path}, {md_path}, {figure}')
     return 0
 

@@ -126,3 +126,30 @@ def test_the_shipped_adapted_model_is_the_weight_its_folds_liked(tip, kind):
     expected = adapt(fit_shared(tip, list(others.values())), weight, X, F)
     np.testing.assert_allclose(bundle.predict(X), expected.predict(X), atol=1e-7)
     assert len(cv.folds) == len(set(plates.tolist()))
+
+
+def test_a_kind_curve_cuts_every_array_and_judges_it_on_all_of_its_held_out_plate(tip,
+                                                                                  tip_data):
+    import dataclasses
+    from tacforce_ros.estimation.learning_curve import cut_rows, kind_curve
+    data = tip_data[0]
+    arrays = {f'module_{k}': (tip, dataclasses.replace(data, X=module(data.X, 30 + k)))
+              for k in range(3)}
+    rows = kind_curve(arrays, 'M3-lambda', 'M3-lambda', HYPER, (5.0, 1e6))
+    assert [(r['array'], r['seconds'], r['way'], r['kind']) for r in rows] == [
+        (name, s, 'shared-kind', 'fingertip') for s in (5.0, 1e6) for name in arrays]
+    plates = len(data.plate_names())
+    for r in rows:
+        assert r['samples'] == int(cut_rows(arrays[r['array']][1], r['seconds'] / plates).sum())
+    # The whole recording is the shared model of the others' whole recordings, adapted to all
+    # of its own and tested on it: shared_folds with no held-out data of its own.
+    full = {name: d.without_offsets()[:2] + (d.plates,) for name, (_, d) in arrays.items()}
+    for r in rows[3:]:
+        others = {o: v for o, v in full.items() if o != r['array']}
+        (result,) = shared_folds(tip, 'M3-lambda', HYPER, full[r['array']],
+                                 [np.ones(len(full[r['array']][1]), bool)], others)
+        assert r['e_hat_n'] == pytest.approx(result.summary()['e_hat_mean'], rel=1e-9)
+    # A cut is tested on as much as the whole: every held-out plate's rows.
+    assert all(r['samples'] < rows[3]['samples'] for r in rows[:3])
+    with pytest.raises(ValueError, match='three or more arrays'):
+        kind_curve(dict(list(arrays.items())[:2]), 'M3-lambda', 'M3-lambda', HYPER, (5.0,))

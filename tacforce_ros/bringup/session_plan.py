@@ -305,7 +305,7 @@ def campaign_session(args: SessionArgs) -> SessionArgs:
         raise PlanError(f'campaign: {args.campaign} is complete, nothing is due (train it: '
                         f'`train {args.campaign} --out MODELS`)')
     slot = due[0]
-    simulated = {'sim_duration': args.sim_duration or plan_.seconds,
+    simulated = {'sim_duration': args.sim_duration or plan_.session_seconds(slot.array),
                  'seed': session_seed(plan_.seed, slot.array, slot.plate, slot.index
                                       + campaign.rejected_count(slot.array, slot.plate))
                  if args.seed == -1 else args.seed} if args.sim else {}

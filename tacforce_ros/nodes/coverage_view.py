@@ -41,7 +41,7 @@ class CoverageViewNode(TacforceNode):
                   'default limits'),
         ParamSpec('plate', '', 'plate pressed (shown in the title)'),
         ParamSpec('session_seconds', 0.0, 'planned session length (s) for the progress bar; '
-                  '0: the campaign\'s, else none', range=(0.0, 1e6)),
+                  '0: the campaign\'s for the array pressed, else none', range=(0.0, 1e6)),
         ParamSpec('period', 1.0, 'redraw every this many wall seconds', range=(0.05, 60.0)),
     )
 
@@ -49,14 +49,14 @@ class CoverageViewNode(TacforceNode):
         super().__init__(**node_options)
         p = self.params
         self.limits, self.planned = CoverageLimits(), p['session_seconds']
+        self.plan: CampaignPlan | None = None
         hand_params = dict(p)
         if p['campaign']:
             try:
                 plan = CampaignPlan.load(p['campaign'])
             except (CampaignError, OSError) as exc:
                 raise ParameterError(f'campaign: {exc}') from None
-            self.limits = plan.limits
-            self.planned = self.planned or plan.seconds
+            self.limits, self.plan = plan.limits, plan
             hand_params['hand_config'] = p['hand_config'] or str(hand_config(plan.hand_side))
         self.hand = hand_parameter(hand_params)
         if p['campaign'] and self.hand.side != plan.hand_side:
@@ -83,7 +83,8 @@ class CoverageViewNode(TacforceNode):
             except KeyError:
                 return
             self.array, self.first_ns = name, t
-            self.live = LiveCoverage(self.kin, self.hand.ft_frame, array.frame_id, self.limits)
+            limits = self.limits if self.plan is None else self.plan.limits_for(name)
+            self.live = LiveCoverage(self.kin, self.hand.ft_frame, array.frame_id, limits)
         order = {joint: i for i, joint in enumerate(msg.joints.name)}
         tactile = msg.tactile
         if not set(self.kin.joint_names) <= set(order) or not (
@@ -98,8 +99,11 @@ class CoverageViewNode(TacforceNode):
         title = (self.array or '(no samples yet)') + (f' on {self.params["plate"]}'
                                                         if self.params['plate'] else '')
         coverage = None if self.live is None else self.live.coverage()
-        return coverage_view(title, coverage, self.limits, (self.last_ns - self.first_ns) * 1e-9,
-                             self.planned)
+        planned = self.planned or (self.plan.session_seconds(self.array)
+                                   if self.plan is not None and self.array else 0.0)
+        limits = self.limits if self.live is None else self.live.limits
+        return coverage_view(title, coverage, limits, (self.last_ns - self.first_ns) * 1e-9,
+                             planned)
 
     def _draw(self) -> None:
         samples = 0 if self.live is None else self.live.samples

@@ -16,8 +16,9 @@ is moved to `rejected/` (kept, not counted) and its session is due again. Pure P
 from __future__ import annotations
 
 import json
+import math
 import re
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -32,6 +33,7 @@ REJECTED = 'rejected'
 # Operator time per session besides the pressing, and per plate change: our estimates.
 SESSION_OVERHEAD_S = 20.0
 PLATE_CHANGE_S = 120.0
+REFERENCE_SESSION_S = 100.0     # the paper's session, which CoverageLimits' defaults are for
 
 
 class CampaignError(ValueError):
@@ -48,6 +50,17 @@ class CoverageLimits:
     shear_sectors: int = 8              # directions around the normal ...
     min_shear_sectors: int = 6          # ... of which this many must be pressed
     min_rests: int = 3                  # static no-contact segments (offset estimation)
+
+    def for_session(self, seconds: float) -> CoverageLimits:
+        """The limits for a session of `seconds`: these are for the paper's 100 s session; a
+        shorter one (a campaign with a budget) is asked for shear directions and rests in
+        proportion to its length, at least one of each (a rest gives the session its
+        offsets), and the same peak force."""
+        if seconds >= REFERENCE_SESSION_S:
+            return self
+        share = seconds / REFERENCE_SESSION_S
+        return replace(self, min_shear_sectors=max(1, math.ceil(self.min_shear_sectors * share)),
+                       min_rests=max(1, math.ceil(self.min_rests * share)))
 
 
 @dataclass(frozen=True)
@@ -176,9 +189,13 @@ class CampaignPlan:
     arrays: tuple[str, ...]
     plates: tuple[str, ...]
     sessions: int               # per (array, plate)
-    seconds: float              # per session
+    seconds: float              # per session, unless `durations` says otherwise
     seed: int = 0               # simulated campaigns: base seed of the sessions
     limits: CoverageLimits = field(default_factory=CoverageLimits)
+    # A budget plan (`campaign plan --budget`): seconds per session of each array, and the
+    # expected-error curves and budget it was chosen with (recording/budget.py).
+    durations: dict[str, float] = field(default_factory=dict)
+    budget: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         if not self.arrays or not self.plates:
@@ -186,6 +203,26 @@ class CampaignPlan:
         if self.sessions < 1 or not self.seconds > 0:
             raise CampaignError(f'sessions ({self.sessions}) must be >= 1 and seconds '
                                 f'({self.seconds}) > 0')
+        unknown = sorted(set(self.durations) - set(self.arrays))
+        if unknown or not all(float(s) > 0 for s in self.durations.values()):
+            raise CampaignError(f'durations: seconds > 0 of arrays of the plan, got '
+                                f'{self.durations}')
+
+    def session_seconds(self, array: str) -> float:
+        """How long each session of `array` lasts."""
+        return float(self.durations.get(array, self.seconds))
+
+    def limits_for(self, array: str) -> CoverageLimits:
+        """The coverage a session of `array` must have: the plan's limits, for the length of
+        its sessions where the plan sets one (CoverageLimits.for_session)."""
+        if array in self.durations:
+            return self.limits.for_session(self.durations[array])
+        return self.limits
+
+    def pressing_s(self, slots: list[SessionSlot] | None = None) -> float:
+        """Seconds of pressing in `slots` (default: all)."""
+        slots = self.slots() if slots is None else slots
+        return sum(self.session_seconds(s.array) for s in slots)
 
     def slots(self) -> list[SessionSlot]:
         """Every session, in the order the operator records them (plate by plate)."""
@@ -196,12 +233,17 @@ class CampaignPlan:
         """Operator time for `slots` (default: all), with the overheads we estimate."""
         slots = self.slots() if slots is None else slots
         plates = len({s.plate for s in slots})
-        return len(slots) * (self.seconds + SESSION_OVERHEAD_S) + plates * PLATE_CHANGE_S
+        return self.pressing_s(slots) + len(slots) * SESSION_OVERHEAD_S + plates * PLATE_CHANGE_S
 
     def save(self, folder: Path) -> Path:
         folder.mkdir(parents=True, exist_ok=True)
         raw = asdict(self)
         raw['arrays'], raw['plates'] = list(self.arrays), list(self.plates)
+        raw['durations'] = {a: float(s) for a, s in self.durations.items()}
+        if not self.durations:
+            del raw['durations']
+        if not self.budget:
+            del raw['budget']
         path = folder / PLAN_FILE
         path.write_text('# Calibration campaign (tacforce_ros.recording.campaign)\n'
                         + yaml.safe_dump(raw, sort_keys=False))
@@ -218,9 +260,11 @@ class CampaignPlan:
             if not isinstance(raw, dict):
                 raise TypeError('the top level is not a mapping')
             limits = CoverageLimits(**(raw.pop('limits', None) or {}))
+            durations = {str(a): float(s) for a, s in (raw.pop('durations', None) or {}).items()}
             return cls(**{**raw, 'arrays': tuple(raw['arrays']), 'plates': tuple(raw['plates']),
-                          'limits': limits})
-        except (yaml.YAMLError, KeyError, TypeError) as exc:
+                          'limits': limits, 'durations': durations,
+                          'budget': dict(raw.get('budget') or {})})
+        except (yaml.YAMLError, KeyError, TypeError, ValueError, AttributeError) as exc:
             raise CampaignError(f'{path}: not a campaign plan ({exc})') from None
 
 
@@ -280,15 +324,14 @@ class Campaign:
         from tacforce_ros.estimation.bag_dataset import dataset_from_bag
         from tacforce_ros.estimation.dataset import DatasetError
 
-        limits = asdict(self.plan.limits)
         records, verdicts = [], {}
         try:
             for bag in self.bags():
                 stamp = (bag / 'metadata.yaml').stat().st_mtime_ns
                 verdict = self._verdicts.get(bag.name)
                 fresh = None
-                if verdict is None or verdict.get('stamp') != stamp \
-                        or verdict.get('limits') != limits:
+                if verdict is None or verdict.get('stamp') != stamp or verdict.get(
+                        'limits') != asdict(self.plan.limits_for(verdict.get('array'))):
                     try:
                         dataset, dropped = dataset_from_bag(bag, hand, kinematics)
                     except (BagError, DatasetError, ValueError, KeyError, OSError) as exc:
@@ -300,10 +343,12 @@ class Campaign:
                             progress(bag.name, None, f'not counted: a bag of the '
                                      f'{dataset.hand_side} hand')
                         continue
-                    coverage = session_coverage(dataset, self.plan.limits)
+                    limits = self.plan.limits_for(dataset.array)
+                    coverage = session_coverage(dataset, limits)
                     fresh = (dataset, dropped)
                     verdict = {'array': dataset.array, 'plate': dataset.plate_names()[0],
-                               'coverage': asdict(coverage), 'stamp': stamp, 'limits': limits}
+                               'coverage': asdict(coverage), 'stamp': stamp,
+                               'limits': asdict(limits)}
                     if progress is not None:
                         progress(bag.name, coverage, '')
                 record = SessionRecord(bag.name, verdict['array'], verdict['plate'],

@@ -3,9 +3,15 @@
     campaign plan FOLDER [--arrays ...] [--plates ...] [--sessions N] [--seconds S]
         writes FOLDER/campaign.yaml and prints the sessions in recording order with the time
         they take (default: all 18 arrays, the five training plates, 2 x 100 s each).
+    campaign plan FOLDER --budget 60m --curves learning_curve.json
+        a plan with at most that much pressing: one session per array and plate, the session
+        length of each kind of array chosen to minimise the whole hand's expected held-out
+        error (recording/budget.py), read off kind curves (`learning_curve --kind-curve`, or
+        the main job's report.json). Train it with `train FOLDER --out MODELS --shared`.
     campaign status FOLDER
         judges every bag not yet judged (force range, shear directions, rests), moves a poor one
-        to FOLDER/rejected/ with the reasons, and prints what counts and what is due. On the
+        to FOLDER/rejected/ with the reasons, and prints what counts and what is due; a budget
+        plan's status adds each array's expected held-out error from what it has. On the
         rig: `ros2 launch tacforce_ros calibration.launch.py sim:=false hand_side:=SIDE
         campaign:=FOLDER`
         records the next due session into FOLDER (coverage_view shows its coverage live).
@@ -21,6 +27,7 @@ Then: `train FOLDER --out MODELS` trains every array of the campaign.
 from __future__ import annotations
 
 import argparse
+import json
 import shutil
 import sys
 from pathlib import Path
@@ -32,8 +39,11 @@ from tacforce_ros.estimation.dataset import DatasetError
 from tacforce_ros.rig import TRAINING_PLATES
 from tacforce_ros.estimation.preprocessing import StaticSegmentError
 from tacforce_ros.hand.description import SIDES, hand_config, load_hand
+from tacforce_ros.recording.budget import (MIN_SESSION_S, RESERVE, BudgetError, ExpectedError,
+                                           allocate, parse_budget)
 from tacforce_ros.recording.campaign import (Campaign, CampaignError, CampaignPlan, SessionSlot,
                                              verdict_line)
+from tacforce_ros.rig import RATE_HZ
 from tacforce_ros.sim.scene import SceneError, calibration_scene_name, load_scene
 
 RECORDING = '.recording'     # sessions being recorded; moved up into the campaign when closed
@@ -66,13 +76,28 @@ def _print_due(campaign: Campaign, records: list, due: list[SessionSlot]) -> Non
         print('complete: train it with `train', campaign.folder, '--out MODELS`')
         return
     minutes = plan.duration_s(due) / 60.0
-    print(f'{len(due)} due, about {minutes:.0f} min of operator time; next:')
+    print(f'{len(due)} due, {plan.pressing_s(due) / 60:.0f} min of pressing, about '
+          f'{minutes:.0f} min of operator time; next:')
     for slot in due[:5]:
-        print(f'  press {slot.array} on the {slot.plate} plate ({plan.seconds:.0f} s)')
+        print(f'  press {slot.array} on the {slot.plate} plate '
+              f'({plan.session_seconds(slot.array):.0f} s)')
     print('record the next one (coverage_view shows its coverage while you press; stop it '
-          f'with Ctrl-C after {plan.seconds:.0f} s):\n  ros2 launch tacforce_ros '
+          f'with Ctrl-C after {plan.session_seconds(due[0].array):.0f} s):\n'
+          '  ros2 launch tacforce_ros '
           f'calibration.launch.py sim:=false hand_side:={plan.hand_side} '
           f'campaign:={campaign.folder}')
+
+
+def _expected_of(path: Path) -> ExpectedError:
+    """Kind curves from a learning_curve.json (`rows`) or a main job's report.json
+    (`learning_curve.rows`)."""
+    try:
+        doc = json.loads(path.read_text())
+        rows = doc['rows'] if 'rows' in doc else doc['learning_curve']['rows']
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise BudgetError(f'--curves {path}: no learning-curve rows ({exc})') from None
+    commit = (doc.get('provenance') or doc.get('run') or {}).get('code_version', '')
+    return ExpectedError.from_rows(rows, f'{path.name}' + (f' at {commit}' if commit else ''))
 
 
 def cmd_plan(args) -> int:
@@ -84,20 +109,80 @@ def cmd_plan(args) -> int:
         return 2
     for plate in args.plates:       # a plate the rig has: its calibration scene exists
         load_scene(calibration_scene_name(arrays[0], plate))
-    plan = CampaignPlan(hand_side=hand.side, arrays=arrays, plates=tuple(args.plates),
-                        sessions=args.sessions, seconds=args.seconds, seed=args.seed)
+    budgeted = {}
+    if args.budget is not None:
+        budget_s = parse_budget(args.budget)
+        expected = _expected_of(args.curves)
+        kinds = {}
+        for name in arrays:
+            kinds[hand.array(name).kind] = kinds.get(hand.array(name).kind, 0) + 1
+        if not 0.0 <= args.reserve < 1.0:
+            raise BudgetError(f'--reserve {args.reserve}: a share of the budget, 0 <= r < 1')
+        allocation = allocate(budget_s * (1.0 - args.reserve), kinds, len(args.plates),
+                              expected, args.min_session)
+        budgeted = {'durations': {a: allocation.session_s[hand.array(a).kind] for a in arrays},
+                    'budget': {'budget_s': budget_s, 'min_session_s': args.min_session,
+                               'reserve': args.reserve,
+                               'expected': expected.to_dict()},
+                    'sessions': 1, 'seconds': max(allocation.session_s.values())}
+    plan = CampaignPlan(**{'hand_side': hand.side, 'arrays': arrays, 'plates': tuple(args.plates),
+                           'sessions': args.sessions, 'seconds': args.seconds, 'seed': args.seed,
+                           **budgeted})
     campaign = Campaign.create(args.folder, plan)
     slots = plan.slots()
+    if not budgeted:
+        print(f'{campaign.folder / "campaign.yaml"}: {len(arrays)} arrays x '
+              f'{len(plan.plates)} plates x {plan.sessions} sessions = {len(slots)} sessions of '
+              f'{plan.seconds:.0f} s, about {plan.duration_s() / 3600:.1f} h of operator time '
+              '(plate by plate)')
+        return 0
     print(f'{campaign.folder / "campaign.yaml"}: {len(arrays)} arrays x {len(plan.plates)} '
-          f'plates x {plan.sessions} sessions = {len(slots)} sessions of {plan.seconds:.0f} s, '
-          f'about {plan.duration_s() / 3600:.1f} h of operator time (plate by plate)')
+          f'plates, one session each: {plan.pressing_s() / 60:.0f} min of pressing (budget '
+          f'{budget_s / 60:.0f} min, {100 * args.reserve:.0f} % of it held back for sessions '
+          'pressed again), about {plan.duration_s() / 3600:.1f} h of operator time; '
+          f'expected error from {expected.source}')
+    print('| kind | arrays | session [s] | per array [s] | expected e_hat [N] |\n'
+          '|---|---|---|---|---|')
+    for kind, n in allocation.arrays.items():
+        length = allocation.session_s[kind]
+        print(f'| {kind} | {n} | {length:.0f} | {length * len(plan.plates):.0f} | '
+              f'{allocation.expected_e_hat[kind]:.3f} |')
+    print(f'whole hand: expected e_hat {allocation.mean_e_hat:.3f} N (mean over arrays); train '
+          f'it with `train {campaign.folder} --out MODELS --shared`')
     return 0
+
+
+def expected_lines(campaign: Campaign, records: list, hand) -> list[str]:
+    """A budget plan's expected held-out e_hat per array from the seconds it has counted."""
+    plan = campaign.plan
+    if not plan.budget:
+        return []
+    expected = ExpectedError.from_dict(plan.budget['expected'])
+    counted: dict[str, float] = {}
+    for record in records:
+        counted[record.array] = counted.get(record.array, 0.0) + \
+            record.coverage['samples'] / RATE_HZ
+    lines = ['| array | kind | pressed [s] | planned [s] | expected e_hat [N] |',
+             '|---|---|---|---|---|']
+    for name in plan.arrays:
+        kind = hand.array(name).kind
+        have = counted.get(name, 0.0)
+        if have > 0:
+            value, within = expected.expected(kind, have)
+            cell = f'{value:.3f}' if within else f'>= {value:.3f} (below the curve)'
+        else:
+            cell = 'none yet'
+        planned = plan.session_seconds(name) * plan.sessions * len(plan.plates)
+        lines.append(f'| {name} | {kind} | {have:.0f} | {planned:.0f} | {cell} |')
+    return lines
 
 
 def cmd_status(args) -> int:
     campaign = Campaign(args.folder)
     hand, kinematics = _hand_and_kinematics(campaign.plan.hand_side)
     records, due = _status(campaign, hand, kinematics)
+    for line in expected_lines(campaign, records, hand):
+        print(line)
     _print_due(campaign, records, due)
     return 0
 
@@ -117,12 +202,13 @@ def cmd_run(args) -> int:
     for _ in range(SIM_ROUNDS):
         if not due:
             break
-        steps = sum(int(round(plan.seconds * load_scene(
+        steps = sum(int(round(plan.session_seconds(slot.array) * load_scene(
             calibration_scene_name(slot.array, slot.plate)).tactile_rate)) for slot in due)
         with tqdm(total=steps, unit='step', desc=f'campaign ({len(due)} due)') as progress:
             for slot in due:
                 bag = record_session(recording / slot.name, hand, slot.array, slot.plate,
-                                     slot.index, plan.seconds, plan.seed, progress)
+                                     slot.index, plan.session_seconds(slot.array), plan.seed,
+                                     progress)
                 bag.rename(campaign.folder / slot.name)
         records, due = _status(campaign, hand, kinematics)
     _print_due(campaign, records, due)
@@ -146,6 +232,15 @@ def main(argv: list[str] | None = None) -> int:
     plan.add_argument('--sessions', type=int, default=2, help='sessions per array and plate')
     plan.add_argument('--seconds', type=float, default=100.0, help='length of a session [s]')
     plan.add_argument('--seed', type=int, default=0, help='simulated sessions: base seed')
+    plan.add_argument('--budget', help='pressing time to plan for (60m, 1.5h, 3600s): one '
+                      'session per array and plate, lengths chosen per kind of array')
+    plan.add_argument('--curves', type=Path, help='with --budget: kind curves '
+                      '(learning_curve.json of `learning_curve --kind-curve`, or report.json)')
+    plan.add_argument('--min-session', type=float, default=MIN_SESSION_S,
+                      help='with --budget: shortest session [s] (default %(default)s)')
+    plan.add_argument('--reserve', type=float, default=RESERVE,
+                      help='with --budget: share held back for sessions pressed again '
+                           '(default %(default)s)')
     plan.add_argument('--hand-side', choices=SIDES, default='right')
     plan.set_defaults(run=cmd_plan)
     for name, run, text in (('status', cmd_status, 'judge new bags, print what is due'),
@@ -156,10 +251,12 @@ def main(argv: list[str] | None = None) -> int:
             command.add_argument('--sim', action='store_true', help='record in the simulator')
         command.set_defaults(run=run)
     args = parser.parse_args(argv)
+    if args.command == 'plan' and (args.budget is None) != (args.curves is None):
+        parser.error('--budget and --curves go together (the curves say what each second buys)')
     try:
         return args.run(args)
-    except (CampaignError, SceneError, DatasetError, StaticSegmentError, bagio.BagError,
-            OSError) as exc:
+    except (CampaignError, BudgetError, SceneError, DatasetError, StaticSegmentError,
+            bagio.BagError, OSError) as exc:
         print(f'campaign: {exc}', file=sys.stderr)
         return 2
 

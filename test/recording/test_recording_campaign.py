@@ -1,5 +1,6 @@
 """A calibration campaign: plan, coverage verdicts, resuming an interrupted simulated campaign."""
 import json
+import math
 import os
 import signal
 import subprocess
@@ -185,3 +186,106 @@ def test_the_live_view_judges_the_samples_as_the_bag_is_judged_and_says_what_is_
     timid = coverage_of(data.F * 0.1, data.X)
     assert 'press harder' in coverage_view('t', timid, live.limits, 5.0)
     assert 'waiting for synchronised samples' in coverage_view('t', None, live.limits, 0.0)
+
+
+def test_a_budget_plan_gives_each_kind_its_session_length_and_reads_back(tmp_path, capsys):
+    curves = tmp_path / 'curves.json'
+    curves.write_text(json.dumps({'rows': [
+        {'array': a, 'kind': kind, 'seconds': s, 'e_hat_n': e, 'way': 'shared-kind'}
+        for kind, a, points in (('phalanx', 'p', ((60, 0.40), (200, 0.30))),
+                                ('fingertip', 't', ((60, 0.90), (200, 0.50))))
+        for s, e in points]}))
+    arrays = ['index_middle', 'ring_middle', 'index_tip', 'ring_tip']
+    folder = tmp_path / 'c'
+    assert campaign_tool.main(['plan', str(folder), '--arrays', *arrays, '--plates', 'flat',
+                               'edge', '--budget', '6m', '--curves', str(curves),
+                               '--min-session', '30']) == 0
+    out = capsys.readouterr().out
+    plan = Campaign(folder).plan
+    assert plan.sessions == 1 and plan.pressing_s() <= 360.0
+    assert plan.session_seconds('index_tip') == plan.session_seconds('ring_tip') > \
+        plan.session_seconds('index_middle') == plan.session_seconds('ring_middle') >= 30.0
+    assert plan.budget['budget_s'] == 360.0 and 'train' in out and '--shared' in out
+    assert plan.duration_s() == pytest.approx(plan.pressing_s() + 8 * 20.0 + 2 * 120.0)
+    # A campaign plan of before budgets (no durations) still reads, every session alike.
+    old = tmp_path / 'old'
+    make(old)
+    text = (old / 'campaign.yaml').read_text()
+    assert 'durations' not in text and 'budget' not in text
+    assert Campaign(old).plan.session_seconds('palm_center') == 20.0
+    # Due sessions say their own lengths; status gives each array's expected error.
+    hand, kinematics = campaign_tool._hand_and_kinematics('right')
+    campaign = Campaign(folder)
+    records = campaign.check(hand, kinematics)
+    lines = campaign_tool.expected_lines(campaign, records, hand)
+    assert len(lines) == 2 + len(arrays) and all('none yet' in line for line in lines[2:])
+    from tacforce_ros.recording.campaign import SessionRecord
+    pressed = [SessionRecord('b', 'index_tip', 'flat', {'samples': 10000, 'problems': []})]
+    line = campaign_tool.expected_lines(campaign, pressed, hand)[2 + arrays.index('index_tip')]
+    expected = 0.9 * (100 / 60) ** (math.log(0.5 / 0.9) / math.log(200 / 60))     # log-log
+    planned = 2 * plan.session_seconds('index_tip')
+    assert f'| index_tip | fingertip | 100 | {planned:.0f} | {expected:.3f} |' in line
+
+
+@pytest.mark.parametrize('argv, message', [
+    (['--budget', '60m'], '--budget and --curves go together'),
+    (['--budget', 'an hour', '--curves', 'x.json'], "budget 'an hour'"),
+    (['--budget', '1m', '--curves', 'CURVES'], 'needs 3 min or more'),
+    (['--budget', '60m', '--curves', 'missing.json'], 'no learning-curve rows')])
+def test_a_bad_budget_is_refused_before_a_plan_is_written(tmp_path, capsys, argv, message):
+    curves = tmp_path / 'curves.json'
+    curves.write_text(json.dumps({'rows': [{'array': a, 'kind': k, 'seconds': 100.0,
+                                            'e_hat_n': 0.3, 'way': 'shared-kind'}
+                                           for a, k in (('p', 'phalanx'), ('q', 'palm'))]}))
+    argv = [str(curves) if a == 'CURVES' else a for a in argv]
+    folder = tmp_path / 'c'
+    try:
+        code = campaign_tool.main(['plan', str(folder), '--arrays', *ARRAYS, *argv])
+    except SystemExit as exc:       # argparse's refusals
+        code = exc.code
+    assert code == 2 and message in capsys.readouterr().err
+    assert not (folder / 'campaign.yaml').exists()
+
+
+def test_a_short_session_is_asked_for_directions_and_rests_in_proportion():
+    limits = CoverageLimits()
+    assert limits.for_session(100.0) == limits.for_session(400.0) == limits
+    short = limits.for_session(20.0)
+    assert (short.min_peak_force, short.min_shear_sectors, short.min_rests) == (2.0, 2, 1)
+    assert limits.for_session(1.0).min_shear_sectors == limits.for_session(1.0).min_rests == 1
+    plan = CampaignPlan(hand_side='right', arrays=ARRAYS, plates=PLATES, sessions=1,
+                        seconds=100.0, durations={'index_middle': 40.0})
+    assert plan.limits_for('index_middle') == limits.for_session(40.0)
+    assert plan.limits_for('palm_center') == limits
+    with pytest.raises(CampaignError, match='durations'):
+        CampaignPlan(hand_side='right', arrays=ARRAYS, plates=PLATES, sessions=1,
+                     seconds=100.0, durations={'thumb_tip': 40.0})
+
+
+def test_a_budget_campaign_runs_in_the_simulator_and_trains_shared_models(tmp_path, capsys):
+    """plan --budget, run --sim, status, train --shared: the palm pads (three of a kind) on two
+    plates."""
+    curves = tmp_path / 'curves.json'
+    curves.write_text(json.dumps({'rows': [
+        {'array': 'a', 'kind': 'palm', 'seconds': s, 'e_hat_n': e, 'way': 'shared-kind'}
+        for s, e in ((40.0, 0.6), (120.0, 0.4))]}))
+    folder = tmp_path / 'c'
+    palms = ['palm_index_side', 'palm_center', 'palm_ring_side']
+    assert campaign_tool.main(['plan', str(folder), '--arrays', *palms, '--plates', *PLATES,
+                               '--budget', '2.5m', '--curves', str(curves)]) == 0
+    plan = Campaign(folder).plan
+    assert plan.pressing_s() <= 150.0 and plan.session_seconds('palm_center') >= 20.0
+    assert campaign_tool.main(['run', str(folder), '--sim']) == 0
+    out = capsys.readouterr().out
+    assert '6 of 6 sessions done' in out
+    assert campaign_tool.main(['status', str(folder)]) == 0
+    status = capsys.readouterr().out
+    pressed = f'| palm_center | palm | {2 * plan.session_seconds("palm_center"):.0f} |'
+    assert pressed in status and 'none yet' not in status
+    models = tmp_path / 'models'
+    assert train.main([str(folder), '--out', str(models), '--shared']) == 0
+    report = json.loads((models / 'report.json').read_text())
+    assert sorted(m['array'] for m in report['models']) == sorted(palms)
+    assert {m['way'] for m in report['models']} <= {'adapted', 'shared'}
+    assert all(m['own_seconds'] == pytest.approx(2 * plan.session_seconds(m['array']), abs=1.0)
+               for m in report['models'])

@@ -1,0 +1,171 @@
+"""A campaign with a budget: how long each array is pressed, so that the whole hand's expected
+held-out error is least for the pressing time a lab has.
+
+The expected error of an array is read off a kind curve (estimation/learning_curve.kind_curve):
+the held-out e_hat of the model a kind's arrays share, adapted to one of them, when every array
+of the kind has the same seconds; the curve of a kind is the mean over its arrays. The arrays of
+a kind are alike before they are pressed, so each kind gets one session length; every array is
+pressed on every plate of the plan, one session per plate, because the held-out error that
+judges a model is leave-one-plate-out and the shared model needs each plate in the pool. The
+allocation is exact over a grid of session lengths: a knapsack over the kinds, kept as the
+Pareto front of pressing time against summed expected error.
+Pure Python over numpy.
+"""
+from __future__ import annotations
+
+import math
+import re
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+# Shortest session a budget plan asks for: an estimate, from the simulated operator (press 2-6 s,
+# release 0.6-2 s; config/scenes/_calibration.yaml). The first 60 simulated sessions of a main
+# job, cut short, met the limits for their length (CoverageLimits.for_session): 54 at 10 s,
+# 57 at 15 s, 60 at 20 s and 30 s. A session judged poor is pressed again, which the budget
+# pays for.
+MIN_SESSION_S = 20.0
+STEP_S = 5.0                # the grid of session lengths the allocation chooses from
+# Share of the budget held back for sessions pressed again after a poor verdict: an estimate
+# (the quick main job pressed 1 of its 15 20-s sessions again).
+RESERVE = 0.05
+WAY = 'shared-kind'         # the learning-curve rows a budget plans on
+
+
+class BudgetError(ValueError):
+    """A budget, a curve or an allocation that cannot be used; the message says why."""
+
+
+def parse_budget(text: str) -> float:
+    """'60m', '1h', '1.5h', '3600s' or '3600' (seconds) -> seconds of pressing."""
+    match = re.fullmatch(r'\s*(\d+(?:\.\d*)?)\s*([hms]?)\s*', str(text))
+    if not match:
+        raise BudgetError(f'budget {text!r}: a duration such as 60m, 1.5h or 3600s')
+    value = float(match.group(1)) * {'h': 3600.0, 'm': 60.0, 's': 1.0, '': 1.0}[match.group(2)]
+    if not value > 0:
+        raise BudgetError(f'budget {text!r}: must be > 0')
+    return value
+
+
+@dataclass(frozen=True)
+class ExpectedError:
+    """Expected held-out e_hat [N] of an array's adapted model per kind, against the seconds
+    the array is pressed: points (seconds, e_hat) per kind, log-log interpolated between them
+    and held at the ends (the curve says nothing outside its points: below the first the value
+    is a lower bound, `within` says so)."""
+
+    curves: Mapping[str, tuple[tuple[float, float], ...]]
+    source: str = ''
+
+    def __post_init__(self) -> None:
+        for kind, points in self.curves.items():
+            seconds = [s for s, _ in points]
+            if not points or seconds != sorted(set(seconds)) or \
+                    not all(s > 0 and e > 0 and math.isfinite(e) for s, e in points):
+                raise BudgetError(f'expected error of {kind}: points (seconds, e_hat) with '
+                                  f'increasing seconds > 0 and e_hat > 0, got {points}')
+
+    @classmethod
+    def from_rows(cls, rows: Sequence[Mapping[str, Any]], source: str = '') -> ExpectedError:
+        """From kind-curve rows (learning_curve.json `rows`, or report.json `learning_curve`'s,
+        way 'shared-kind'): per kind and point, the mean e_hat over its arrays."""
+        points: dict[str, dict[float, list[float]]] = {}
+        for row in rows:
+            if row.get('way') == WAY and row.get('e_hat_n') is not None:
+                points.setdefault(row['kind'], {}).setdefault(float(row['seconds']), []).append(
+                    float(row['e_hat_n']))
+        if not points:
+            raise BudgetError(f'{source or "the rows"}: no kind-curve rows (way {WAY!r}; '
+                              '`learning_curve ... --kind-curve` makes them)')
+        return cls({kind: tuple((s, float(np.mean(e))) for s, e in sorted(by_s.items()))
+                    for kind, by_s in points.items()}, source)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {'source': self.source,
+                'curves': {k: [list(p) for p in v] for k, v in self.curves.items()}}
+
+    @classmethod
+    def from_dict(cls, raw: Mapping[str, Any]) -> ExpectedError:
+        try:
+            return cls({str(k): tuple((float(s), float(e)) for s, e in v)
+                        for k, v in raw['curves'].items()}, str(raw.get('source', '')))
+        except (KeyError, TypeError, ValueError, AttributeError) as exc:
+            raise BudgetError(f'expected error: not a curve set ({exc})') from None
+
+    def expected(self, kind: str, seconds: float) -> tuple[float, bool]:
+        """(e_hat [N], whether `seconds` lies within the curve's points) for an array of `kind`
+        pressed `seconds`."""
+        if kind not in self.curves:
+            raise BudgetError(f'no expected-error curve for {kind} arrays (curves: '
+                              f'{sorted(self.curves)})')
+        s, e = np.array(self.curves[kind]).T
+        within = bool(s[0] <= seconds <= s[-1])
+        if seconds <= s[0] or len(s) == 1:
+            return float(e[0]), within
+        if seconds >= s[-1]:
+            return float(e[-1]), within
+        return float(np.exp(np.interp(np.log(seconds), np.log(s), np.log(e)))), True
+
+
+@dataclass(frozen=True)
+class Allocation:
+    """Seconds per session of each kind, one session per plate, and what that is expected to
+    give."""
+
+    session_s: Mapping[str, float]          # kind -> seconds of each session
+    plates: int
+    arrays: Mapping[str, int]               # kind -> arrays of the kind in the plan
+    expected_e_hat: Mapping[str, float]     # kind -> expected e_hat [N]
+
+    @property
+    def pressing_s(self) -> float:
+        return sum(n * self.plates * self.session_s[k] for k, n in self.arrays.items())
+
+    @property
+    def mean_e_hat(self) -> float:
+        """The whole hand's expected e_hat: the mean over its arrays."""
+        return sum(n * self.expected_e_hat[k] for k, n in self.arrays.items()) / sum(
+            self.arrays.values())
+
+
+def allocate(budget_s: float, arrays: Mapping[str, int], plates: int, expected: ExpectedError,
+             min_session_s: float = MIN_SESSION_S, step_s: float = STEP_S) -> Allocation:
+    """The session length of each kind (arrays: kind -> how many arrays of it are pressed, on
+    `plates` plates each) on the grid min_session_s, + step_s, ... that minimises the whole
+    hand's expected e_hat with at most `budget_s` of pressing. Lengths beyond the end of a
+    kind's curve gain nothing the curve can show, so the grid ends there."""
+    if plates < 2:
+        raise BudgetError(f'{plates} plates: leave-one-plate-out needs two or more')
+    if not (min_session_s > 0 and step_s > 0):
+        raise BudgetError(f'min_session_s {min_session_s} and step_s {step_s} must be > 0')
+    arrays = {k: int(n) for k, n in arrays.items() if n > 0}
+    least = sum(arrays.values()) * plates * min_session_s
+    if budget_s < least:
+        raise BudgetError(f'a budget of {budget_s / 60:.0f} min cannot press '
+                          f'{sum(arrays.values())} arrays on {plates} plates for '
+                          f'{min_session_s:g} s each: it needs {least / 60:.0f} min or more')
+    # Pareto front over kinds: (pressing seconds, sum of expected e_hat, choice), cheapest first.
+    front: list[tuple[float, float, dict[str, float]]] = [(0.0, 0.0, {})]
+    for kind, n in arrays.items():
+        last = expected.curves[kind][-1][0] if kind in expected.curves else None
+        if last is None:
+            raise BudgetError(f'no expected-error curve for {kind} arrays (curves: '
+                              f'{sorted(expected.curves)})')
+        top = max(min_session_s, last / plates)
+        lengths = np.arange(min_session_s, top + step_s / 2, step_s)
+        options = [(n * plates * length, n * expected.expected(kind, plates * length)[0],
+                    float(length)) for length in lengths]
+        grown = [(cost + c, value + v, {**choice, kind: length})
+                 for cost, value, choice in front for c, v, length in options
+                 if cost + c <= budget_s + 1e-9]
+        grown.sort(key=lambda t: (t[0], t[1]))
+        front = []
+        for item in grown:
+            if not front or item[1] < front[-1][1] - 1e-12:
+                front.append(item)
+    _, _, choice = min(front, key=lambda t: (t[1], t[0]))
+    return Allocation(session_s=choice, plates=plates, arrays=arrays,
+                      expected_e_hat={k: expected.expected(k, plates * s)[0]
+                                      for k, s in choice.items()})

@@ -403,6 +403,45 @@ def cross_array_section(cross: dict | None) -> list[str]:
     return lines + ['']
 
 
+def budget_section(budget: dict | None) -> list[str]:
+    """The campaign with a budget against the full plan (not in the paper)."""
+    if not budget:
+        return []
+    lines = [f"## A campaign with a budget — {budget['budget_minutes']:g} min of pressing "
+             "against the full plan (not in the paper)", '',
+             "`campaign plan --budget` chose one session per array and plate, its length per "
+             "kind of array, on the kind curves of this run's full plan (every array of a kind "
+             "cut alike; the curve rows are in report.json). The campaign was simulated with "
+             "sessions of its own; a session whose coverage was poor was pressed again, and its "
+             "time counts. Each array's model is the M3-lambda its kind's other arrays share, "
+             "adapted to it (`train --shared`), tested held-out plate by held-out plate on the "
+             "full plan's data, against the array's own M3-lambda trained on the full plan "
+             f"(`campaign plan`'s default; {budget['rows'][0]['full_seconds']:.0f} s per array).",
+             '', f"Pressed: **{budget['minutes']:.1f} min** in {budget['sessions']} sessions "
+             f"({budget['sessions_pressed_again']} pressed again, "
+             f"{budget['poor_sessions_kept']} still poor and kept); planned "
+             f"{budget['planned_minutes']:.1f} min.", '',
+             '| array | session [s] | per array [s] | expected e_hat [N] | e_hat [N] | '
+             'full plan e_hat [N] | ratio |', '|---|---|---|---|---|---|---|']
+    for kind, summary in budget['by_kind'].items():
+        lines.append(f"| **{ARRAY_KIND_TITLES.get(kind, kind)}** ({summary['arrays']}) | "
+                     f"{summary['session_s']:g} | {summary['session_s'] * budget['plates']:g} | "
+                     f"{summary['expected_e_hat_n']:.3f} | {summary['e_hat_n']:.3f} | "
+                     f"{summary['full_e_hat_n']:.3f} | **{summary['ratio']:.2f}** |")
+        for row in budget['rows']:
+            if row['kind'] == kind:
+                lines.append(f"| {row['array']} | | {row['seconds']:g} | | "
+                             f"{row['e_hat_n']:.3f} | {row['full_e_hat_n']:.3f} | "
+                             f"{row['ratio']:.2f} |")
+    verdict = budget['must_show']
+    lines += ['', f"Must-show: at most {budget['budget_minutes']:g} min pressed: "
+              f"{'met' if verdict['minutes'] else 'NOT met'}; each kind's mean e_hat at most "
+              f"1.15x the full plan's: {'met' if verdict['kinds'] else 'NOT met'}; every "
+              f"array's at most 1.3x: {'met' if verdict['arrays'] else 'NOT met'} (worst "
+              f"{budget['worst_array']}, {budget['worst_array_ratio']:.2f}x).", '']
+    return lines
+
+
 def node_path_section(node: dict, tolerance_reason: str) -> list[str]:
     """The node graph's runs against the direct path: both checks, and how every node of
     their sessions ended."""
@@ -568,6 +607,7 @@ def markdown(doc: dict) -> str:
     lines += learning_curve_section(doc.get('learning_curve'))
     lines += whole_hand_section(doc['whole_hand'], s)
     lines += cross_array_section(doc.get('cross_array'))
+    lines += budget_section(doc.get('budget_campaign'))
     lines += shipped_models_section(doc.get('shipped_models'))
     lines += ['## Table II — online test, index fingertip on the held-out spherical plate', '',
               f"Models retrained on all five training plates; {doc['online']['samples']} samples "

@@ -30,6 +30,7 @@ from pathlib import Path
 
 from tacforce_ros import results
 from tacforce_ros.bringup.processes import interrupt_on_sigterm
+from tacforce_ros.experiments import budget_stages as budget
 from tacforce_ros.experiments import calibration_stages as calibration
 from tacforce_ros.experiments import grasp_stages as grasp
 from tacforce_ros.experiments import estimation_stages as estimation
@@ -144,6 +145,7 @@ def run(settings: Settings, out: Path, jobs: int) -> dict:
         whole_hand, whole_hand_models, sets = calibration.whole_hand_stage(ctx, cv, layout)
         cross_array = calibration.cross_array_stage(ctx, sets, whole_hand)
         learning += calibration.shared_curve_stage(ctx, layout, sets)
+        budget_campaign = budget.budget_stage(ctx)
         timing = estimation.timing_stage(ctx, models)
         online = estimation.online_stage(ctx, layout, models)
         end_to_end = estimation.end_to_end_stage(ctx, layout, models, timing,
@@ -182,6 +184,7 @@ def run(settings: Settings, out: Path, jobs: int) -> dict:
         'learning_curve': {'rows': learning},
         'shipped_models': shipped_models(out / 'models'),
         'cross_array': cross_array,
+        'budget_campaign': budget_campaign,
         'figures': (figures(out, cv, table_i, end_to_end, traces, whole_hand, learning)
                     + grasp.grasp_figures(grasp_traces, out)),
     }

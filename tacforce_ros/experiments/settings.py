@@ -15,6 +15,8 @@ import yaml
 from tacforce_ros.control.force_controller import ForceControllerConfig, shipped_params_file
 from tacforce_ros.estimation.learning_curve import SECONDS as LEARNING_SECONDS
 from tacforce_ros.estimation.registry import paper_configurations
+from tacforce_ros.hand.description import KINDS
+from tacforce_ros.recording.budget import MIN_SESSION_S
 from tacforce_ros.rig import HELD_OUT_PLATE, RATE_HZ, TRAINING_PLATES
 from tacforce_ros.experiments.cache import StageCache, atomic_write, file_digest
 from tacforce_ros.bringup.session_plan import shipped_parameters
@@ -82,6 +84,15 @@ class Settings:
     # paper's campaign is the last, 2000 s) and the models drawn.
     learning_seconds: tuple[float, ...] = LEARNING_SECONDS
     learning_models: tuple[str, ...] = ('M3-lambda', 'M4')
+    # The campaign with a budget (experiments/budget_stages.py): the full plan it is judged
+    # against (`campaign plan`'s default sessions per plate, of session_seconds), the kind-curve
+    # points it plans on (seconds per array), the budget, its shortest session, and the kinds
+    # of array in it.
+    full_plan_sessions: int = 2
+    budget_seconds: tuple[float, ...] = (100.0, 150.0, 250.0, 400.0, 600.0, 1000.0)
+    budget_minutes: float = 60.0
+    budget_min_session_s: float = MIN_SESSION_S
+    budget_kinds: tuple[str, ...] = KINDS
 
     @classmethod
     def quick(cls) -> Settings:
@@ -89,7 +100,9 @@ class Settings:
         return cls(sessions_per_plate=1, session_seconds=20.0, online_seconds=20.0, epochs=1,
                    timing_repeats=100, objects=('spherical',), repeats=1, node_path=False,
                    whole_hand_seconds=20.0, grasp_objects=('golf_ball',), grasp_grips=(1.0,),
-                   grasp_repeats=1, learning_seconds=(25.0, 100.0))
+                   grasp_repeats=1, learning_seconds=(25.0, 100.0), full_plan_sessions=1,
+                   budget_seconds=(50.0, 100.0), budget_minutes=5.5,
+                   budget_min_session_s=20.0, budget_kinds=('palm',))
 
 
 # The simulated skin: the empirical response (sim/taxel_response.py) or the one computed from

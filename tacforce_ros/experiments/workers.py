@@ -17,7 +17,8 @@ from tqdm import tqdm
 from tacforce_ros.control.command_sequence import ForceSequence
 from tacforce_ros.estimation.cross_validation import cross_validate, transfer
 from tacforce_ros.estimation.dataset import CalibrationDataset, concatenate
-from tacforce_ros.estimation.learning_curve import learning_curve, shared_learning_curve
+from tacforce_ros.estimation.learning_curve import (kind_curve, kind_folds, learning_curve,
+                                                    shared_learning_curve)
 from tacforce_ros.estimation.model_io import save_model
 from tacforce_ros.estimation.model_set import load_model_set
 from tacforce_ros.estimation.preprocessing import SAMPLE_RATE_HZ
@@ -112,6 +113,27 @@ def job_shared_curve(array: str, paths: list[str], others: dict[str, str], label
     data = {name: load_training(path)[:3] for name, path in others.items()}
     return shared_learning_curve(hand.array(array), dataset, label, kind, hyper, data,
                                  tuple(seconds), force_threshold=static_force)
+
+
+def job_kind_curve(paths: dict[str, list[str]], label: str, kind: str, hyper: dict,
+                   seconds: float, static_force: float) -> list[dict]:
+    """One point of a kind curve (estimation/learning_curve.kind_curve): the kind's arrays'
+    sessions by name, every array cut to `seconds`."""
+    hand, _ = worker_hand()
+    arrays = {name: (hand.array(name), concatenate([CalibrationDataset.load(p) for p in files]))
+              for name, files in paths.items()}
+    return kind_curve(arrays, label, kind, hyper, (seconds,), force_threshold=static_force)
+
+
+def job_kind_folds(recorded: dict[str, str], held_out: dict[str, str], kind: str,
+                   hyper: dict) -> dict[str, dict]:
+    """Each array of a kind's campaign with its shared, adapted model, tested on other data
+    (estimation/learning_curve.kind_folds); training sets by name. {name: cv summary}."""
+    hand, _ = worker_hand()
+    results = kind_folds({name: hand.array(name) for name in recorded}, kind, hyper,
+                         {name: load_training(path)[:3] for name, path in recorded.items()},
+                         {name: load_training(path)[:3] for name, path in held_out.items()})
+    return {name: result.summary() for name, result in results.items()}
 
 
 def job_benchmark(array: str, kind: str, hyper: dict, training_set: str, provenance: dict,

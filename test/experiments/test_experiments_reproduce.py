@@ -314,3 +314,35 @@ def test_the_cross_array_table_holds_every_pair_of_a_kind_and_shows_each_row(run
         assert summary['ratio'] == pytest.approx(summary['unadapted_e_hat_n']
                                                  / summary['own_e_hat_n'])
     assert second['cross_array'] == cross             # from the cache, the same
+
+
+def test_the_budget_campaign_is_planned_pressed_and_judged_as_the_table_shows(runs):
+    _, doc, md, second = runs
+    budget, settings = doc['budget_campaign'], doc['settings']
+    kinds = settings['budget_kinds']
+    assert {r['kind'] for r in budget['rows']} == set(kinds)
+    # Every session was pressed for its kind's length: the minutes are the sessions' seconds.
+    lengths = {k: v['session_s'] for k, v in budget['by_kind'].items()}
+    assert all(length >= settings['budget_min_session_s'] for length in lengths.values())
+    assert budget['planned_minutes'] <= settings['budget_minutes'] + 1e-9
+    assert budget['sessions'] == len(budget['rows']) * budget['plates'] + \
+        budget['sessions_pressed_again']
+    assert budget['minutes'] >= budget['planned_minutes'] - 1e-9
+    for row in budget['rows']:
+        assert row['seconds'] == lengths[row['kind']] * budget['plates']
+        assert row['ratio'] == pytest.approx(row['e_hat_n'] / row['full_e_hat_n'])
+    for kind, summary in budget['by_kind'].items():
+        mine = [r for r in budget['rows'] if r['kind'] == kind]
+        assert summary['ratio'] == pytest.approx(np.mean([r['e_hat_n'] for r in mine])
+                                                 / np.mean([r['full_e_hat_n'] for r in mine]))
+        assert budget['e_hat_ratio_by_kind'][kind] == summary['ratio']
+    assert budget['worst_array_ratio'] == max(r['ratio'] for r in budget['rows'])
+    assert {r['way'] for r in budget['kind_curve_rows']} == {'shared-kind'}
+    assert {r['seconds'] for r in budget['kind_curve_rows']} == set(settings['budget_seconds'])
+    shown = {r[0]: r for r in next(v for h, v in tables(md).items()
+                                   if h.startswith('A campaign with a budget'))}
+    for row in budget['rows']:
+        cells = shown[row['array']]
+        assert [numbers(c)[0] for c in cells[4:7]] == pytest.approx(
+            [row['e_hat_n'], row['full_e_hat_n'], row['ratio']], abs=5e-3)
+    assert second['budget_campaign'] == budget        # from the cache, the same

@@ -273,8 +273,7 @@ def learning_curve_stage(ctx: Context, layout: dict) -> list[dict]:
     slow = sorted(jobs, key=lambda u: (u[0].split('/')[1] != 'M4', -float(u[0].split('/')[2])))
     for name, row in run_units(ctx, 'learning curves', slow).items():
         ctx.cache.store_json('learning_curve', keys[name], row)
-    return [{**ctx.cache.load_json('learning_curve', keys[name]), 'way': 'own'}
-            for name in names]
+    return [ctx.cache.load_json('learning_curve', keys[name]) for name in names]
 
 
 def shared_curve_stage(ctx: Context, layout: dict, sets: dict[str, str]) -> list[dict]:

@@ -7,7 +7,7 @@
         a plan with at most that much pressing: one session per array and plate, the session
         length of each kind of array chosen to minimise the whole hand's expected held-out
         error (recording/budget.py), read off kind curves (`learning_curve --kind-curve`, or
-        the main job's report.json). Train it with `train FOLDER --out MODELS --shared`.
+        the main job's report.json). `train FOLDER --out MODELS` then trains shared models.
     campaign status FOLDER
         judges every bag not yet judged (force range, shear directions, rests), moves a poor one
         to FOLDER/rejected/ with the reasons, and prints what counts and what is due; a budget
@@ -148,7 +148,7 @@ def cmd_plan(args) -> int:
         print(f'| {kind} | {n} | {length:.0f} | {length * len(plan.plates):.0f} | '
               f'{allocation.expected_e_hat[kind]:.3f} |')
     print(f'whole hand: expected e_hat {allocation.mean_e_hat:.3f} N (mean over arrays); train '
-          f'it with `train {campaign.folder} --out MODELS --shared`')
+          f'it with `train {campaign.folder} --out MODELS` (shared models, as --shared)')
     return 0
 
 

@@ -110,7 +110,7 @@ def main(argv: list[str] | None = None) -> int:
             dataset = concatenate(by_array[array])
             rows = learning_curve(hand.array(array), dataset, models, args.seconds,
                                   force_threshold=args.static_force)
-            result['rows'] += [{**r, 'way': 'own'} for r in rows]
+            result['rows'] += rows
             print(f'{array}: ' + ', '.join(
                 f"{r['model']} {r['seconds']:g} s {r['e_hat_n']:.3f} N"
                 if r['e_hat_n'] is not None else f"{r['model']} {r['seconds']:g} s -"

@@ -7,7 +7,8 @@ A campaign folder (`campaign`) stands for the bags of it that count (coverage ve
 Per array: offsets from static segments per session, optional leave-one-plate-out
 cross-validation (metrics go into the model's provenance), then a final fit on all plates.
 With `--shared`, an array's model is instead the one the other arrays of its kind share,
-adapted to its own data (estimation/shared_model.py): fewer seconds of pressing per array.
+adapted to its own data (estimation/shared_model.py): fewer seconds of pressing per array. A
+campaign planned with a budget (`campaign plan --budget`) implies `--shared`.
 Each model's provenance says which way it was made (`way`: own, shared or adapted) and how many
 seconds of its own array's data went into it (`own_seconds`).
 Writes `<array>_<kind>.npz`, a models list per kind for the estimator (`models_<kind>.yaml`),
@@ -41,6 +42,14 @@ from tacforce_ros.estimation.training import fit_bundle, for_deployment
 from tacforce_ros.hand.description import ARRAY_KIND_TITLES, SIDES
 from tacforce_ros.paths import output_folder
 from tacforce_ros.tools.calibration_inputs import expand_campaigns, load_inputs, model_hyper
+
+
+def _budget_campaign(path: Path) -> bool:
+    from tacforce_ros.recording.campaign import CampaignError, CampaignPlan, is_campaign
+    try:
+        return is_campaign(path) and bool(CampaignPlan.load(path).budget)
+    except CampaignError:
+        return False        # expand_campaigns says what is wrong with it
 
 
 def markdown_report(report: dict) -> str:
@@ -139,6 +148,13 @@ def main(argv: list[str] | None = None) -> int:
                         help='also write the processed dataset of each array (<out>/<array>.npz)')
     args = parser.parse_args(argv)
 
+    budgeted = [p for p in args.inputs if _budget_campaign(p)]
+    if budgeted and not args.shared and not (set(args.kinds) - set(BLOCK_KINDS)
+                                             or args.lambda_cv):
+        # A budget plan pressed each array too little for a model of its own alone.
+        args.shared = True
+        print(f'train: {budgeted[0]} is a campaign with a budget: each array gets the model its '
+              'kind shares, adapted to it (--shared)', file=sys.stderr)
     if args.shared and (set(args.kinds) - set(BLOCK_KINDS) or args.lambda_cv):
         parser.error(f'--shared adapts {", ".join(BLOCK_KINDS)} with a fixed damping only, not '
                      f'{", ".join(sorted(set(args.kinds) - set(BLOCK_KINDS)))}'

@@ -283,7 +283,8 @@ def test_a_budget_campaign_runs_in_the_simulator_and_trains_shared_models(tmp_pa
     pressed = f'| palm_center | palm | {2 * plan.session_seconds("palm_center"):.0f} |'
     assert pressed in status and 'none yet' not in status
     models = tmp_path / 'models'
-    assert train.main([str(folder), '--out', str(models), '--shared']) == 0
+    assert train.main([str(folder), '--out', str(models)]) == 0     # --shared, implied
+    assert 'a campaign with a budget' in capsys.readouterr().err
     report = json.loads((models / 'report.json').read_text())
     assert sorted(m['array'] for m in report['models']) == sorted(palms)
     assert {m['way'] for m in report['models']} <= {'adapted', 'shared'}

@@ -88,3 +88,26 @@ def test_the_command_writes_the_curve_of_each_array_from_datasets(tmp_path, tip,
     assert '| index_middle | M3-lambda | own |' in table and '(40 s)' in table, table
     assert (out / 'learning_curve.png').stat().st_size > 0
     assert main([*map(str, inputs), '--out', str(out), '--arrays', 'thumb_tip']) == 1
+
+
+def test_the_command_draws_kind_curves_a_budget_plan_reads(tmp_path, hand):
+    """learning_curve --kind-curve: rows per array and point of each kind with three or more
+    arrays in the inputs, which `campaign plan --budget --curves` plans on; two arrays of a
+    kind are refused."""
+    import json
+
+    from tacforce_ros.recording.budget import ExpectedError
+    from tacforce_ros.tools.learning_curve import main
+    pads = ('index_middle', 'middle_middle', 'ring_middle')
+    inputs = [synthetic_dataset(hand.array(name), seconds=6.0, seed=10 + k).save(
+        tmp_path / f'{name}.npz') for k, name in enumerate(pads)]
+    out = tmp_path / 'out'
+    assert main([*map(str, inputs), '--out', str(out), '--kind-curve', '--seconds', '10', '30',
+                 '--static-force', '0.1']) == 0
+    doc = json.loads((out / 'learning_curve.json').read_text())
+    assert {(r['array'], r['seconds'], r['way'], r['kind']) for r in doc['rows']} == {
+        (a, s, 'shared-kind', 'phalanx') for a in pads for s in (10.0, 30.0)}
+    curves = ExpectedError.from_rows(doc['rows'])
+    assert [s for s, _ in curves.curves['phalanx']] == [10.0, 30.0]
+    assert (out / 'learning_curve.png').stat().st_size > 0
+    assert main([*map(str, inputs[:2]), '--out', str(out), '--kind-curve']) == 1

@@ -76,16 +76,15 @@ def budget_stage(ctx: Context) -> dict:
     curves = _cached_units(ctx, 'kind_curve', curve_units, 'kind curves')
     curve_rows = [row for name in curve_units for row in curves[name]]
     expected = ExpectedError.from_rows(curve_rows, 'kind curves of the full plan of this run')
-    allocation = allocate(s.budget_minutes * 60.0 * (1.0 - RESERVE),
-                          {k: len(v) for k, v in kinds.items()}, len(PLATES), expected,
-                          s.budget_min_session_s)
+    allocation = allocate(s.budget_minutes * 60.0, {k: len(v) for k, v in kinds.items()},
+                          len(PLATES), expected, s.budget_min_session_s, RESERVE)
     ctx.log('budget campaign: ' + ', '.join(f'{k} {v:g} s per session'
                                             for k, v in allocation.session_s.items()))
 
     # The budget campaign, pressed until each session's coverage passes (or SIM_ROUNDS).
     chosen: dict[tuple[str, str], str] = {}
     judged: dict[tuple[str, str], bool] = {}
-    pressed_s, pressed = 0.0, 0
+    again: list[dict] = []
     for round_ in range(SIM_ROUNDS):
         due = [(a.name, p) for a in arrays for p in PLATES if not judged.get((a.name, p))]
         if not due:
@@ -96,8 +95,8 @@ def budget_stage(ctx: Context) -> dict:
             paths[name, plate], job = calibration_unit(ctx, name, plate, BUDGET_SESSION + round_,
                                                        seconds)
             units += [job] if job is not None else []
-            pressed_s += seconds
-            pressed += 1
+            if round_:
+                again.append({'array': name, 'plate': plate, 'seconds': seconds})
         run_units(ctx, 'budget sessions', units)
         for key, path in paths.items():
             chosen[key] = path
@@ -119,7 +118,7 @@ def budget_stage(ctx: Context) -> dict:
              'e_hat_n': folds[k][n]['e_hat_mean'], 'full_e_hat_n': own[n]['e_hat_mean'],
              'full_seconds': s.full_plan_sessions * s.session_seconds * len(PLATES)}
             for k, names in kinds.items() for n in names]
-    return budget_summary(s.budget_minutes, allocation, pressed_s, pressed,
+    return budget_summary(s.budget_minutes, allocation, again,
                           sum(not ok for ok in judged.values()), rows, curve_rows)
 
 
@@ -132,11 +131,11 @@ def _cached_units(ctx: Context, stage: str, units: dict[str, tuple], title: str)
     return {name: ctx.cache.load_json(stage, key) for name, (key, _, _) in units.items()}
 
 
-def budget_summary(budget_minutes: float, allocation: Allocation, pressed_s: float,
-                   sessions: int, poor: int, rows: list[dict], curve_rows: list[dict]) -> dict:
-    """report.json `budget_campaign`: minutes pressed (every session recorded, those pressed
-    again included), the allocation, per array its e_hat against the full plan's own model's,
-    per kind the ratio of the means, and the issue's verdicts."""
+def budget_summary(budget_minutes: float, allocation: Allocation, again: list[dict], poor: int,
+                   rows: list[dict], curve_rows: list[dict]) -> dict:
+    """report.json `budget_campaign`: minutes pressed (every session recorded: the plan's and
+    those pressed again, `again`), the allocation, per array its e_hat against the full plan's
+    own model's, per kind the ratio of the means, and the issue's verdicts."""
     for row in rows:
         row['ratio'] = row['e_hat_n'] / row['full_e_hat_n']
     by_kind = {}
@@ -148,11 +147,12 @@ def budget_summary(budget_minutes: float, allocation: Allocation, pressed_s: flo
                          'expected_e_hat_n': allocation.expected_e_hat[kind],
                          'e_hat_n': budget, 'full_e_hat_n': full, 'ratio': budget / full}
     worst = max(rows, key=lambda r: r['ratio'])
-    minutes = pressed_s / 60.0
+    minutes = (allocation.pressing_s + sum(a['seconds'] for a in again)) / 60.0
     return {
         'budget_minutes': budget_minutes, 'plates': allocation.plates,
         'planned_minutes': allocation.pressing_s / 60.0, 'minutes': minutes,
-        'sessions': sessions, 'sessions_pressed_again': sessions - len(rows) * allocation.plates,
+        'sessions': len(rows) * allocation.plates + len(again),
+        'sessions_pressed_again': len(again), 'pressed_again': again,
         'poor_sessions_kept': poor, 'rows': rows, 'by_kind': by_kind,
         'e_hat_ratio_by_kind': {k: v['ratio'] for k, v in by_kind.items()},
         'worst_array_ratio': worst['ratio'], 'worst_array': worst['array'],

@@ -94,19 +94,20 @@ class ExpectedError:
         except (KeyError, TypeError, ValueError, AttributeError) as exc:
             raise BudgetError(f'expected error: not a curve set ({exc})') from None
 
-    def expected(self, kind: str, seconds: float) -> tuple[float, bool]:
-        """(e_hat [N], whether `seconds` lies within the curve's points) for an array of `kind`
-        pressed `seconds`."""
+    def expected(self, kind: str, seconds: float) -> tuple[float, int]:
+        """(e_hat [N], side) for an array of `kind` pressed `seconds`: side 0 within the curve's
+        points, -1 below its first (the value a lower bound), +1 beyond its last (an upper
+        bound)."""
         if kind not in self.curves:
             raise BudgetError(f'no expected-error curve for {kind} arrays (curves: '
                               f'{sorted(self.curves)})')
         s, e = np.array(self.curves[kind]).T
-        within = bool(s[0] <= seconds <= s[-1])
+        side = -1 if seconds < s[0] else 1 if seconds > s[-1] else 0
         if seconds <= s[0] or len(s) == 1:
-            return float(e[0]), within
+            return float(e[0]), side
         if seconds >= s[-1]:
-            return float(e[-1]), within
-        return float(np.exp(np.interp(np.log(seconds), np.log(s), np.log(e)))), True
+            return float(e[-1]), side
+        return float(np.exp(np.interp(np.log(seconds), np.log(s), np.log(e)))), side
 
 
 @dataclass(frozen=True)
@@ -131,35 +132,46 @@ class Allocation:
 
 
 def allocate(budget_s: float, arrays: Mapping[str, int], plates: int, expected: ExpectedError,
-             min_session_s: float = MIN_SESSION_S, step_s: float = STEP_S) -> Allocation:
+             min_session_s: float = MIN_SESSION_S, reserve: float = RESERVE,
+             step_s: float = STEP_S) -> Allocation:
     """The session length of each kind (arrays: kind -> how many arrays of it are pressed, on
-    `plates` plates each) on the grid min_session_s, + step_s, ... that minimises the whole
-    hand's expected e_hat with at most `budget_s` of pressing. Lengths beyond the end of a
-    kind's curve gain nothing the curve can show, so the grid ends there."""
+    `plates` plates each) on a grid of step_s that minimises the whole hand's expected e_hat
+    with at most budget_s * (1 - reserve) of pressing. A kind's grid runs from min_session_s, or
+    from where its curve begins if later (below its first point the curve says nothing), to
+    where its curve ends (beyond it the curve shows no gain)."""
     if plates < 2:
         raise BudgetError(f'{plates} plates: leave-one-plate-out needs two or more')
-    if not (min_session_s > 0 and step_s > 0):
-        raise BudgetError(f'min_session_s {min_session_s} and step_s {step_s} must be > 0')
+    if not (min_session_s > 0 and step_s > 0 and 0.0 <= reserve < 1.0):
+        raise BudgetError(f'min_session_s {min_session_s} and step_s {step_s} must be > 0, '
+                          f'the reserve {reserve} a share of the budget (0 <= r < 1)')
     arrays = {k: int(n) for k, n in arrays.items() if n > 0}
-    least = sum(arrays.values()) * plates * min_session_s
-    if budget_s < least:
-        raise BudgetError(f'a budget of {budget_s / 60:.0f} min cannot press '
-                          f'{sum(arrays.values())} arrays on {plates} plates for '
-                          f'{min_session_s:g} s each: it needs {least / 60:.0f} min or more')
+    if not arrays:
+        raise BudgetError('a budget plan needs arrays to press')
+    missing = sorted(set(arrays) - set(expected.curves))
+    if missing:
+        raise BudgetError(f'no expected-error curve for {", ".join(missing)} arrays (curves: '
+                          f'{sorted(expected.curves)})')
+    grids = {}
+    for kind in arrays:
+        first, last = expected.curves[kind][0][0] / plates, expected.curves[kind][-1][0] / plates
+        shortest = step_s * math.ceil(max(min_session_s, first) / step_s - 1e-9)
+        grids[kind] = np.arange(shortest, max(shortest, last) + 1e-9, step_s)
+    usable = budget_s * (1.0 - reserve)
+    least = sum(n * plates * grids[k][0] for k, n in arrays.items())
+    if usable < least - 1e-9:
+        shortest = ', '.join(f'{k} {grids[k][0]:g} s' for k in arrays)
+        raise BudgetError(f'a budget of {budget_s / 60:g} min ({100 * reserve:g} % held back for '
+                          f'sessions pressed again) cannot press {sum(arrays.values())} arrays '
+                          f'on {plates} plates in the shortest sessions ({shortest}): it needs '
+                          f'{least / (1.0 - reserve) / 60:.0f} min or more')
     # Pareto front over kinds: (pressing seconds, sum of expected e_hat, choice), cheapest first.
     front: list[tuple[float, float, dict[str, float]]] = [(0.0, 0.0, {})]
     for kind, n in arrays.items():
-        last = expected.curves[kind][-1][0] if kind in expected.curves else None
-        if last is None:
-            raise BudgetError(f'no expected-error curve for {kind} arrays (curves: '
-                              f'{sorted(expected.curves)})')
-        top = max(min_session_s, last / plates)
-        lengths = np.arange(min_session_s, top + step_s / 2, step_s)
         options = [(n * plates * length, n * expected.expected(kind, plates * length)[0],
-                    float(length)) for length in lengths]
+                    float(length)) for length in grids[kind]]
         grown = [(cost + c, value + v, {**choice, kind: length})
                  for cost, value, choice in front for c, v, length in options
-                 if cost + c <= budget_s + 1e-9]
+                 if cost + c <= usable + 1e-9]
         grown.sort(key=lambda t: (t[0], t[1]))
         front = []
         for item in grown:

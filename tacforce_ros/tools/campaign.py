@@ -90,10 +90,11 @@ def _print_due(campaign: Campaign, records: list, due: list[SessionSlot]) -> Non
 
 def _expected_of(path: Path) -> ExpectedError:
     """Kind curves from a learning_curve.json (`rows`) or a main job's report.json
-    (`learning_curve.rows`)."""
+    (`budget_campaign.kind_curve_rows`)."""
     try:
         doc = json.loads(path.read_text())
-        rows = doc['rows'] if 'rows' in doc else doc['learning_curve']['rows']
+        # learning_curve.json's rows, or a main job's kind curves (report.json).
+        rows = doc['rows'] if 'rows' in doc else doc['budget_campaign']['kind_curve_rows']
     except (OSError, ValueError, KeyError, TypeError) as exc:
         raise BudgetError(f'--curves {path}: no learning-curve rows ({exc})') from None
     commit = (doc.get('provenance') or doc.get('run') or {}).get('code_version', '')
@@ -111,23 +112,34 @@ def cmd_plan(args) -> int:
         load_scene(calibration_scene_name(arrays[0], plate))
     budgeted = {}
     if args.budget is not None:
+        if args.sessions is not None or args.seconds is not None:
+            print('campaign: --budget chooses the sessions and their lengths; leave out '
+                  '--sessions and --seconds', file=sys.stderr)
+            return 2
+        args.min_session = MIN_SESSION_S if args.min_session is None else args.min_session
+        args.reserve = RESERVE if args.reserve is None else args.reserve
         budget_s = parse_budget(args.budget)
         expected = _expected_of(args.curves)
         kinds = {}
         for name in arrays:
             kinds[hand.array(name).kind] = kinds.get(hand.array(name).kind, 0) + 1
-        if not 0.0 <= args.reserve < 1.0:
-            raise BudgetError(f'--reserve {args.reserve}: a share of the budget, 0 <= r < 1')
-        allocation = allocate(budget_s * (1.0 - args.reserve), kinds, len(args.plates),
-                              expected, args.min_session)
+        few = {k: n for k, n in kinds.items() if n < 3}
+        if few:
+            raise BudgetError(f'a budget plan gives each array the model its kind shares, which '
+                              f'needs three or more arrays of the kind; the plan has {few}')
+        allocation = allocate(budget_s, kinds, len(args.plates), expected, args.min_session,
+                              args.reserve)
         budgeted = {'durations': {a: allocation.session_s[hand.array(a).kind] for a in arrays},
                     'budget': {'budget_s': budget_s, 'min_session_s': args.min_session,
                                'reserve': args.reserve,
                                'expected': expected.to_dict()},
                     'sessions': 1, 'seconds': max(allocation.session_s.values())}
+    elif args.min_session is not None or args.reserve is not None:
+        print('campaign: --min-session and --reserve go with --budget', file=sys.stderr)
+        return 2
     plan = CampaignPlan(**{'hand_side': hand.side, 'arrays': arrays, 'plates': tuple(args.plates),
-                           'sessions': args.sessions, 'seconds': args.seconds, 'seed': args.seed,
-                           **budgeted})
+                           'sessions': args.sessions or 2, 'seconds': args.seconds or 100.0,
+                           'seed': args.seed, **budgeted})
     campaign = Campaign.create(args.folder, plan)
     slots = plan.slots()
     if not budgeted:
@@ -139,7 +151,7 @@ def cmd_plan(args) -> int:
     print(f'{campaign.folder / "campaign.yaml"}: {len(arrays)} arrays x {len(plan.plates)} '
           f'plates, one session each: {plan.pressing_s() / 60:.0f} min of pressing (budget '
           f'{budget_s / 60:.0f} min, {100 * args.reserve:.0f} % of it held back for sessions '
-          'pressed again), about {plan.duration_s() / 3600:.1f} h of operator time; '
+          f'pressed again), about {plan.duration_s() / 3600:.1f} h of operator time; '
           f'expected error from {expected.source}')
     print('| kind | arrays | session [s] | per array [s] | expected e_hat [N] |\n'
           '|---|---|---|---|---|')
@@ -158,18 +170,21 @@ def expected_lines(campaign: Campaign, records: list, hand) -> list[str]:
     if not plan.budget:
         return []
     expected = ExpectedError.from_dict(plan.budget['expected'])
+    trained = {path.name for path in campaign.counted_bags(records)}
     counted: dict[str, float] = {}
     for record in records:
-        counted[record.array] = counted.get(record.array, 0.0) + \
-            record.coverage['samples'] / RATE_HZ
+        if record.bag in trained:       # a bag past the plan's sessions is not trained on
+            counted[record.array] = counted.get(record.array, 0.0) + \
+                record.coverage['samples'] / RATE_HZ
     lines = ['| array | kind | pressed [s] | planned [s] | expected e_hat [N] |',
              '|---|---|---|---|---|']
     for name in plan.arrays:
         kind = hand.array(name).kind
         have = counted.get(name, 0.0)
         if have > 0:
-            value, within = expected.expected(kind, have)
-            cell = f'{value:.3f}' if within else f'>= {value:.3f} (below the curve)'
+            value, side = expected.expected(kind, have)
+            cell = {0: f'{value:.3f}', -1: f'>= {value:.3f} (below the curve)',
+                    1: f'<= {value:.3f} (beyond the curve)'}[side]
         else:
             cell = 'none yet'
         planned = plan.session_seconds(name) * plan.sessions * len(plan.plates)
@@ -229,18 +244,18 @@ def main(argv: list[str] | None = None) -> int:
     plan.add_argument('--arrays', nargs='+', help='arrays (default: every array of the hand)')
     plan.add_argument('--plates', nargs='+', default=list(TRAINING_PLATES),
                       help='push-plates (default: the five training plates)')
-    plan.add_argument('--sessions', type=int, default=2, help='sessions per array and plate')
-    plan.add_argument('--seconds', type=float, default=100.0, help='length of a session [s]')
+    plan.add_argument('--sessions', type=int, help='sessions per array and plate (default 2)')
+    plan.add_argument('--seconds', type=float, help='length of a session [s] (default 100)')
     plan.add_argument('--seed', type=int, default=0, help='simulated sessions: base seed')
     plan.add_argument('--budget', help='pressing time to plan for (60m, 1.5h, 3600s): one '
                       'session per array and plate, lengths chosen per kind of array')
     plan.add_argument('--curves', type=Path, help='with --budget: kind curves '
                       '(learning_curve.json of `learning_curve --kind-curve`, or report.json)')
-    plan.add_argument('--min-session', type=float, default=MIN_SESSION_S,
-                      help='with --budget: shortest session [s] (default %(default)s)')
-    plan.add_argument('--reserve', type=float, default=RESERVE,
-                      help='with --budget: share held back for sessions pressed again '
-                           '(default %(default)s)')
+    plan.add_argument('--min-session', type=float,
+                      help=f'with --budget: shortest session [s] (default {MIN_SESSION_S:g})')
+    plan.add_argument('--reserve', type=float,
+                      help=f'with --budget: share held back for sessions pressed again '
+                           f'(default {RESERVE:g})')
     plan.add_argument('--hand-side', choices=SIDES, default='right')
     plan.set_defaults(run=cmd_plan)
     for name, run, text in (('status', cmd_status, 'judge new bags, print what is due'),

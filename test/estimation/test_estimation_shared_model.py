@@ -144,12 +144,23 @@ def test_a_kind_curve_cuts_every_array_and_judges_it_on_all_of_its_held_out_plat
     # The whole recording is the shared model of the others' whole recordings, adapted to all
     # of its own and tested on it: shared_folds with no held-out data of its own.
     full = {name: d.without_offsets()[:2] + (d.plates,) for name, (_, d) in arrays.items()}
-    for r in rows[3:]:
+    for r in rows[3:4]:
         others = {o: v for o, v in full.items() if o != r['array']}
         (result,) = shared_folds(tip, 'M3-lambda', HYPER, full[r['array']],
                                  [np.ones(len(full[r['array']][1]), bool)], others)
         assert r['e_hat_n'] == pytest.approx(result.summary()['e_hat_mean'], rel=1e-9)
-    # A cut is tested on as much as the whole: every held-out plate's rows.
+    # A cut trains on its rows and is tested on all of its held-out plate's, not on its own.
+    keeps = {name: cut_rows(d, 5.0 / plates) for name, (_, d) in arrays.items()}
+    cut = {name: tuple(part[keeps[name]] for part in full[name]) for name in arrays}
     assert all(r['samples'] < rows[3]['samples'] for r in rows[:3])
+    for r in rows[:1]:
+        own, others = cut[r['array']], {o: v for o, v in cut.items() if o != r['array']}
+        every = [np.ones(len(own[1]), bool)]
+        (tested,) = shared_folds(tip, 'M3-lambda', HYPER, own, every, others,
+                                 held_out=full[r['array']])
+        (on_itself,) = shared_folds(tip, 'M3-lambda', HYPER, own, every, others)
+        assert r['e_hat_n'] == pytest.approx(tested.summary()['e_hat_mean'], rel=1e-9)
+        assert r['e_hat_n'] != pytest.approx(on_itself.summary()['e_hat_mean'], rel=1e-3)
+        assert sum(f['samples'] for f in tested.summary()['per_fold']) == len(full[r['array']][1])
     with pytest.raises(ValueError, match='three or more arrays'):
         kind_curve(dict(list(arrays.items())[:2]), 'M3-lambda', 'M3-lambda', HYPER, (5.0,))

@@ -26,12 +26,12 @@ def test_a_budget_that_is_not_a_duration_is_refused(text):
 
 
 def test_the_curve_is_exact_at_its_points_log_log_between_and_held_at_its_ends():
-    assert CURVES.expected('fingertip', 400.0) == (0.4, True)
+    assert CURVES.expected('fingertip', 400.0) == (0.4, 0)
     # Halfway in log seconds is halfway in log error: the geometric means.
-    value, within = CURVES.expected('fingertip', 200.0)
-    assert within and value == pytest.approx(math.sqrt(0.9 * 0.4))
-    assert CURVES.expected('fingertip', 50.0) == (0.9, False)       # a lower bound
-    assert CURVES.expected('fingertip', 5000.0) == (0.3, False)
+    value, side = CURVES.expected('fingertip', 200.0)
+    assert side == 0 and value == pytest.approx(math.sqrt(0.9 * 0.4))
+    assert CURVES.expected('fingertip', 50.0) == (0.9, -1)          # a lower bound
+    assert CURVES.expected('fingertip', 5000.0) == (0.3, 1)         # an upper bound
     with pytest.raises(BudgetError, match='no expected-error curve for palm'):
         CURVES.expected('palm', 100.0)
     assert ExpectedError.from_dict(CURVES.to_dict()) == CURVES
@@ -62,8 +62,13 @@ def test_the_steeper_kind_gets_the_longer_sessions_within_the_budget():
 
 
 def test_a_budget_too_small_for_the_shortest_sessions_says_what_it_needs():
-    with pytest.raises(BudgetError, match='needs 38 min or more'):
+    with pytest.raises(BudgetError, match=r'a budget of 30 min \(5 % held back .* needs 39 min'):
         allocate(1800.0, {'fingertip': 4, 'phalanx': 11}, 5, CURVES, min_session_s=30.0)
+    # Below its first point a curve says nothing: no session is planned shorter than that.
+    assert allocate(3600.0, {'phalanx': 11}, 5, CURVES, min_session_s=5.0).session_s[
+        'phalanx'] >= 100.0 / 5
+    with pytest.raises(BudgetError, match='needs arrays'):
+        allocate(3600.0, {'palm': 0}, 5, CURVES)
     with pytest.raises(BudgetError, match='two or more'):
         allocate(3600.0, {'fingertip': 4}, 1, CURVES)
     with pytest.raises(BudgetError, match='no expected-error curve for palm'):
@@ -80,12 +85,13 @@ curve = st.lists(st.floats(0.05, 2.0), min_size=2, max_size=4).map(
 def test_the_allocation_is_the_best_the_grid_offers_within_the_budget(tips, pads, n_tips,
                                                                       n_pads, budget):
     curves = ExpectedError({'fingertip': tips, 'phalanx': pads})
-    arrays, plates, step, least = {'fingertip': n_tips, 'phalanx': n_pads}, 2, 25.0, 25.0
+    # The curves begin at 100 s, 50 s a session on two plates: the shortest session.
+    arrays, plates, step, least = {'fingertip': n_tips, 'phalanx': n_pads}, 2, 25.0, 50.0
     if budget < (n_tips + n_pads) * plates * least:
         with pytest.raises(BudgetError):
-            allocate(budget, arrays, plates, curves, least, step)
+            allocate(budget, arrays, plates, curves, least, 0.0, step)
         return
-    allocation = allocate(budget, arrays, plates, curves, least, step)
+    allocation = allocate(budget, arrays, plates, curves, least, 0.0, step)
     assert allocation.pressing_s <= budget + 1e-6
     # Every pair of lengths on the grid that fits costs at least as much expected error.
     grids = {k: [least + step * i for i in range(int((max(least, v[-1][0] / plates) - least)

@@ -189,49 +189,69 @@ def test_the_live_view_judges_the_samples_as_the_bag_is_judged_and_says_what_is_
 
 
 def test_a_budget_plan_gives_each_kind_its_session_length_and_reads_back(tmp_path, capsys):
-    curves = tmp_path / 'curves.json'
-    curves.write_text(json.dumps({'rows': [
-        {'array': a, 'kind': kind, 'seconds': s, 'e_hat_n': e, 'way': 'shared-kind'}
-        for kind, a, points in (('phalanx', 'p', ((60, 0.40), (200, 0.30))),
-                                ('fingertip', 't', ((60, 0.90), (200, 0.50))))
-        for s, e in points]}))
-    arrays = ['index_middle', 'ring_middle', 'index_tip', 'ring_tip']
+    rows = [{'array': a, 'kind': kind, 'seconds': s, 'e_hat_n': e, 'way': 'shared-kind'}
+            for kind, a, points in (('phalanx', 'p', ((60, 0.40), (200, 0.30))),
+                                    ('fingertip', 't', ((60, 0.90), (200, 0.50))))
+            for s, e in points]
+    # The main job's report.json holds its kind curves under budget_campaign.
+    curves = tmp_path / 'report.json'
+    curves.write_text(json.dumps({'budget_campaign': {'kind_curve_rows': rows},
+                                  'run': {'code_version': 'abc1234'}}))
+    pads, tips = ['index_middle', 'middle_middle', 'ring_middle'], ['index_tip', 'middle_tip',
+                                                                    'ring_tip']
+    arrays = pads + tips
     folder = tmp_path / 'c'
     assert campaign_tool.main(['plan', str(folder), '--arrays', *arrays, '--plates', 'flat',
-                               'edge', '--budget', '6m', '--curves', str(curves),
+                               'edge', '--budget', '9m', '--curves', str(curves),
                                '--min-session', '30']) == 0
     out = capsys.readouterr().out
     plan = Campaign(folder).plan
-    assert plan.sessions == 1 and plan.pressing_s() <= 360.0
-    assert plan.session_seconds('index_tip') == plan.session_seconds('ring_tip') > \
-        plan.session_seconds('index_middle') == plan.session_seconds('ring_middle') >= 30.0
-    assert plan.budget['budget_s'] == 360.0 and 'train' in out and '--shared' in out
-    assert plan.duration_s() == pytest.approx(plan.pressing_s() + 8 * 20.0 + 2 * 120.0)
+    assert plan.sessions == 1 and plan.pressing_s() <= 0.95 * 540.0
+    assert {plan.session_seconds(a) for a in tips} == {plan.session_seconds('index_tip')}
+    assert {plan.session_seconds(a) for a in pads} == {plan.session_seconds('index_middle')}
+    assert plan.session_seconds('index_tip') > plan.session_seconds('index_middle') >= 30.0
+    assert plan.budget['budget_s'] == 540.0 and plan.budget['reserve'] == 0.05
+    assert 'report.json at abc1234' in out and 'shared models' in out
+    operator = plan.pressing_s() + 12 * 20.0 + 2 * 120.0
+    assert plan.duration_s() == pytest.approx(operator)
+    assert f'about {operator / 3600:.1f} h of operator time' in out
     # A campaign plan of before budgets (no durations) still reads, every session alike.
     old = tmp_path / 'old'
     make(old)
     text = (old / 'campaign.yaml').read_text()
     assert 'durations' not in text and 'budget' not in text
     assert Campaign(old).plan.session_seconds('palm_center') == 20.0
-    # Due sessions say their own lengths; status gives each array's expected error.
+    # Status gives each array's expected error from the bags it trains on.
     hand, kinematics = campaign_tool._hand_and_kinematics('right')
     campaign = Campaign(folder)
     records = campaign.check(hand, kinematics)
     lines = campaign_tool.expected_lines(campaign, records, hand)
     assert len(lines) == 2 + len(arrays) and all('none yet' in line for line in lines[2:])
     from tacforce_ros.recording.campaign import SessionRecord
-    pressed = [SessionRecord('b', 'index_tip', 'flat', {'samples': 10000, 'problems': []})]
+    for name in ('x_s9', 'index_tip_flat_s0'):
+        (folder / name).mkdir()
+    pressed = [SessionRecord(name, 'index_tip', 'flat', {'samples': 10000, 'problems': []})
+               for name in ('index_tip_flat_s0', 'x_s9')]       # x_s9: past the plan's one
     line = campaign_tool.expected_lines(campaign, pressed, hand)[2 + arrays.index('index_tip')]
     expected = 0.9 * (100 / 60) ** (math.log(0.5 / 0.9) / math.log(200 / 60))     # log-log
     planned = 2 * plan.session_seconds('index_tip')
     assert f'| index_tip | fingertip | 100 | {planned:.0f} | {expected:.3f} |' in line
+    pressed[0].coverage['samples'] = 50000                          # 500 s: past the curve
+    line = campaign_tool.expected_lines(campaign, pressed, hand)[2 + arrays.index('index_tip')]
+    assert '<= 0.500 (beyond the curve)' in line
+
+
+PALMS = ('palm_index_side', 'palm_center', 'palm_ring_side')
 
 
 @pytest.mark.parametrize('argv, message', [
     (['--budget', '60m'], '--budget and --curves go together'),
     (['--budget', 'an hour', '--curves', 'x.json'], "budget 'an hour'"),
-    (['--budget', '1m', '--curves', 'CURVES'], 'needs 3 min or more'),
-    (['--budget', '60m', '--curves', 'missing.json'], 'no learning-curve rows')])
+    (['--budget', '1m', '--curves', 'CURVES'], 'needs 5 min or more'),
+    (['--budget', '60m', '--curves', 'missing.json'], 'no learning-curve rows'),
+    (['--budget', '60m', '--curves', 'CURVES', '--seconds', '50'], 'leave out'),
+    (['--min-session', '30'], 'go with --budget'),
+    (['--budget', '60m', '--curves', 'CURVES', '--arrays', *ARRAYS], 'three or more arrays')])
 def test_a_bad_budget_is_refused_before_a_plan_is_written(tmp_path, capsys, argv, message):
     curves = tmp_path / 'curves.json'
     curves.write_text(json.dumps({'rows': [{'array': a, 'kind': k, 'seconds': 100.0,
@@ -240,7 +260,7 @@ def test_a_bad_budget_is_refused_before_a_plan_is_written(tmp_path, capsys, argv
     argv = [str(curves) if a == 'CURVES' else a for a in argv]
     folder = tmp_path / 'c'
     try:
-        code = campaign_tool.main(['plan', str(folder), '--arrays', *ARRAYS, *argv])
+        code = campaign_tool.main(['plan', str(folder), '--arrays', *PALMS, *argv])
     except SystemExit as exc:       # argparse's refusals
         code = exc.code
     assert code == 2 and message in capsys.readouterr().err

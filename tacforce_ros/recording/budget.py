@@ -53,8 +53,8 @@ def parse_budget(text: str) -> float:
 class ExpectedError:
     """Expected held-out e_hat [N] of an array's adapted model per kind, against the seconds
     the array is pressed: points (seconds, e_hat) per kind, log-log interpolated between them
-    and held at the ends (the curve says nothing outside its points: below the first the value
-    is a lower bound, `within` says so)."""
+    and held at the ends (the curve says nothing outside its points: `expected` says which side
+    of them a value lies on)."""
 
     curves: Mapping[str, tuple[tuple[float, float], ...]]
     source: str = ''

@@ -66,7 +66,7 @@ class FingerSession:
             self.engaged = (self.controller.open_loop
                             or self.controller.estimate_fresh(f_hat, f_hat_age))
         if self.engaged:
-            approaching, touch = self._approach(t, q, f_hat, f_hat_age)
+            approaching, touch, arrived = self._approach(t, q, f_hat, f_hat_age)
             # Before the touch the law presses nothing: a force commanded in free space would
             # drive the tip onto the surface as a step of q_d did (open loop cannot tell the
             # touch, and is the paper's baseline: it gets the command as given).
@@ -77,6 +77,12 @@ class FingerSession:
                 if touch:
                     state.reason = (f'touched: |f_hat| {np.linalg.norm(f_hat):.2f} N, force '
                                     'control from here')
+                elif arrived and not self.controller.open_loop:
+                    # The target got to q_d before the estimate showed the touch (seen with a
+                    # starved estimator): the P term presses from there, and the log says so.
+                    state.reason = (f'at q_d without a touch: |f_hat| '
+                                    f'{np.linalg.norm(f_hat):.2f} N < {self.config.touch_force:g}'
+                                    ' N, force control from here')
                 elif approaching:
                     state.reason = (f'approaching q_d at {self.approach.speed:g} rad/s'
                                     if not self.controller.open_loop else
@@ -104,18 +110,19 @@ class FingerSession:
         return tau, state, transition
 
     def _approach(self, t: float, q: np.ndarray, f_hat: np.ndarray,
-                  f_hat_age: float) -> tuple[bool, bool]:
+                  f_hat_age: float) -> tuple[bool, bool, bool]:
         """Move the law's position target on (the guarded approach). Returns whether it is still
-        on its way (no touch yet, q_d not reached) and whether this tick is the touch."""
+        on its way (no touch yet, q_d not reached), whether this tick is the touch, and whether
+        this tick brought the target to q_d without one."""
         cfg = self.config
         if self.approach is None:
             self.approach = GuardedApproach(np.asarray(q, dtype=np.float64)[self.joints],
                                             np.asarray(cfg.q_d), cfg.approach_speed,
                                             cfg.blind_speed)
         if self.approach.done:
-            return False, False
+            return False, False, False
         feels = (not self.controller.open_loop
                  and self.controller.estimate_fresh(f_hat, f_hat_age))
         touch = feels and float(np.linalg.norm(f_hat)) >= cfg.touch_force
         self.controller.set_position_target(self.approach.update(t, feels, touch))
-        return not self.approach.done, touch
+        return not self.approach.done, touch, self.approach.done and not touch

@@ -98,6 +98,27 @@ def test_the_session_engages_at_its_pose_and_presses_only_from_the_touch():
                    'controller closed_loop -> closed_loop: streams fresh']
 
 
+def test_a_target_at_q_d_before_any_touch_says_so_and_hands_over_to_force_control():
+    cfg = config(q_d=tuple(GOAL), approach_speed=0.2, blind_speed=0.05, touch_force=0.15)
+    session = FingerSession(cfg, KIN)
+    q = Q16.copy()
+    q[:4] = START
+    f_d = np.array([0.0, 0.0, 1.0])
+    session.update(0.0, q, ZERO16, NOTHING, 0.0, 0.0, None)
+    log, pressing = [], []
+    for k in range(1, 200):     # 0.25 rad at 0.2 rad/s: q_d after 1.25 s, never a touch
+        _, state, transition = session.update(k * DT, q, ZERO16, NOTHING, 0.0, 0.0, f_d)
+        log += [str(transition)] if transition else []
+        pressing.append(bool(state.desired_force.any()))
+    assert session.approach.touched_at is None
+    np.testing.assert_array_equal(session.approach.q_ref, GOAL)
+    assert log == ['controller hold -> closed_loop: approaching q_d at 0.2 rad/s',
+                   'controller closed_loop -> closed_loop: at q_d without a touch: |f_hat| '
+                   '0.02 N < 0.15 N, force control from here',
+                   'controller closed_loop -> closed_loop: streams fresh']
+    assert pressing.index(True) == 125 and all(pressing[125:])
+
+
 def test_open_loop_feels_nothing_so_it_closes_slowly_with_the_command_as_given():
     cfg = config(k_i=(0.0,) * 3, q_d=tuple(GOAL), approach_speed=0.2, blind_speed=0.05)
     session = FingerSession(cfg, KIN)

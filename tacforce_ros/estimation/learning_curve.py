@@ -125,19 +125,27 @@ def shared_learning_curve(array: TaxelArray, dataset: CalibrationDataset, label:
 
 
 def kind_folds(arrays: Mapping[str, TaxelArray], kind: str, hyper: dict[str, Any],
-               recorded: Mapping[str, Data], held_out: Mapping[str, Data]
-               ) -> dict[str, CrossValidation]:
+               recorded: Mapping[str, Data], held_out: Mapping[str, Data],
+               pool: Mapping[str, Data] | None = None) -> dict[str, CrossValidation]:
     """Leave-one-plate-out of each array's model in a campaign where every array of a kind
-    recorded `recorded` (name -> (X offsets removed, F, plates), three or more arrays): the
-    model the other arrays' recordings share, adapted to its own (shared_model.py, the weight
-    chosen on the recordings alone, as the campaign would have it), tested on `held_out[name]`'s
-    rows of each plate."""
-    if len(arrays) < 3:
-        raise ValueError(f'a kind of three or more arrays is needed, got {sorted(arrays)}')
-    blocks = KindBlocks(next(iter(arrays.values())), kind, hyper, recorded)
+    recorded `recorded` (name -> (X offsets removed, F, plates); three or more arrays with the
+    pool): the model the other arrays' recordings share, adapted to its own (shared_model.py,
+    the weight chosen on the recordings alone, as the campaign would have it), tested on
+    `held_out[name]`'s rows of each plate. `pool`: recordings of the kind made before (the mirror hand's, in this
+    hand's layout: estimation/mirror.py), shared by every array's model and in the weight's
+    choice like the others', and not judged."""
+    pool = dict(pool or {})
+    clash = sorted(set(pool) & set(recorded))
+    if clash:
+        raise ValueError(f'pool names {clash} are also arrays of the campaign')
+    if not arrays or len(arrays) + len(pool) < 3:
+        raise ValueError(f'a kind of three or more arrays is needed, got {sorted(arrays)}'
+                         + (f' and the pool {sorted(pool)}' if pool else ''))
+    shared = {**recorded, **pool}
+    blocks = KindBlocks(next(iter(arrays.values())), kind, hyper, shared)
     results = {}
     for name, array in arrays.items():
-        others = {o: data for o, data in recorded.items() if o != name}
+        others = {o: data for o, data in shared.items() if o != name}
         (results[name],) = shared_folds(array, kind, hyper, recorded[name],
                                         [np.ones(len(recorded[name][1]), bool)], others,
                                         blocks=blocks, held_out=held_out[name])
@@ -146,29 +154,37 @@ def kind_folds(arrays: Mapping[str, TaxelArray], kind: str, hyper: dict[str, Any
 
 def kind_curve(arrays: Mapping[str, tuple[TaxelArray, CalibrationDataset]], label: str,
                kind: str, hyper: dict[str, Any], seconds: Sequence[float] = SECONDS,
+               pool: Mapping[str, CalibrationDataset] | None = None,
                **static_kw: Any) -> list[dict[str, Any]]:
     """The curve a campaign with a budget plans on: every array of a kind (`arrays`: name ->
     (array, its recording), three or more) cut to the same `seconds`, judged by kind_folds on
-    all of its held-out plate's data. Rows as learning_curve's, `way` 'shared-kind', with the
-    array's `kind`."""
+    all of its held-out plate's data. `pool`: kind_folds', whole recordings (the mirror hand's
+    calibration, made before). Rows as learning_curve's, `way` 'shared-kind' ('shared-kind+pool'
+    with a pool), with the array's `kind`."""
+    pool = dict(pool or {})
     plates = {name: tuple(dataset.plate_names()) for name, (_, dataset) in arrays.items()}
+    plates.update({name: tuple(dataset.plate_names()) for name, dataset in pool.items()})
     if len(set(plates.values())) != 1 or len(next(iter(plates.values()))) < 2:
         raise ValueError(f'the arrays of a kind curve need the same two or more plates: {plates}')
     per_plate = len(next(iter(plates.values())))
     full = {name: dataset.without_offsets(**static_kw)[:2] + (dataset.plates,)
             for name, (_, dataset) in arrays.items()}
+    pooled = {name: dataset.without_offsets(**static_kw)[:2] + (dataset.plates,)
+              for name, dataset in pool.items()}
     rows = []
     for total in seconds:
         keeps = {name: cut_rows(dataset, total / per_plate)
                  for name, (_, dataset) in arrays.items()}
         cut = {name: tuple(part[keeps[name]] for part in full[name]) for name in arrays}
-        results = kind_folds({n: a for n, (a, _) in arrays.items()}, kind, hyper, cut, full)
+        results = kind_folds({n: a for n, (a, _) in arrays.items()}, kind, hyper, cut, full,
+                             pooled)
         for name, (array, dataset) in arrays.items():
             summary = results[name].summary()
             rows.append({'array': name, 'kind': array.kind, 'seconds': float(total),
                          'recorded_s': recorded_seconds(_rows_of(dataset, keeps[name])),
                          'samples': int(keeps[name].sum()), 'model': label,
-                         'way': 'shared-kind', 'e_hat_n': summary['e_hat_mean'],
+                         'way': 'shared-kind+pool' if pool else 'shared-kind',
+                         'e_hat_n': summary['e_hat_mean'],
                          'e_r': summary['e_r_mean']})
     return rows
 

@@ -79,3 +79,20 @@ def load_inputs(paths: list[Path], side: str | None, read: dict | None = None
     for dataset in datasets:
         by_array[dataset.array].append(dataset)
     return hand, by_array, dropped
+
+
+POOL_PREFIX = 'pool:'       # a pooled array's name: POOL_PREFIX + this hand's array
+
+
+def load_pool(paths: list[Path], hand: HandDescription) -> dict[str, CalibrationDataset]:
+    """`--pool`: another hand's calibration (the mirror hand's campaign folders, bags or
+    datasets; or a second hand of this side) in `hand`'s layout (estimation/mirror.py), one
+    recording per array, named POOL_PREFIX + this hand's array of the module."""
+    from tacforce_ros.estimation.dataset import concatenate
+    from tacforce_ros.estimation.mirror import to_layout
+
+    read: dict = {}
+    pool_hand, by_array, _ = load_inputs(expand_campaigns(paths, read), None, read)
+    return {POOL_PREFIX + name: to_layout(concatenate(datasets), pool_hand.array(name),
+                                          hand.array(name))
+            for name, datasets in sorted(by_array.items())}

@@ -12,6 +12,9 @@ table and a figure (learning_curve.png).
 campaign with a budget plans on (`campaign plan --budget ... --curves out/kinds/
 learning_curve.json`): every array of the kind cut to the same seconds, each one's model the
 M3-lambda the others' cuts share, adapted to its own cut (estimation/learning_curve.kind_curve).
+`--pool` adds the mirror hand's calibration, whole, to every shared model (estimation/mirror.py):
+
+    learning_curve RIGHT_CAMPAIGN --out out/kinds --kind-curve --pool LEFT_CAMPAIGN
 """
 from __future__ import annotations
 
@@ -28,7 +31,8 @@ from tacforce_ros.estimation.preprocessing import StaticSegmentError
 from tacforce_ros.estimation.registry import MODEL_KINDS
 from tacforce_ros.hand.description import SIDES
 from tacforce_ros.paths import output_folder
-from tacforce_ros.tools.calibration_inputs import expand_campaigns, load_inputs, model_hyper
+from tacforce_ros.tools.calibration_inputs import (expand_campaigns, load_inputs, load_pool,
+                                                   model_hyper)
 
 
 def markdown(result: dict[str, Any]) -> str:
@@ -39,25 +43,31 @@ def markdown(result: dict[str, Any]) -> str:
               "plate's data.\n\n" + '\n'.join(curve_table(result['rows'])) + '\n')
 
 
-def _kind_curves(hand, datasets: dict[str, Any], args) -> list[dict[str, Any]]:
-    """kind_curve of each kind with three or more of `datasets`' arrays."""
+def _kind_curves(hand, datasets: dict[str, Any], args, pool: dict[str, Any]
+                 ) -> list[dict[str, Any]]:
+    """kind_curve of each kind with three or more of `datasets`' arrays, counting those of the
+    `pool` (load_pool) of that kind."""
     kinds: dict[str, dict[str, Any]] = {}
     for name, dataset in datasets.items():
         kinds.setdefault(hand.array(name).kind, {})[name] = (hand.array(name), dataset)
-    usable = {kind: arrays for kind, arrays in kinds.items() if len(arrays) >= 3}
+    pooled = {kind: {n: d for n, d in pool.items() if hand.array(d.array).kind == kind}
+              for kind in kinds}
+    usable = {kind: arrays for kind, arrays in kinds.items()
+              if len(arrays) + len(pooled[kind]) >= 3}
     if not usable:
         raise ValueError(f'--kind-curve needs three or more arrays of a kind, found '
-                         f'{ {k: sorted(v) for k, v in kinds.items()} }')
+                         f'{ {k: sorted(v) for k, v in kinds.items()} }'
+                         + (f' and the pool {sorted(pool)}' if pool else ''))
     kind, hyper = 'M3-lambda', model_hyper('M3-lambda', args.seed, False, args.lam, 'cpu')
     rows = []
     for name, arrays in usable.items():
-        mine = kind_curve(arrays, kind, kind, hyper, args.seconds,
+        mine = kind_curve(arrays, kind, kind, hyper, args.seconds, pool=pooled[name],
                           force_threshold=args.static_force)
         rows += mine
         for seconds in args.seconds:
             values = [r['e_hat_n'] for r in mine if r['seconds'] == seconds]
-            print(f'{name} ({len(arrays)} arrays) {seconds:g} s: mean e_hat '
-                  f'{sum(values) / len(values):.3f} N', flush=True)
+            print(f'{name} ({len(arrays)} arrays, {len(pooled[name])} pooled) {seconds:g} s: '
+                  f'mean e_hat {sum(values) / len(values):.3f} N', flush=True)
     return rows
 
 
@@ -82,10 +92,17 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--kind-curve', action='store_true',
                         help='instead of each array\'s own models: per kind of array, the '
                              'M3-lambda shared and adapted when every array has the seconds')
+    parser.add_argument('--pool', nargs='+', type=Path, metavar='INPUT',
+                        help='with --kind-curve: another hand\'s calibration (the mirror hand\'s '
+                             'campaign, bags or datasets, reflected into this hand\'s layout) '
+                             'in every shared model, whole, not judged')
     args = parser.parse_args(argv)
     if any(s <= 0 for s in args.seconds):
         parser.error('--seconds must all be > 0')
-    missing = [str(p) for p in args.inputs if not p.exists()]
+    if args.pool and not args.kind_curve:
+        parser.error('--pool joins the shared models of --kind-curve; without it each array\'s '
+                     'own model is drawn')
+    missing = [str(p) for p in args.inputs + (args.pool or []) if not p.exists()]
     if missing:
         parser.error(f'inputs not found: {missing}')
     result: dict[str, Any] = {'provenance': results.provenance(),
@@ -103,8 +120,9 @@ def main(argv: list[str] | None = None) -> int:
         models = {kind: (kind, model_hyper(kind, args.seed, False, args.lam, 'cpu'))
                   for kind in args.kinds}
         if args.kind_curve:
+            pool = load_pool(args.pool, hand) if args.pool else {}
             result['rows'] = _kind_curves(hand, {a: concatenate(by_array[a]) for a in arrays},
-                                          args)
+                                          args, pool)
             arrays = []
         for array in arrays:
             dataset = concatenate(by_array[array])

@@ -8,7 +8,9 @@ Per array: offsets from static segments per session, optional leave-one-plate-ou
 cross-validation (metrics go into the model's provenance), then a final fit on all plates.
 With `--shared`, an array's model is instead the one the other arrays of its kind share,
 adapted to its own data (estimation/shared_model.py): fewer seconds of pressing per array. A
-campaign planned with a budget (`campaign plan --budget`) implies `--shared`.
+campaign planned with a budget (`campaign plan --budget`) implies `--shared`. `--pool` adds
+another hand's calibration to every shared model, the mirror hand's reflected into this hand's
+layout (estimation/mirror.py): a lab that calibrated the left hand presses the right less.
 Each model's provenance says which way it was made (`way`: own, shared or adapted) and how many
 seconds of its own array's data went into it (`own_seconds`).
 Writes `<array>_<kind>.npz`, a models list per kind for the estimator (`models_<kind>.yaml`),
@@ -41,7 +43,8 @@ from tacforce_ros.estimation.shared_model import BLOCK_KINDS, KindBlocks, fit_ad
 from tacforce_ros.estimation.training import fit_bundle, for_deployment
 from tacforce_ros.hand.description import ARRAY_KIND_TITLES, SIDES
 from tacforce_ros.paths import output_folder
-from tacforce_ros.tools.calibration_inputs import expand_campaigns, load_inputs, model_hyper
+from tacforce_ros.tools.calibration_inputs import (expand_campaigns, load_inputs, load_pool,
+                                                   model_hyper)
 
 
 def _budget_campaign(path: Path) -> bool:
@@ -133,6 +136,10 @@ def main(argv: list[str] | None = None) -> int:
                              'to its own data (an array whose kind has fewer than 3 arrays in '
                              f'the inputs: its own); kinds {", ".join(BLOCK_KINDS)} only, a '
                              'fixed damping')
+    parser.add_argument('--pool', nargs='+', type=Path, metavar='INPUT',
+                        help='with --shared: another hand\'s calibration (the mirror hand\'s '
+                             'campaign, bags or datasets, reflected into this hand\'s layout) '
+                             'in every shared model; its arrays are not trained')
     parser.add_argument('--seed', type=int, default=0, help='seed of the random models (M4, M5)')
     parser.add_argument('--device', default='cpu',
                         help="torch device that trains M4 and M5: 'cpu' (default) or 'cuda', "
@@ -159,7 +166,9 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f'--shared adapts {", ".join(BLOCK_KINDS)} with a fixed damping only, not '
                      f'{", ".join(sorted(set(args.kinds) - set(BLOCK_KINDS)))}'
                      + (' nor --lambda-cv' if args.lambda_cv else ''))
-    missing = [str(p) for p in args.inputs if not p.exists()]
+    if args.pool and not args.shared:
+        parser.error('--pool joins the shared models of --shared (or of a budget campaign)')
+    missing = [str(p) for p in args.inputs + (args.pool or []) if not p.exists()]
     if missing:
         parser.error(f'inputs not found: {missing}')
     if args.device != 'cpu' and set(args.kinds) & set(TORCH_KINDS):
@@ -172,6 +181,7 @@ def main(argv: list[str] | None = None) -> int:
         read: dict = {}
         hand, by_array, dropped = load_inputs(expand_campaigns(args.inputs, read),
                                               args.hand_side, read)
+        pool = load_pool(args.pool, hand) if args.pool else {}
     except (DatasetError, ValueError, RuntimeError, OSError) as exc:
         print(f'train: {exc}', file=sys.stderr)
         return 2
@@ -207,8 +217,22 @@ def main(argv: list[str] | None = None) -> int:
         prepared[name] = (dataset, X, F, x_offset)
         report['normal_input_per_newton'][name] = normal_input_per_newton(
             X, F, dataset.plates, array.rotations)
-    # --shared: the arrays of each kind of module, by kind of model (KindBlocks built once).
+    # --shared: the arrays of each kind of module, by kind of model (KindBlocks built once),
+    # with the --pool hand's of that kind.
+    pooled = {}
+    for name, dataset in pool.items():
+        try:
+            X, F, _ = dataset.without_offsets(
+                force_threshold=args.static_force, activity_threshold=args.static_activity,
+                min_duration=args.static_seconds)
+        except StaticSegmentError as exc:
+            print(f'train: {name}: {exc}', file=sys.stderr)
+            return 2
+        pooled[name] = (X, F, dataset.plates)
+    data = {**{n: (prepared[n][1], prepared[n][2], prepared[n][0].plates) for n in names},
+            **pooled}
     kinship = {name: [n for n in names if hand.array(n).kind == hand.array(name).kind]
+               + [n for n, d in pool.items() if hand.array(d.array).kind == hand.array(name).kind]
                for name in names}
     blocks: dict = {}
     for name, kind in tqdm([(n, k) for n in names for k in args.kinds], desc='models',
@@ -228,12 +252,10 @@ def main(argv: list[str] | None = None) -> int:
             # choose the weight, so it has a cross-validation even with --no-cv.
             key = (kind, array.kind)
             if key not in blocks:
-                blocks[key] = KindBlocks(array, kind, hyper, {
-                    n: (prepared[n][1], prepared[n][2], prepared[n][0].plates)
-                    for n in kinship[name]})
+                blocks[key] = KindBlocks(array, kind, hyper,
+                                         {n: data[n] for n in kinship[name]})
             bundle, weight, validation = fit_adapted(
-                array, kind, hyper, (X, F, dataset.plates),
-                {n: (prepared[n][1], prepared[n][2], prepared[n][0].plates) for n in others},
+                array, kind, hyper, (X, F, dataset.plates), {n: data[n] for n in others},
                 blocks=blocks[key])
             cv = validation.summary()
             provenance.update(way='shared' if np.isinf(weight) else 'adapted',

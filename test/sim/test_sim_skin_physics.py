@@ -364,3 +364,29 @@ def test_each_module_and_magnet_is_its_own_and_the_same_in_every_session(skin, h
     alike, _, _ = skin(module_layer_spread=0.0, module_modulus_spread=0.0, remanence_spread=0.0)
     assert np.all(alike.module_layer == alike.layer_thickness)
     np.testing.assert_allclose(alike.rest_counts, effect.rest_counts, rtol=1e-12)   # as drawn
+
+
+def test_a_left_hand_of_the_same_sensor_seed_is_another_hand():
+    """A lab's two hands have their own modules: the left hand's draws carry its side, and the
+    right hand's are those of its sensor seed as before."""
+    from tacforce_ros.hand.description import hand_config, load_hand
+    from tacforce_ros.sim.effects import HAND_STREAM
+    import zlib
+    rest = {}
+    for side in ('right', 'left'):
+        hand = load_hand(hand_config(side))
+        array_of = np.empty(hand.n_taxels, np.int64)
+        for index, each in enumerate(hand.arrays):
+            array_of[each.flat_indices] = index
+        arr = hand.array('palm_center')
+        ctx = SimpleNamespace(hand=hand, n_taxels=hand.n_taxels, array=arr,
+                              rows=arr.flat_indices, array_of_taxel=array_of, dt=0.01)
+        effect = MagneticSkin()
+        Pipeline([effect]).reset(0, ctx, sensor_seed=7)
+        rest[side] = effect.rest_counts.copy()
+        if side == 'right':
+            again = MagneticSkin()
+            again.draw_hand(np.random.default_rng(
+                [7, zlib.crc32(again.name.encode()), HAND_STREAM]), ctx)
+            np.testing.assert_array_equal(again.rest_counts, rest['right'])
+    assert not np.allclose(rest['left'], rest['right'])

@@ -75,9 +75,13 @@ class Pipeline:
         # One independent stream per effect (keyed by its name), so switching one effect on
         # does not change the random draws of any other; the hand's streams carry a tag so they
         # never coincide with a session's, even when both seeds are equal.
+        # A left hand is another hand than the right of the same sensor_seed (a lab's two hands
+        # have their own modules), so its streams carry its side; the right's are as they were.
+        side = getattr(getattr(ctx, 'hand', None), 'side', 'right')
+        tag = [HAND_STREAM] if side == 'right' else [HAND_STREAM, zlib.crc32(side.encode())]
         for effect in self.effects:
             key = zlib.crc32(effect.name.encode())
-            effect.draw_hand(np.random.default_rng([sensor_seed, key, HAND_STREAM]), ctx)
+            effect.draw_hand(np.random.default_rng([sensor_seed, key, *tag]), ctx)
             effect.reset(np.random.default_rng([seed, key]), ctx)
 
     def run(self, stage: str, state: Any) -> None:

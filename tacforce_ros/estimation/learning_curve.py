@@ -131,9 +131,9 @@ def kind_folds(arrays: Mapping[str, TaxelArray], kind: str, hyper: dict[str, Any
     recorded `recorded` (name -> (X offsets removed, F, plates); three or more arrays with the
     pool): the model the other arrays' recordings share, adapted to its own (shared_model.py,
     the weight chosen on the recordings alone, as the campaign would have it), tested on
-    `held_out[name]`'s rows of each plate. `pool`: recordings of the kind made before (the mirror hand's, in this
-    hand's layout: estimation/mirror.py), shared by every array's model and in the weight's
-    choice like the others', and not judged."""
+    `held_out[name]`'s rows of each plate. `pool`: recordings of the kind made before (the
+    mirror hand's, in this hand's layout: estimation/mirror.py), shared by every array's model
+    and in the weight's choice like the others', and not judged."""
     pool = dict(pool or {})
     clash = sorted(set(pool) & set(recorded))
     if clash:

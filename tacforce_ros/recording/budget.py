@@ -32,6 +32,7 @@ STEP_S = 5.0                # the grid of session lengths the allocation chooses
 # (the quick main job pressed 1 of its 15 20-s sessions again).
 RESERVE = 0.05
 WAY = 'shared-kind'         # the learning-curve rows a budget plans on
+WAYS = (WAY, WAY + '+pool')     # learning_curve --kind-curve, without and with --pool
 
 
 class BudgetError(ValueError):
@@ -70,10 +71,16 @@ class ExpectedError:
     @classmethod
     def from_rows(cls, rows: Sequence[Mapping[str, Any]], source: str = '') -> ExpectedError:
         """From kind-curve rows (learning_curve.json `rows`, or report.json `learning_curve`'s,
-        way 'shared-kind'): per kind and point, the mean e_hat over its arrays."""
+        way 'shared-kind', or 'shared-kind+pool' with the other hand's pool): per kind and
+        point, the mean e_hat over its arrays. Rows of both ways are refused: a plan is made on
+        the one the campaign will be trained with."""
         points: dict[str, dict[float, list[float]]] = {}
+        ways = {row.get('way') for row in rows} & set(WAYS)
+        if len(ways) > 1:
+            raise BudgetError(f'{source or "the rows"}: kind curves with and without the other '
+                              f'hand\'s pool ({sorted(ways)}); plan on the one `train` will use')
         for row in rows:
-            if row.get('way') == WAY and row.get('e_hat_n') is not None:
+            if row.get('way') in WAYS and row.get('e_hat_n') is not None:
                 points.setdefault(row['kind'], {}).setdefault(float(row['seconds']), []).append(
                     float(row['e_hat_n']))
         if not points:

@@ -93,6 +93,17 @@ def load_pool(paths: list[Path], hand: HandDescription) -> dict[str, Calibration
 
     read: dict = {}
     pool_hand, by_array, _ = load_inputs(expand_campaigns(paths, read), None, read)
-    return {POOL_PREFIX + name: to_layout(concatenate(datasets), pool_hand.array(name),
-                                          hand.array(name))
-            for name, datasets in sorted(by_array.items())}
+    if pool_hand.side == hand.side:
+        print(f'pool: of the {hand.side} hand as the inputs: joined as it is, as a second '
+              f'{hand.side} hand', file=sys.stderr)
+    pool = {}
+    for name, datasets in sorted(by_array.items()):
+        if name not in {a.name for a in hand.arrays}:
+            raise ValueError(f'pool: {name!r} is not an array of the {hand.side} hand')
+        dataset = concatenate(datasets)
+        if dataset.n_taxels != pool_hand.array(name).n_taxels:
+            raise ValueError(f'pool: {name} has {dataset.n_taxels} taxels, the '
+                             f'{pool_hand.side} hand\'s description '
+                             f'{pool_hand.array(name).n_taxels}')
+        pool[POOL_PREFIX + name] = to_layout(dataset, pool_hand.array(name), hand.array(name))
+    return pool

@@ -43,8 +43,8 @@ from tacforce_ros.estimation.shared_model import BLOCK_KINDS, KindBlocks, fit_ad
 from tacforce_ros.estimation.training import fit_bundle, for_deployment
 from tacforce_ros.hand.description import ARRAY_KIND_TITLES, SIDES
 from tacforce_ros.paths import output_folder
-from tacforce_ros.tools.calibration_inputs import (expand_campaigns, load_inputs, load_pool,
-                                                   model_hyper)
+from tacforce_ros.tools.calibration_inputs import (POOL_PREFIX, expand_campaigns, load_inputs,
+                                                   load_pool, model_hyper)
 
 
 def _budget_campaign(path: Path) -> bool:
@@ -96,7 +96,9 @@ def made(entry: dict) -> str:
     if entry['way'] == 'own':
         return f'own data, {own}'
     weight = '' if entry['adapt_weight'] is None else f" (weight {entry['adapt_weight']:g})"
-    return (f"{entry['way']}{weight}: from {len(entry['shared_from'])} other arrays, "
+    pooled = sum(name.startswith(POOL_PREFIX) for name in entry['shared_from'])
+    return (f"{entry['way']}{weight}: from {len(entry['shared_from'])} other arrays"
+            f"{f' ({pooled} of the pool)' if pooled else ''}, "
             f"{'adapted to ' if entry['way'] == 'adapted' else 'not adapted to '}{own}")
 
 
@@ -171,6 +173,10 @@ def main(argv: list[str] | None = None) -> int:
     missing = [str(p) for p in args.inputs + (args.pool or []) if not p.exists()]
     if missing:
         parser.error(f'inputs not found: {missing}')
+    both = sorted({p.resolve() for p in args.inputs} & {p.resolve() for p in args.pool or []})
+    if both:
+        parser.error(f'{list(map(str, both))} both an input and in the pool: the pool is another '
+                     'hand\'s calibration')
     if args.device != 'cpu' and set(args.kinds) & set(TORCH_KINDS):
         from tacforce_ros.estimation.torch_training import torch_device
         try:
@@ -182,6 +188,12 @@ def main(argv: list[str] | None = None) -> int:
         hand, by_array, dropped = load_inputs(expand_campaigns(args.inputs, read),
                                               args.hand_side, read)
         pool = load_pool(args.pool, hand) if args.pool else {}
+        plates = {p for datasets in by_array.values() for d in datasets for p in d.plate_names()}
+        for name, dataset in pool.items():
+            if not plates <= set(dataset.plate_names()):
+                raise ValueError(f'{name} has no data on the plates '
+                                 f'{sorted(plates - set(dataset.plate_names()))}: a pooled '
+                                 'array is pressed on every plate of the inputs')
     except (DatasetError, ValueError, RuntimeError, OSError) as exc:
         print(f'train: {exc}', file=sys.stderr)
         return 2
@@ -196,6 +208,7 @@ def main(argv: list[str] | None = None) -> int:
     version, date = results.commit(), time.strftime('%Y-%m-%dT%H:%M:%S%z')
     report = {'code_version': version, 'date': date, 'seed': args.seed, 'hand_side': hand.side,
               'inputs': [str(p) for p in args.inputs], 'dropped_messages': dropped, 'models': [],
+              'pool': [str(p) for p in args.pool or []],
               'normal_input_per_newton': {}}
     prepared = {}
     for name in names:
@@ -260,7 +273,9 @@ def main(argv: list[str] | None = None) -> int:
             cv = validation.summary()
             provenance.update(way='shared' if np.isinf(weight) else 'adapted',
                               adapt_weight=None if np.isinf(weight) else weight,
-                              shared_from=others, metrics=cv)
+                              shared_from=others, metrics=cv,
+                              **({'pool': sorted({str(p) for p in args.pool})}
+                                 if any(o.startswith(POOL_PREFIX) for o in others) else {}))
             bundle = for_deployment(bundle, x_offset, provenance)
         else:
             # The shipped model trains in the cross-validation's own fit (final=True).

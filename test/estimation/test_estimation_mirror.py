@@ -77,9 +77,11 @@ def test_a_mirrored_recording_is_the_other_hands_layout(hands):
     assert same.X is data.X
 
 
-def test_the_simulated_left_palm_reads_as_the_right_one_once_reflected(tmp_path, hands):
-    """A model of the right hand's palm pad (simulated magnetic skin) reads a second, left
-    hand's palm pad (another sensor seed) better reflected than as recorded."""
+@pytest.mark.parametrize('name', ['palm_center', 'index_tip'])
+def test_the_simulated_left_array_reads_as_the_right_one_once_reflected(tmp_path, hands, name):
+    """A model of the right hand's array (simulated magnetic skin) reads a second, left hand's
+    (another sensor seed) better reflected than as recorded: a flat pad (taxel frames the
+    identity) and a curved fingertip (taxel frames reflected too)."""
     from tacforce_ros.estimation.metrics import error_stats
     from tacforce_ros.estimation.training import fit_bundles
     from tacforce_ros.experiments.calibration_data import simulate_calibration
@@ -90,21 +92,21 @@ def test_the_simulated_left_palm_reads_as_the_right_one_once_reflected(tmp_path,
     recorded = {}
     for hand in hands:
         kinematics = HandKinematics(hand.urdf_path)
-        scene = load_scene(skin_scene(tmp_path, calibration_scene_name('palm_center', 'flat'),
+        scene = load_scene(skin_scene(tmp_path, calibration_scene_name(name, 'flat'),
                                       'magnetic'))
         scene = dataclasses.replace(scene, sensor_seed=0 if hand.side == 'right' else 1)
         recorded[hand.side] = simulate_calibration(hand, kinematics, scene, 3, 30.0)
     X, F, _ = recorded['right'].without_offsets(force_threshold=0.3)
-    (bundle,) = fit_bundles(hands[0].array('palm_center'), 'M3-lambda', {'lam': 33.0,
-                                                                       'lambda_grid': None},
+    (bundle,) = fit_bundles(hands[0].array(name), 'M3-lambda', {'lam': 33.0,
+                                                                 'lambda_grid': None},
                             [(X, F, recorded['right'].plates)])
     left = recorded['left']
     errors = {}
-    for name, data in (('as recorded', left), ('reflected', mirrored(
-            left, hands[1].array('palm_center'), hands[0].array('palm_center')))):
+    for way, data in (('as recorded', left), ('reflected', mirrored(
+            left, hands[1].array(name), hands[0].array(name)))):
         X, F, _ = data.without_offsets(force_threshold=0.3)
-        errors[name] = error_stats(F, bundle.predict(X)).e_hat_mean
-    print(f'\nright palm_center model on the left one: {errors}')
+        errors[way] = error_stats(F, bundle.predict(X)).e_hat_mean
+    print(f'\nright {name} model on the left one: {errors}')
     assert errors['reflected'] < 0.8 * errors['as recorded']
 
 
@@ -140,7 +142,7 @@ def test_the_pool_joins_every_shared_model_and_is_not_judged(hands):
                    prepared, {'palm_index_side': pooled['pool:palm_index_side'], **pooled})
 
 
-def test_the_commands_take_the_mirror_hands_calibration_as_a_pool(tmp_path, hands):
+def test_the_commands_take_the_mirror_hands_calibration_as_a_pool(tmp_path, hands, capsys):
     from tacforce_ros.tools import learning_curve, train
     right, left = hands
     pads = ('palm_index_side', 'palm_center', 'palm_ring_side')
@@ -163,5 +165,28 @@ def test_the_commands_take_the_mirror_hands_calibration_as_a_pool(tmp_path, hand
     (entry,) = report['models']
     assert entry['way'] in ('shared', 'adapted')
     assert entry['shared_from'] == sorted(f'pool:{n}' for n in pads)
+    assert report['pool'] == [str(p) for p in theirs]
+    from tacforce_ros.estimation.model_io import load_model
+    provenance = load_model(models / entry['file'], right.array('palm_index_side')).provenance
+    assert provenance['pool'] == sorted(map(str, theirs))
+    assert '(3 of the pool)' in (models / 'report.md').read_text()
     with pytest.raises(SystemExit):
         train.main([*map(str, mine), '--out', str(models), '--pool', *map(str, theirs)])
+    with pytest.raises(SystemExit):     # an input is not its own pool
+        train.main([*map(str, mine), '--out', str(models), '--shared', '--pool', str(mine[0]),
+                    *map(str, theirs)])
+    # A pooled array pressed on fewer plates than the inputs: refused, saying which.
+    short = synthetic_dataset(left.array('palm_center'), PLATES[:1], seconds=6.0, seed=80)
+    theirs[1] = short.save(tmp_path / 'left_short.npz')
+    assert train.main([*map(str, mine), '--out', str(models), '--shared', '--static-force',
+                       '0.1', '--pool', *map(str, theirs)]) == 2
+    assert "no data on the plates ['spherical']" in capsys.readouterr().err
+
+
+def test_a_budget_plans_on_pooled_kind_curves_but_not_on_a_mix():
+    from tacforce_ros.recording.budget import BudgetError, ExpectedError
+    rows = [{'kind': 'palm', 'seconds': s, 'e_hat_n': e, 'way': 'shared-kind+pool'}
+            for s, e in ((100.0, 0.35), (400.0, 0.3))]
+    assert ExpectedError.from_rows(rows).curves == {'palm': ((100.0, 0.35), (400.0, 0.3))}
+    with pytest.raises(BudgetError, match='with and without'):
+        ExpectedError.from_rows(rows + [{**rows[0], 'way': 'shared-kind'}])

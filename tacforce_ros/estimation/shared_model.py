@@ -29,7 +29,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from tacforce_ros.estimation.cross_validation import CrossValidation, Fold
-from tacforce_ros.estimation.least_squares import CentredSVD, augmented_factor, fit_affine
+from tacforce_ros.estimation.least_squares import CentredSVD, augmented_factor
 from tacforce_ros.estimation.metrics import error_stats
 from tacforce_ros.estimation.model_io import ModelBundle
 from tacforce_ros.estimation.preprocessing import FORCE_STD_FLOOR, TAXEL_STD_FLOOR, Standardiser
@@ -133,19 +133,34 @@ def adapt(shared: ModelBundle, weight: float, X: np.ndarray, F: np.ndarray) -> M
     """The shared model moved toward the array's own (X, F): damped least squares centred on it,
     damping weight * len(X), the intercept free as in every affine fit here. weight inf (or no
     data) returns the shared model unchanged."""
-    if not weight >= 0.0:
-        raise ValueError(f'adapt weight {weight!r}: must be >= 0 (inf: unadapted)')
-    adapted = copy.deepcopy(shared)
-    if np.isinf(weight) or len(X) == 0:
+    return Adaptation(shared, X, F)(weight)
+
+
+class Adaptation:
+    """`adapt` of one shared model to one array's (X, F) at any weight, the data's factor taken
+    once: the weight's choice adapts each other array at every weight, and the factor was 30 of
+    a flat-pad kind curve point's 53 s when taken per weight. Each weight's model is the one
+    `adapt` gave, to the bit (the same factor, solved at its damping)."""
+
+    def __init__(self, shared: ModelBundle, X: np.ndarray, F: np.ndarray) -> None:
+        self.shared, self.X, self.F = shared, X, F
+        self._svd: CentredSVD | None = None
+
+    def __call__(self, weight: float) -> ModelBundle:
+        if not weight >= 0.0:
+            raise ValueError(f'adapt weight {weight!r}: must be >= 0 (inf: unadapted)')
+        adapted = copy.deepcopy(self.shared)
+        if np.isinf(weight) or len(self.X) == 0:
+            return adapted
+        model = self.shared.model
+        if self._svd is None:
+            xs = self.shared.x_scaler.transform(self.X)
+            self._svd = CentredSVD.of(model.features(xs),
+                                      self.shared.f_scaler.transform(self.F) - model.predict(xs))
+        delta, offset = self._svd.solve(weight * len(self.X))
+        adapted.model.coef_ = model.coef_ + delta
+        adapted.model.intercept_ = model.intercept_ + offset
         return adapted
-    model = shared.model
-    xs = shared.x_scaler.transform(X)
-    delta, offset = fit_affine(model.features(xs),
-                               shared.f_scaler.transform(F) - model.predict(xs),
-                               weight * len(X))
-    adapted.model.coef_ = model.coef_ + delta
-    adapted.model.intercept_ = model.intercept_ + offset
-    return adapted
 
 
 def choose_weight(plate: str, rows_per_plate: Mapping[str, int],
@@ -160,8 +175,9 @@ def choose_weight(plate: str, rows_per_plate: Mapping[str, int],
         X, F, plates = data
         own = _first_rows(_without(data, plate), rows_per_plate)
         on = np.asarray(plates) == plate
+        adaptation = Adaptation(pooled_without[name], own[0], own[1])
         for j, weight in enumerate(weights):
-            bundle = adapt(pooled_without[name], weight, own[0], own[1])
+            bundle = adaptation(weight)
             scores[j] += error_stats(F[on], bundle.predict(X[on])).e_hat_mean
     scores /= len(others)
     return float(weights[int(np.argmin(scores))]), scores.tolist()

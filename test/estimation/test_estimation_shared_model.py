@@ -6,8 +6,8 @@ import pytest
 from tacforce_ros.estimation.cross_validation import cross_validate
 from tacforce_ros.estimation.learning_curve import learning_curve, shared_learning_curve
 from tacforce_ros.estimation.least_squares import fit_affine
-from tacforce_ros.estimation.shared_model import (ADAPT_WEIGHTS, KindBlocks, adapt, fit_adapted,
-                                                  shared_folds)
+from tacforce_ros.estimation.shared_model import (ADAPT_WEIGHTS, Adaptation, KindBlocks, adapt,
+                                                  fit_adapted, shared_folds)
 from tacforce_ros.estimation.training import fit_bundles
 
 HYPER = {'lam': 1e-3, 'lambda_grid': None}
@@ -53,6 +53,25 @@ def test_weight_inf_is_the_shared_model_and_zero_the_arrays_own_fit(tip, kind):
     # In between it moves from the shared model toward the array's own, and not past it.
     err = [np.abs(adapt(shared, w, X, F).predict(X) - F).mean() for w in (np.inf, 1.0, 0.0)]
     assert err[0] > err[1] > err[2]
+
+
+def test_one_factor_adapts_at_every_weight_as_the_damped_fit_at_each(tip, kind):
+    """Adaptation takes the data's factor once for all weights (the weight's choice); each
+    weight's model is the damped fit of the residual taken on its own, to the bit."""
+    (X, F, _), others = kind
+    shared = fit_shared(tip, list(others.values()))
+    xs = shared.x_scaler.transform(X[:500])
+    residual = shared.f_scaler.transform(F[:500]) - shared.model.predict(xs)
+    adaptation = Adaptation(shared, X[:500], F[:500])
+    for weight in ADAPT_WEIGHTS[:-1]:
+        delta, offset = fit_affine(shared.model.features(xs), residual, weight * 500)
+        adapted = adaptation(weight)
+        assert np.array_equal(adapted.model.coef_, shared.model.coef_ + delta)
+        assert np.array_equal(adapted.model.intercept_, shared.model.intercept_ + offset)
+    assert adaptation(np.inf).model.coef_ is not shared.model.coef_
+    np.testing.assert_array_equal(adaptation(np.inf).model.coef_, shared.model.coef_)
+    with pytest.raises(ValueError, match='must be >= 0'):
+        adaptation(float('nan'))
 
 
 def test_adapted_from_a_few_seconds_it_beats_the_arrays_own_model(tip, kind):

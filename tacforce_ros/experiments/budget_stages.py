@@ -7,7 +7,10 @@ data.
 
 The kind curves the plan is chosen on come from this run's own full plan of the same simulated
 hand; the budget campaign's sessions are new ones (other seeds). A lab would plan on the curves
-of a hand it calibrated before; here the two hands are one.
+of a hand it calibrated before; here the two hands are one. With `budget_pool` the mirror hand,
+a second simulated hand with its own modules, is pressed on the full plan and its arrays join
+each kind's shared model (the curves' and the campaign's), reflected into this hand's layout:
+a lab that calibrated its left hand before calibrating the right one.
 """
 from __future__ import annotations
 
@@ -17,6 +20,7 @@ import numpy as np
 
 from tacforce_ros.estimation.dataset import CalibrationDataset
 from tacforce_ros.estimation.learning_curve import kind_curve, kind_folds
+from tacforce_ros.estimation.mirror import mirrored
 from tacforce_ros.experiments.cache import digest, source_digest
 from tacforce_ros.experiments.calibration_stages import (_training_key, calibration_unit,
                                                          training_sets)
@@ -57,6 +61,22 @@ def budget_stage(ctx: Context) -> dict:
             f'x {s.full_plan_sessions} sessions, {len(jobs)} to simulate')
     run_units(ctx, 'full-plan sessions', jobs)
     full_sets = training_sets(ctx, 'full-plan training sets', full)
+    # The mirror hand's full plan, its arrays pooled into each kind's shared model, whole.
+    pool, jobs = {}, []
+    for array in arrays if s.budget_pool else ():
+        for plate in PLATES:
+            for session in range(s.full_plan_sessions):
+                path, job = calibration_unit(ctx, array.name, plate, session, s.session_seconds,
+                                             side=s.budget_pool)
+                pool.setdefault(f'{s.budget_pool}/{array.name}', []).append(path)
+                jobs += [job] if job is not None else []
+    if pool:
+        ctx.log(f'stage budget campaign: the {s.budget_pool} hand\'s full plan, pooled, '
+                f'{len(jobs)} sessions to simulate')
+        run_units(ctx, f'{s.budget_pool}-hand sessions', jobs)
+    pool_sets = training_sets(ctx, f'{s.budget_pool}-hand training sets', pool, mirror=True)
+    pool_of = {kind: {n: paths for n, paths in pool.items()
+                      if hand.array(n.split('/', 1)[1]).kind == kind} for kind in kinds}
     own = _cached_units(ctx, 'cross_validation', {
         array: (_training_key(paths, label, s), job_cross_validation,
                 (array, model, hyper, full_sets[array])) for array, paths in full.items()},
@@ -68,11 +88,13 @@ def budget_stage(ctx: Context) -> dict:
         for seconds in s.budget_seconds:
             paths = {n: full[n] for n in names}
             key = digest({'data': {n: [Path(p).stem for p in ps] for n, ps in paths.items()},
+                          'pool': {n: [Path(p).stem for p in ps]
+                                   for n, ps in pool_of[kind].items()},
                           'model': [model, hyper], 'seconds': seconds,
                           'static_force': s.static_force,
-                          'code': source_digest(job_kind_curve, kind_curve)})
+                          'code': source_digest(job_kind_curve, kind_curve, mirrored)})
             curve_units[f'{kind}/{seconds:g}'] = (key, job_kind_curve, (
-                paths, label, model, hyper, seconds, s.static_force))
+                paths, label, model, hyper, seconds, s.static_force, pool_of[kind]))
     curves = _cached_units(ctx, 'kind_curve', curve_units, 'kind curves')
     curve_rows = [row for name in curve_units for row in curves[name]]
     expected = ExpectedError.from_rows(curve_rows, 'kind curves of the full plan of this run')
@@ -108,18 +130,25 @@ def budget_stage(ctx: Context) -> dict:
     # Each kind's budget models, judged on the full plan's data.
     fold_units = {}
     for kind, names in kinds.items():
+        pooled = {n: pool_sets[n] for n in pool_of[kind]}
         key = digest({'recorded': {n: Path(budget_sets[n]).stem for n in names},
                       'held_out': {n: Path(full_sets[n]).stem for n in names},
+                      'pool': {n: Path(p).stem for n, p in pooled.items()},
                       'model': [model, hyper], 'code': source_digest(job_kind_folds, kind_folds)})
         fold_units[kind] = (key, job_kind_folds, ({n: budget_sets[n] for n in names},
-                                                 {n: full_sets[n] for n in names}, model, hyper))
+                                                 {n: full_sets[n] for n in names}, model, hyper,
+                                                 pooled))
     folds = _cached_units(ctx, 'budget_folds', fold_units, 'budget models')
     rows = [{'array': n, 'kind': k, 'seconds': allocation.session_s[k] * len(PLATES),
              'e_hat_n': folds[k][n]['e_hat_mean'], 'full_e_hat_n': own[n]['e_hat_mean'],
              'full_seconds': s.full_plan_sessions * s.session_seconds * len(PLATES)}
             for k, names in kinds.items() for n in names]
-    return budget_summary(s.budget_minutes, allocation, again,
-                          sum(not ok for ok in judged.values()), rows, curve_rows)
+    summary = budget_summary(s.budget_minutes, allocation, again,
+                             sum(not ok for ok in judged.values()), rows, curve_rows)
+    summary['pool'] = {'hand': s.budget_pool or None, 'arrays': len(pool),
+                       'seconds_per_array': (s.full_plan_sessions * s.session_seconds
+                                             * len(PLATES)) if pool else 0.0}
+    return summary
 
 
 def _cached_units(ctx: Context, stage: str, units: dict[str, tuple], title: str) -> dict:

@@ -11,12 +11,13 @@ import numpy as np
 from tacforce_ros.estimation.cross_validation import cross_validate, transfer
 from tacforce_ros.estimation.dataset import concatenate
 from tacforce_ros.estimation.learning_curve import shared_learning_curve
+from tacforce_ros.estimation.mirror import mirrored
 from tacforce_ros.estimation.shared_model import shared_folds
 from tacforce_ros.estimation.training import fit_bundles, for_deployment
 from tacforce_ros.rig import HELD_OUT_PLATE
 from tacforce_ros.experiments.cache import digest, scene_digest, source_digest
 from tacforce_ros.experiments.calibration_data import simulate_calibration
-from tacforce_ros.hand.description import load_hand
+from tacforce_ros.hand.description import DEFAULT_SIDE, load_hand
 from tacforce_ros.hand.kinematics import HandKinematics
 from tacforce_ros.sim.scene import calibration_scene_name, session_seed
 from tacforce_ros.experiments.settings import (ARRAYS, GRASP_ARRAYS, PLATES, SHARED_MODEL,
@@ -30,20 +31,24 @@ from tacforce_ros.experiments.workers import (job_benchmark, job_calibration, jo
 
 
 def calibration_unit(ctx: Context, array: str, plate: str, session: int, seconds: float,
-                     zero_phase_tactile: bool = True) -> tuple[str, tuple | None]:
-    """(dataset path, job unit to run, or None when the cache has it) of one session."""
+                     zero_phase_tactile: bool = True, side: str = DEFAULT_SIDE
+                     ) -> tuple[str, tuple | None]:
+    """(dataset path, job unit to run, or None when the cache has it) of one session, on the
+    right hand or on the `side` hand (another hand: its own modules and session seeds)."""
     scene = scene_for(ctx, calibration_scene_name(array, plate))
-    seed = session_seed(ctx.settings.seed, array, plate, session)
+    seed = session_seed(ctx.settings.seed, array if side == DEFAULT_SIDE else f'{side}/{array}',
+                        plate, session)
     key = digest({'scene': scene_digest(scene), 'seed': seed, 'seconds': seconds,
                   'code': source_digest(simulate_calibration, load_hand, HandKinematics),
                   'hand': hand_digest(),
-                  **({} if zero_phase_tactile else {'zero_phase_tactile': False})})
+                  **({} if zero_phase_tactile else {'zero_phase_tactile': False}),
+                  **({} if side == DEFAULT_SIDE else {'side': side})})
     path = ctx.cache.path('calibration', key, '.npz')
     if ctx.cache.lookup('calibration', key, '.npz') is not None:
         return str(path), None
     path.parent.mkdir(parents=True, exist_ok=True)
     return str(path), (str(path), job_calibration,
-                       (scene, seed, seconds, str(path), zero_phase_tactile))
+                       (scene, seed, seconds, str(path), zero_phase_tactile, side))
 
 
 def calibration_stage(ctx: Context) -> dict[str, dict[str, list[str]]]:
@@ -69,17 +74,20 @@ def _training_key(paths: list[str], label: str, settings: Settings) -> str:
                    'code': source_digest(cross_validate, fit_bundles, for_deployment)})
 
 
-def training_sets(ctx: Context, title: str, sessions: dict[str, list[str]]) -> dict[str, str]:
-    """{array: training set path} from {array: session dataset paths}, made where not cached."""
+def training_sets(ctx: Context, title: str, sessions: dict[str, list[str]],
+                  mirror: bool = False) -> dict[str, str]:
+    """{array: training set path} from {array: session dataset paths}, made where not cached.
+    `mirror`: sessions of the other hand, reflected into the right hand's layout."""
     static_force = ctx.settings.static_force
     sets, jobs = {}, []
     for array, paths in sessions.items():
         key = digest({'data': sorted(Path(p).stem for p in paths),
-                      'static_force': static_force, 'code': source_digest(concatenate)})
+                      'static_force': static_force, 'code': source_digest(concatenate),
+                      **({'mirror': source_digest(mirrored)} if mirror else {})})
         sets[array] = str(ctx.cache.path('training_set', key, '.npz'))
         if ctx.cache.lookup('training_set', key, '.npz') is None:
             Path(sets[array]).parent.mkdir(parents=True, exist_ok=True)
-            jobs.append((array, job_training_set, (paths, static_force, sets[array])))
+            jobs.append((array, job_training_set, (paths, static_force, sets[array], mirror)))
     run_units(ctx, title, jobs)
     return sets
 

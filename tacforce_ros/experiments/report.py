@@ -403,6 +403,15 @@ def cross_array_section(cross: dict | None) -> list[str]:
     return lines + ['']
 
 
+def _pool_sentence(pool: dict | None) -> str:
+    if not pool or not pool.get('hand'):
+        return ' No other hand was pooled.'
+    return (f" The {pool['hand']} hand, a second simulated hand with modules of its own, was "
+            f"pressed on the full plan before ({pool['seconds_per_array']:.0f} s per array); its "
+            f"{pool['arrays']} arrays, reflected into this hand's layout, join every shared model "
+            "of their kind, in the kind curves and in the campaign (`train --shared --pool`).")
+
+
 def budget_section(budget: dict | None) -> list[str]:
     """The campaign with a budget against the full plan (not in the paper)."""
     if not budget:
@@ -416,7 +425,8 @@ def budget_section(budget: dict | None) -> list[str]:
              "time counts. Each array's model is the M3-lambda its kind's other arrays share, "
              "adapted to it (`train --shared`), tested held-out plate by held-out plate on the "
              "full plan's data, against the array's own M3-lambda trained on the full plan "
-             f"(`campaign plan`'s default; {budget['rows'][0]['full_seconds']:.0f} s per array).",
+             f"(`campaign plan`'s default; {budget['rows'][0]['full_seconds']:.0f} s per array)."
+             + _pool_sentence(budget.get('pool')),
              '', f"Pressed: **{budget['minutes']:.1f} min** in {budget['sessions']} sessions "
              f"({budget['sessions_pressed_again']} pressed again, "
              f"{budget['poor_sessions_kept']} still poor and kept); planned "

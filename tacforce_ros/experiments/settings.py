@@ -87,8 +87,11 @@ class Settings:
     # The campaign with a budget (experiments/budget_stages.py): the full plan it is judged
     # against (`campaign plan`'s default sessions per plate, of session_seconds), the kind-curve
     # points it plans on (seconds per array), the budget, its shortest session, and the kinds
-    # of array in it.
+    # of array in it. budget_pool: the mirror hand (its own modules), calibrated before on the
+    # full plan, whose arrays join each kind's shared model reflected (estimation/mirror.py);
+    # '' for none.
     full_plan_sessions: int = 2
+    budget_pool: str = 'left'
     budget_seconds: tuple[float, ...] = (100.0, 150.0, 250.0, 400.0, 600.0, 1000.0)
     budget_minutes: float = 60.0
     budget_min_session_s: float = MIN_SESSION_S

@@ -19,6 +19,7 @@ from tacforce_ros.estimation.cross_validation import cross_validate, transfer
 from tacforce_ros.estimation.dataset import CalibrationDataset, concatenate
 from tacforce_ros.estimation.learning_curve import (kind_curve, kind_folds, learning_curve,
                                                     shared_learning_curve)
+from tacforce_ros.estimation.mirror import mirrored
 from tacforce_ros.estimation.model_io import save_model
 from tacforce_ros.estimation.model_set import load_model_set
 from tacforce_ros.estimation.preprocessing import SAMPLE_RATE_HZ
@@ -26,7 +27,7 @@ from tacforce_ros.estimation.training import for_deployment
 from tacforce_ros.experiments.cache import atomic_write
 from tacforce_ros.experiments.calibration_data import simulate_calibration
 from tacforce_ros.experiments.closed_loop import ClosedLoopTrace, run_closed_loop
-from tacforce_ros.hand.description import load_hand
+from tacforce_ros.hand.description import DEFAULT_SIDE, hand_config, load_hand
 from tacforce_ros.hand.kinematics import HandKinematics
 from tacforce_ros.experiments.settings import Context, controller_config, tare_frames
 
@@ -46,25 +47,42 @@ def init_worker() -> None:
     _WORKER['kinematics'] = HandKinematics.for_hand(_WORKER['hand'])
 
 
-def worker_hand():
+def worker_hand(side: str = DEFAULT_SIDE):
+    """The process's hand and kinematics: the right hand's, or the `side` hand's (the budget
+    campaign's mirror hand), each loaded once."""
     if not _WORKER:
         init_worker()
-    return _WORKER['hand'], _WORKER['kinematics']
+    if side == DEFAULT_SIDE:
+        return _WORKER['hand'], _WORKER['kinematics']
+    if side not in _WORKER:
+        hand = load_hand(hand_config(side))
+        _WORKER[side] = hand, HandKinematics.for_hand(hand)
+    return _WORKER[side]
+
+
+def _mirrored(dataset: CalibrationDataset) -> CalibrationDataset:
+    """A recording of the other hand's array in the right hand's layout (estimation/mirror.py)."""
+    source, _ = worker_hand(dataset.hand_side)
+    target, _ = worker_hand()
+    return mirrored(dataset, source.array(dataset.array), target.array(dataset.array))
 
 
 def job_calibration(scene: str, seed: int, seconds: float, target: str,
-                    zero_phase_tactile: bool = True) -> str:
-    hand, kinematics = worker_hand()
+                    zero_phase_tactile: bool = True, side: str = DEFAULT_SIDE) -> str:
+    hand, kinematics = worker_hand(side)
     dataset = simulate_calibration(hand, kinematics, scene, seed, seconds,
                                    zero_phase_tactile=zero_phase_tactile)
     atomic_write(target, dataset.save)
     return target
 
 
-def job_training_set(paths: list[str], static_force: float, target: str) -> str:
+def job_training_set(paths: list[str], static_force: float, target: str,
+                     mirror: bool = False) -> str:
     """Join the sessions of one array, remove each session's offsets, store uncompressed (the
-    fits of every model load it; compressed session files would be unpacked once per fit)."""
+    fits of every model load it; compressed session files would be unpacked once per fit).
+    `mirror`: sessions of the other hand, reflected into the right hand's layout first."""
     dataset = concatenate([CalibrationDataset.load(p) for p in paths])
+    dataset = _mirrored(dataset) if mirror else dataset
     X, F, offset = dataset.without_offsets(force_threshold=static_force)
     atomic_write(target, lambda tmp: np.savez(tmp, X=X, F=F, plates=dataset.plates.astype(str),
                                               x_offset=offset))
@@ -116,23 +134,30 @@ def job_shared_curve(array: str, paths: list[str], others: dict[str, str], label
 
 
 def job_kind_curve(paths: dict[str, list[str]], label: str, kind: str, hyper: dict,
-                   seconds: float, static_force: float) -> list[dict]:
+                   seconds: float, static_force: float,
+                   pool: dict[str, list[str]] | None = None) -> list[dict]:
     """One point of a kind curve (estimation/learning_curve.kind_curve): the kind's arrays'
-    sessions by name, every array cut to `seconds`."""
+    sessions by name, every array cut to `seconds`; `pool`: the other hand's sessions by name,
+    reflected into this hand's layout, whole."""
     hand, _ = worker_hand()
     arrays = {name: (hand.array(name), concatenate([CalibrationDataset.load(p) for p in files]))
               for name, files in paths.items()}
-    return kind_curve(arrays, label, kind, hyper, (seconds,), force_threshold=static_force)
+    pooled = {name: _mirrored(concatenate([CalibrationDataset.load(p) for p in files]))
+              for name, files in (pool or {}).items()}
+    return kind_curve(arrays, label, kind, hyper, (seconds,), pool=pooled,
+                      force_threshold=static_force)
 
 
 def job_kind_folds(recorded: dict[str, str], held_out: dict[str, str], kind: str,
-                   hyper: dict) -> dict[str, dict]:
+                   hyper: dict, pool: dict[str, str] | None = None) -> dict[str, dict]:
     """Each array of a kind's campaign with its shared, adapted model, tested on other data
-    (estimation/learning_curve.kind_folds); training sets by name. {name: cv summary}."""
+    (estimation/learning_curve.kind_folds); training sets by name, `pool`'s the other hand's
+    (job_training_set with mirror). {name: cv summary}."""
     hand, _ = worker_hand()
     results = kind_folds({name: hand.array(name) for name in recorded}, kind, hyper,
                          {name: load_training(path)[:3] for name, path in recorded.items()},
-                         {name: load_training(path)[:3] for name, path in held_out.items()})
+                         {name: load_training(path)[:3] for name, path in held_out.items()},
+                         {name: load_training(path)[:3] for name, path in (pool or {}).items()})
     return {name: result.summary() for name, result in results.items()}
 
 

@@ -340,7 +340,11 @@ def test_the_budget_campaign_is_planned_pressed_and_judged_as_the_table_shows(ru
                                                  / np.mean([r['full_e_hat_n'] for r in mine]))
         assert budget['e_hat_ratio_by_kind'][kind] == summary['ratio']
     assert budget['worst_array_ratio'] == max(r['ratio'] for r in budget['rows'])
-    assert {r['way'] for r in budget['kind_curve_rows']} == {'shared-kind'}
+    pooled = settings['budget_pool']
+    assert {r['way'] for r in budget['kind_curve_rows']} == {
+        'shared-kind+pool' if pooled else 'shared-kind'}
+    assert budget['pool']['hand'] == (pooled or None)
+    assert budget['pool']['arrays'] == (len(budget['rows']) if pooled else 0)
     assert {r['seconds'] for r in budget['kind_curve_rows']} == set(settings['budget_seconds'])
     shown = {r[0]: r for r in next(v for h, v in tables(md).items()
                                    if h.startswith('A campaign with a budget'))}

@@ -32,7 +32,7 @@ from tqdm import tqdm
 
 from tacforce_ros import results
 from tacforce_ros.estimation.cross_validation import cross_validate
-from tacforce_ros.estimation.dataset import DatasetError, concatenate
+from tacforce_ros.estimation.dataset import CalibrationDataset, DatasetError, concatenate
 from tacforce_ros.estimation.learning_curve import recorded_seconds
 from tacforce_ros.estimation.m1_rotation_linear import NORMAL_INPUT_NOTE, normal_input_per_newton
 from tacforce_ros.estimation.model_io import save_model
@@ -210,6 +210,17 @@ def main(argv: list[str] | None = None) -> int:
               'inputs': [str(p) for p in args.inputs], 'dropped_messages': dropped, 'models': [],
               'pool': [str(p) for p in args.pool or []],
               'normal_input_per_newton': {}}
+    def without_offsets(name: str, dataset: CalibrationDataset) -> tuple | None:
+        """(X, F, x_offset) with each session's static offsets removed; None, said, when a
+        session has no static segment."""
+        try:
+            return dataset.without_offsets(
+                force_threshold=args.static_force, activity_threshold=args.static_activity,
+                min_duration=args.static_seconds)
+        except StaticSegmentError as exc:
+            print(f'train: {name}: {exc}', file=sys.stderr)
+            return None
+
     prepared = {}
     for name in names:
         array = hand.array(name)
@@ -220,13 +231,10 @@ def main(argv: list[str] | None = None) -> int:
             return 2
         if args.save_dataset:
             dataset.save(args.out / f'{name}.npz')
-        try:
-            X, F, x_offset = dataset.without_offsets(
-                force_threshold=args.static_force, activity_threshold=args.static_activity,
-                min_duration=args.static_seconds)
-        except StaticSegmentError as exc:
-            print(f'train: {name}: {exc}', file=sys.stderr)
+        removed = without_offsets(name, dataset)
+        if removed is None:
             return 2
+        X, F, x_offset = removed
         prepared[name] = (dataset, X, F, x_offset)
         report['normal_input_per_newton'][name] = normal_input_per_newton(
             X, F, dataset.plates, array.rotations)
@@ -234,14 +242,10 @@ def main(argv: list[str] | None = None) -> int:
     # with the --pool hand's of that kind.
     pooled = {}
     for name, dataset in pool.items():
-        try:
-            X, F, _ = dataset.without_offsets(
-                force_threshold=args.static_force, activity_threshold=args.static_activity,
-                min_duration=args.static_seconds)
-        except StaticSegmentError as exc:
-            print(f'train: {name}: {exc}', file=sys.stderr)
+        removed = without_offsets(name, dataset)
+        if removed is None:
             return 2
-        pooled[name] = (X, F, dataset.plates)
+        pooled[name] = (removed[0], removed[1], dataset.plates)
     data = {**{n: (prepared[n][1], prepared[n][2], prepared[n][0].plates) for n in names},
             **pooled}
     kinship = {name: [n for n in names if hand.array(n).kind == hand.array(name).kind]

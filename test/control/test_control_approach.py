@@ -69,13 +69,19 @@ def test_the_target_never_outruns_its_speed_and_stays_on_the_line(poses, speed, 
         previous = q
 
 
-def test_the_session_engages_at_its_pose_and_presses_only_from_the_touch():
+def held_at_start() -> tuple[FingerSession, np.ndarray, np.ndarray]:
+    """A closed-loop session at START after its first tick (the start pose hold, no command
+    yet), the joints and the force it will be commanded."""
     cfg = config(q_d=tuple(GOAL), approach_speed=0.2, blind_speed=0.05, touch_force=0.15)
     session = FingerSession(cfg, KIN)
     q = Q16.copy()
     q[:4] = START
-    f_d = np.array([0.0, 0.0, 1.0])
-    session.update(0.0, q, ZERO16, NOTHING, 0.0, 0.0, None)         # start pose hold
+    session.update(0.0, q, ZERO16, NOTHING, 0.0, 0.0, None)
+    return session, q, np.array([0.0, 0.0, 1.0])
+
+
+def test_the_session_engages_at_its_pose_and_presses_only_from_the_touch():
+    session, q, f_d = held_at_start()
     log = []
     tau, state, transition = session.update(DT, q, ZERO16, NOTHING, 0.0, 0.0, f_d)
     log.append(str(transition))
@@ -99,12 +105,7 @@ def test_the_session_engages_at_its_pose_and_presses_only_from_the_touch():
 
 
 def test_a_target_at_q_d_before_any_touch_says_so_and_hands_over_to_force_control():
-    cfg = config(q_d=tuple(GOAL), approach_speed=0.2, blind_speed=0.05, touch_force=0.15)
-    session = FingerSession(cfg, KIN)
-    q = Q16.copy()
-    q[:4] = START
-    f_d = np.array([0.0, 0.0, 1.0])
-    session.update(0.0, q, ZERO16, NOTHING, 0.0, 0.0, None)
+    session, q, f_d = held_at_start()
     log, pressing = [], []
     for k in range(1, 200):     # 0.25 rad at 0.2 rad/s: q_d after 1.25 s, never a touch
         _, state, transition = session.update(k * DT, q, ZERO16, NOTHING, 0.0, 0.0, f_d)

@@ -126,7 +126,9 @@ def main(argv: list[str] | None = None) -> int:
                         help='folder for model files + report')
     parser.add_argument('--kinds', nargs='+', default=['M3-lambda'], choices=sorted(MODEL_KINDS),
                         help='model kinds to train (default: M3-lambda)')
-    parser.add_argument('--arrays', nargs='+', help='only these arrays (default: all found)')
+    parser.add_argument('--arrays', nargs='+',
+                        help='models for these arrays only (default: all found); with --shared '
+                             'the others found still join their kind\'s shared model')
     parser.add_argument('--hand-side', choices=SIDES, default=None,
                         help='the hand of the inputs (default: the one they name)')
     parser.add_argument('--lam', type=float, default=33.0, help='M3-lambda damping (paper: 33)')
@@ -221,23 +223,26 @@ def main(argv: list[str] | None = None) -> int:
             print(f'train: {name}: {exc}', file=sys.stderr)
             return None
 
+    # --arrays picks the models to make; with --shared every array found joins its kind's
+    # shared model all the same.
     prepared = {}
-    for name in names:
+    for name in sorted(by_array) if args.shared else names:
         array = hand.array(name)
         dataset = concatenate(by_array[name])
         if dataset.n_taxels != array.n_taxels:
             print(f'train: dataset for {name} has {dataset.n_taxels} taxels, the hand '
                   f'description {array.n_taxels}', file=sys.stderr)
             return 2
-        if args.save_dataset:
+        if args.save_dataset and name in names:
             dataset.save(args.out / f'{name}.npz')
         removed = without_offsets(name, dataset)
         if removed is None:
             return 2
         X, F, x_offset = removed
         prepared[name] = (dataset, X, F, x_offset)
-        report['normal_input_per_newton'][name] = normal_input_per_newton(
-            X, F, dataset.plates, array.rotations)
+        if name in names:
+            report['normal_input_per_newton'][name] = normal_input_per_newton(
+                X, F, dataset.plates, array.rotations)
     # --shared: the arrays of each kind of module, by kind of model (KindBlocks built once),
     # with the --pool hand's of that kind.
     pooled = {}
@@ -246,9 +251,9 @@ def main(argv: list[str] | None = None) -> int:
         if removed is None:
             return 2
         pooled[name] = (removed[0], removed[1], dataset.plates)
-    data = {**{n: (prepared[n][1], prepared[n][2], prepared[n][0].plates) for n in names},
+    data = {**{n: (prepared[n][1], prepared[n][2], prepared[n][0].plates) for n in prepared},
             **pooled}
-    kinship = {name: [n for n in names if hand.array(n).kind == hand.array(name).kind]
+    kinship = {name: [n for n in prepared if hand.array(n).kind == hand.array(name).kind]
                + [n for n, d in pool.items() if hand.array(d.array).kind == hand.array(name).kind]
                for name in names}
     blocks: dict = {}

@@ -193,6 +193,13 @@ def test_train_shared_adapts_the_kinds_model_and_says_how_each_was_made(hand, tm
         'own_seconds'] == pytest.approx(20.0, abs=0.5)
     md = (out / 'report.md').read_text()
     assert 'from 2 other arrays' in md and 'own data, 20 s of its own' in md
+    # --arrays picks the models made, not the arrays the shared model learns from.
+    one = tmp_path / 'one'
+    assert train.main([*map(str, paths), '--out', str(one), '--shared', '--no-cv',
+                       '--arrays', pads[0]]) == 0
+    assert sorted(p.name for p in one.glob('*.npz')) == [f'{pads[0]}_M3-lambda.npz']
+    assert sorted(load_model(one / f'{pads[0]}_M3-lambda.npz', hand.array(pads[0])).provenance[
+        'shared_from']) == sorted(pads[1:])
     with pytest.raises(SystemExit):
         train.main([*map(str, paths), '--out', str(out), '--shared', '--kinds', 'M4'])
     assert '--shared adapts M3, M3-lambda with a fixed damping only, not M4' in \

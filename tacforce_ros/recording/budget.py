@@ -55,10 +55,12 @@ class ExpectedError:
     """Expected held-out e_hat [N] of an array's adapted model per kind, against the seconds
     the array is pressed: points (seconds, e_hat) per kind, log-log interpolated between them
     and held at the ends (the curve says nothing outside its points: `expected` says which side
-    of them a value lies on)."""
+    of them a value lies on). `pooled`: the curves' shared models had the other hand's pool,
+    so a kind with fewer than three arrays on this hand still has a shared model."""
 
     curves: Mapping[str, tuple[tuple[float, float], ...]]
     source: str = ''
+    pooled: bool = False
 
     def __post_init__(self) -> None:
         for kind, points in self.curves.items():
@@ -87,17 +89,18 @@ class ExpectedError:
             raise BudgetError(f'{source or "the rows"}: no kind-curve rows (way {WAY!r}; '
                               '`learning_curve ... --kind-curve` makes them)')
         return cls({kind: tuple((s, float(np.mean(e))) for s, e in sorted(by_s.items()))
-                    for kind, by_s in points.items()}, source)
+                    for kind, by_s in points.items()}, source, ways == {WAYS[1]})
 
     def to_dict(self) -> dict[str, Any]:
-        return {'source': self.source,
+        return {'source': self.source, 'pooled': self.pooled,
                 'curves': {k: [list(p) for p in v] for k, v in self.curves.items()}}
 
     @classmethod
     def from_dict(cls, raw: Mapping[str, Any]) -> ExpectedError:
         try:
             return cls({str(k): tuple((float(s), float(e)) for s, e in v)
-                        for k, v in raw['curves'].items()}, str(raw.get('source', '')))
+                        for k, v in raw['curves'].items()}, str(raw.get('source', '')),
+                       bool(raw.get('pooled', False)))
         except (KeyError, TypeError, ValueError, AttributeError) as exc:
             raise BudgetError(f'expected error: not a curve set ({exc})') from None
 

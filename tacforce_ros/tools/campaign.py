@@ -124,9 +124,11 @@ def cmd_plan(args) -> int:
         for name in arrays:
             kinds[hand.array(name).kind] = kinds.get(hand.array(name).kind, 0) + 1
         few = {k: n for k, n in kinds.items() if n < 3}
-        if few:
+        if few and not expected.pooled:
             raise BudgetError(f'a budget plan gives each array the model its kind shares, which '
-                              f'needs three or more arrays of the kind; the plan has {few}')
+                              f'needs three or more arrays of the kind; the plan has {few} (or '
+                              'plan on kind curves made with the other hand\'s pool, '
+                              '`learning_curve --kind-curve --pool`)')
         allocation = allocate(budget_s, kinds, len(args.plates), expected, args.min_session,
                               args.reserve)
         budgeted = {'durations': {a: allocation.session_s[hand.array(a).kind] for a in arrays},
@@ -159,8 +161,10 @@ def cmd_plan(args) -> int:
         length = allocation.session_s[kind]
         print(f'| {kind} | {n} | {length:.0f} | {length * len(plan.plates):.0f} | '
               f'{allocation.expected_e_hat[kind]:.3f} |')
+    pool = ' --pool POOL' if expected.pooled else ''
     print(f'whole hand: expected e_hat {allocation.mean_e_hat:.3f} N (mean over arrays); train '
-          f'it with `train {campaign.folder} --out MODELS` (shared models, as --shared)')
+          f'it with `train {campaign.folder} --out MODELS{pool}` (shared models, as --shared'
+          + (', with the pool its curves had' if pool else '') + ')')
     return 0
 
 

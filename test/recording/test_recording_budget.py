@@ -46,6 +46,11 @@ def test_the_curves_are_the_kinds_means_of_the_kind_curve_rows():
                                          (200.0, pytest.approx(0.3)))}
     with pytest.raises(BudgetError, match='no kind-curve rows'):
         ExpectedError.from_rows(rows[-1:])
+    assert not curves.pooled
+    pooled = ExpectedError.from_rows([{**r, 'way': 'shared-kind+pool'} for r in rows[:-1]])
+    assert pooled.pooled and ExpectedError.from_dict(pooled.to_dict()) == pooled
+    with pytest.raises(BudgetError, match='with and without'):
+        ExpectedError.from_rows(rows[:1] + [{**rows[1], 'way': 'shared-kind+pool'}])
     for bad in ({'x': ()}, {'x': ((200.0, 0.3), (100.0, 0.4))}, {'x': ((100.0, -0.1),)}):
         with pytest.raises(BudgetError, match='increasing seconds'):
             ExpectedError(bad)

@@ -267,6 +267,21 @@ def test_a_bad_budget_is_refused_before_a_plan_is_written(tmp_path, capsys, argv
     assert not (folder / 'campaign.yaml').exists()
 
 
+def test_pooled_curves_plan_a_budget_for_fewer_than_three_arrays_of_a_kind(tmp_path, capsys):
+    """A lab that re-covers one pad: with kind curves made with the other hand's pool, its
+    shared model has arrays enough, and the plan says to train with the pool."""
+    curves = tmp_path / 'curves.json'
+    curves.write_text(json.dumps({'rows': [{'array': a, 'kind': k, 'seconds': s, 'e_hat_n': e,
+                                            'way': 'shared-kind+pool'}
+                                           for a, k in (('p', 'phalanx'), ('q', 'palm'))
+                                           for s, e in ((40.0, 0.6), (120.0, 0.4))]}))
+    folder = tmp_path / 'c'
+    assert campaign_tool.main(['plan', str(folder), '--arrays', *ARRAYS, '--plates', *PLATES,
+                               '--budget', '5m', '--curves', str(curves)]) == 0
+    assert '--pool POOL' in capsys.readouterr().out
+    assert Campaign(folder).plan.budget['expected']['pooled'] is True
+
+
 def test_a_short_session_is_asked_for_directions_and_rests_in_proportion():
     limits = CoverageLimits()
     assert limits.for_session(100.0) == limits.for_session(400.0) == limits

@@ -236,8 +236,11 @@ def main(argv: list[str] | None = None) -> int:
         if args.save_dataset and name in names:
             dataset.save(args.out / f'{name}.npz')
         removed = without_offsets(name, dataset)
-        if removed is None:
+        if removed is None and name in names:
             return 2
+        if removed is None:     # not asked for: it only leaves the shared model
+            print(f'train: {name} left out of its kind\'s shared model', file=sys.stderr)
+            continue
         X, F, x_offset = removed
         prepared[name] = (dataset, X, F, x_offset)
         if name in names:

@@ -1,4 +1,5 @@
 """Datasets, calibration bags -> dataset, and the train / bench command-line tools."""
+import dataclasses
 import json
 import subprocess
 
@@ -200,6 +201,19 @@ def test_train_shared_adapts_the_kinds_model_and_says_how_each_was_made(hand, tm
     assert sorted(p.name for p in one.glob('*.npz')) == [f'{pads[0]}_M3-lambda.npz']
     assert sorted(load_model(one / f'{pads[0]}_M3-lambda.npz', hand.array(pads[0])).provenance[
         'shared_from']) == sorted(pads[1:])
+    # An array not asked for, with no rest to take its offsets from, leaves the shared model only.
+    pressed = CalibrationDataset.load(paths[2])
+    shaken = pressed.F + np.random.default_rng(0).normal(0.0, 5.0, pressed.F.shape)
+    paths[2] = dataclasses.replace(pressed, F=shaken).save(
+        tmp_path / 'pressed.npz')
+    paths.append(synthetic_dataset(hand.array('middle_distal'), seconds=4.0, seed=7).save(
+        tmp_path / 'middle_distal.npz'))
+    capsys.readouterr()
+    assert train.main([*map(str, paths), '--out', str(one), '--shared', '--no-cv',
+                       '--arrays', pads[0]]) == 0
+    assert f'{pads[2]} left out' in capsys.readouterr().err
+    assert sorted(load_model(one / f'{pads[0]}_M3-lambda.npz', hand.array(pads[0])).provenance[
+        'shared_from']) == sorted([pads[1], 'middle_distal'])
     with pytest.raises(SystemExit):
         train.main([*map(str, paths), '--out', str(out), '--shared', '--kinds', 'M4'])
     assert '--shared adapts M3, M3-lambda with a fixed damping only, not M4' in \

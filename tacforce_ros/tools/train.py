@@ -47,12 +47,13 @@ from tacforce_ros.tools.calibration_inputs import (POOL_PREFIX, expand_campaigns
                                                    load_pool, model_hyper)
 
 
-def _budget_campaign(path: Path) -> bool:
+def _budget_of(path: Path) -> dict:
+    """The budget of a campaign planned with one; {} for anything else."""
     from tacforce_ros.recording.campaign import CampaignError, CampaignPlan, is_campaign
     try:
-        return is_campaign(path) and bool(CampaignPlan.load(path).budget)
+        return dict(CampaignPlan.load(path).budget or {}) if is_campaign(path) else {}
     except CampaignError:
-        return False        # expand_campaigns says what is wrong with it
+        return {}           # expand_campaigns says what is wrong with it
 
 
 def markdown_report(report: dict) -> str:
@@ -159,7 +160,13 @@ def main(argv: list[str] | None = None) -> int:
                         help='also write the processed dataset of each array (<out>/<array>.npz)')
     args = parser.parse_args(argv)
 
-    budgeted = [p for p in args.inputs if _budget_campaign(p)]
+    budgets = {p: _budget_of(p) for p in args.inputs}
+    budgeted = [p for p, budget in budgets.items() if budget]
+    pooled = [p for p in budgeted if budgets[p].get('expected', {}).get('pooled')]
+    if pooled and not args.pool:
+        print(f'train: {pooled[0]} was planned on kind curves with the other hand\'s pool; '
+              'without --pool its shared models lack those arrays and err more than planned',
+              file=sys.stderr)
     if budgeted and not args.shared and not (set(args.kinds) - set(BLOCK_KINDS)
                                              or args.lambda_cv):
         # A budget plan pressed each array too little for a model of its own alone.

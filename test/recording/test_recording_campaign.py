@@ -280,6 +280,8 @@ def test_pooled_curves_plan_a_budget_for_fewer_than_three_arrays_of_a_kind(tmp_p
                                '--budget', '5m', '--curves', str(curves)]) == 0
     assert '--pool POOL' in capsys.readouterr().out
     assert Campaign(folder).plan.budget['expected']['pooled'] is True
+    train.main([str(folder), '--out', str(tmp_path / 'models')])   # nothing pressed yet
+    assert 'planned on kind curves with the other hand\'s pool' in capsys.readouterr().err
 
 
 def test_a_short_session_is_asked_for_directions_and_rests_in_proportion():

@@ -13,7 +13,8 @@ from tacforce_ros.control.force_controller import shipped_params_file
 from tacforce_ros.control.grasp import GraspController, finger_configs
 from tacforce_ros.experiments.cache import (atomic_write, digest, file_digest, scene_digest,
                                             source_digest)
-from tacforce_ros.experiments.grasp import GraspTrace, grasp_metrics, run_grasp
+from tacforce_ros.experiments.grasp import (SETTLED_AFTER_HAND_OVER, GraspTrace, grasp_metrics,
+                                           run_grasp)
 from tacforce_ros.experiments.settings import (GRASP_CONTROLLERS, GRASP_FINGERS, GRASP_MODEL,
                                                Context, controller_config, hand_digest,
                                                scene_for, tare_frames)
@@ -97,7 +98,8 @@ def grasp_rows(traces: dict[tuple[str, float, str], list[str]],
     keys = sorted({(obj, grip) for obj, grip, _ in traces},
                   key=lambda k: (list(dict.fromkeys(o for o, _, _ in traces)).index(k[0]), k[1]))
     for obj, grip in keys:
-        closed = [grasp_metrics(load_grasp(p)) for p in traces[(obj, grip, GRASP_MODEL)]]
+        runs = [load_grasp(p) for p in traces[(obj, grip, GRASP_MODEL)]]
+        closed = [grasp_metrics(tr) for tr in runs]
         opened = [grasp_metrics(load_grasp(p)) for p in traces.get((obj, grip, 'open_loop'), [])]
         fingers = list(closed[0]['finger_error_n'])
         finger_error = float(np.mean([m['finger_error_mean_n'] for m in closed]))
@@ -121,23 +123,32 @@ def grasp_rows(traces: dict[tuple[str, float, str], list[str]],
             'open_loop_slip_mm': float(np.mean([m['slip_mm'] for m in opened])) if opened
             else None,
             'grip_raised_to_n': float(np.max([m['grip_raised_to_n'] for m in closed])),
-            'estimate_gain': _estimate_gain([load_grasp(p) for p in
-                                             traces[(obj, grip, GRASP_MODEL)]]),
+            'estimate_gain': _estimate_gain(runs, holding=False),
+            'estimate_gain_holding': _estimate_gain(runs, holding=True),
         })
     return rows
 
 
-def _estimate_gain(traces: list[GraspTrace]) -> dict[str, float | None]:
+def _estimate_gain(traces: list[GraspTrace], holding: bool) -> dict[str, float | None]:
     """Per finger, the least-squares slope of the estimate's component along d_i over the true
-    force's, while the fixture held the object and the finger pressed it (its true force along
-    d_i at least the law's touch_force): how the model reads this contact (1: as it is)."""
+    force's while the finger pressed the object (its true force along d_i at least the law's
+    touch_force): how the model reads this contact (1: as it is). `holding` False: while the
+    fixture held the object; True: where grasp_metrics judges the hold (from
+    SETTLED_AFTER_HAND_OVER s after the hand-over), the fingers alone carrying it. The closed
+    loop regulates the mean of the fingers' estimates along d_i, so a mean holding gain off 1
+    is about as far off its grip."""
     touched = controller_config(GRASP_MODEL).touch_force
     gains = {}
     for i, finger in enumerate(traces[0].fingers):
         est, true = [], []
         for tr in traces:
             along = np.einsum('ti,ti->t', tr.f_true[:, i], tr.directions[:, i])
-            held = tr.held_by_fixture & np.isfinite(tr.f_hat[:, i, 0]) & (along >= touched)
+            if holding:
+                released = int((~tr.held_by_fixture).argmax())
+                window = tr.t >= tr.t[released] + SETTLED_AFTER_HAND_OVER
+            else:
+                window = tr.held_by_fixture
+            held = window & np.isfinite(tr.f_hat[:, i, 0]) & (along >= touched)
             est.append(np.einsum('ti,ti->t', tr.f_hat[held, i], tr.directions[held, i]))
             true.append(along[held])
         est, true = np.concatenate(est), np.concatenate(true)

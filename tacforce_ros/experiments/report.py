@@ -534,16 +534,21 @@ def grasp_section(grasp: dict | None) -> list[str]:
              "First touch: the worst fingertip's peak contact force before the hand-over over "
              "its command. Slip: mm the object moved from the hand-over to the end. Estimate "
              "gain: the estimate along d_i over the contact force along it, per finger, while "
-             "the fixture held the object (1: the model reads this contact as it is). One "
+             "the fixture held the object / in the judged hold, the fingers alone carrying it "
+             "(1: the model reads this contact as it is). The closed loop regulates the mean "
+             "of the two estimates along d_i, so where the mean holding gain is off 1 the grip "
+             "is about as far off. One "
              "grasp through the node graph (grasp_controller's Grasp action): \"Node graph "
              "against direct path\" below.", '',
              '| object | grip [N] | runs | drops | e~ per finger [N] | open loop [N] '
              '| reduction | single finger [N] | grip error [N] | first touch / command '
              '| slip [mm] mean / max | open-loop slip [mm] | grip raised to [N] '
-             '| estimate gain |',
+             '| estimate gain, fixture / holding |',
              '|---|---|---|---|---|---|---|---|---|---|---|---|---|---|']
     for row in grasp['rows']:
-        gain = ', '.join(f'{f} {cell(g)}' for f, g in row['estimate_gain'].items())
+        holding = row.get('estimate_gain_holding') or {}    # reports before it lack it
+        gain = ', '.join(f'{f} {cell(g)}' + (f' / {cell(holding[f])}' if f in holding else '')
+                         for f, g in row['estimate_gain'].items())
         lines.append('| ' + ' | '.join([
             row['object'], f"{row['grip_n']:g}", str(row['runs']),
             f"{row['drops']} (open loop {row['open_loop_drops']})", cell(row['finger_error_n']),

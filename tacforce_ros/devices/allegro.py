@@ -307,6 +307,8 @@ class AllegroV4Driver(PollingDriver[JointSample]):
     def _on_fatal(self, error: BaseException) -> None:
         self._make_safe()
 
-    def _shutdown(self) -> None:
+    def _before_stop(self) -> None:
         self.servos_off()
+
+    def _shutdown(self) -> None:
         self.bus.shutdown()

@@ -50,6 +50,12 @@ class PollingDriver(abc.ABC, Generic[SampleT]):
     def _on_fatal(self, error: BaseException) -> None:
         """Hook for drivers that must make the device safe on an unexpected error."""
 
+    def _before_stop(self) -> None:
+        """Hook for drivers that must make the device safe on close(): called while the
+        background thread still reads the link. Stopped first, a streaming device fills the
+        unread link, and a server may cut a client off that does not read (the emulated
+        Allegro's socketcand did, 2.5 s after the reads stopped, losing the servo-off)."""
+
     def add_callback(self, callback: Callable[[SampleT], None]) -> None:
         """Call ``callback(sample)`` for every delivered sample (from the polling thread)."""
         self._callbacks.append(callback)
@@ -114,10 +120,12 @@ class PollingDriver(abc.ABC, Generic[SampleT]):
         return self.diagnostics.age() > self.stale_after
 
     def close(self) -> None:
-        """Stop the thread, make the device safe, release the transport. Idempotent."""
+        """Make the device safe (``_before_stop``), stop the thread, release the transport
+        (``_shutdown``). Idempotent."""
         if self._closed:
             return
         self._closed = True
+        self._before_stop()
         self._stop.set()
         if self._thread is not None and self._thread is not threading.current_thread():
             self._thread.join(timeout=5.0)

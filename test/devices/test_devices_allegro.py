@@ -124,6 +124,24 @@ def test_pose_stream_torques_and_safe_close(hand):
     assert np.all(hand.torque_log[-1] == 0)
 
 
+def test_close_makes_the_hand_safe_while_it_still_reads_the_link(hand):
+    """Its reader stopped first, the hand's pose stream filled the unread socket, and the
+    emulator's server cut the driver off before its servo-off went out (once in a fresh clone's
+    suite; 2.5 s of unread stream did it by hand)."""
+    seen = []
+    forward = hand.server.on_frame
+    with AllegroV4Driver(socketcand_config(hand.address)) as driver:
+        driver.start()
+        assert driver.wait_for_samples(5, timeout=EVENT_TIMEOUT)
+
+        def spy(message):
+            seen.append((message.arbitration_id, driver._thread.is_alive()))
+            forward(message)
+        hand.server.on_frame = spy
+    assert wait_until(lambda: not hand.servo_on and hand.period_ms == 0, EVENT_TIMEOUT)
+    assert (wire_id(CMD_SYSTEM_OFF), True) in seen
+
+
 def test_wrong_dlc_and_unknown_ids_are_counted_and_the_stream_continues(hand):
     with AllegroV4Driver(socketcand_config(hand.address)) as driver:
         driver.start()

@@ -12,7 +12,8 @@ from devices_support import wait_until
 from tacforce_ros.sim.emulators.socketcand import CLIENT_QUEUE_FRAMES, SocketcandServer
 
 FRAMES_PER_WRITE = 100
-WRITES = 3000            # ~12 MB of frame lines: more than loopback's socket buffers hold
+WRITES = 3000            # ~12 MB of frame lines, far more than the sockets' buffers hold
+CLIENT_BUFFER = 1 << 14  # bytes: the client's receive buffer, fixed (no autotuning)
 
 
 def _expect(sock: socket.socket, text: bytes) -> None:
@@ -26,8 +27,11 @@ def _expect(sock: socket.socket, text: bytes) -> None:
 def test_a_client_that_does_not_read_loses_frames_not_its_connection():
     bus = []
     server = SocketcandServer(bus.append)
-    sock = socket.create_connection(server.address, timeout=5.0)
+    sock = socket.socket()
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, CLIENT_BUFFER)
+    sock.settimeout(5.0)
     try:
+        sock.connect(server.address)
         _expect(sock, b'< hi >')
         sock.sendall(b'< open can0 >')
         _expect(sock, b'< ok >')

@@ -53,8 +53,8 @@ class PollingDriver(abc.ABC, Generic[SampleT]):
     def _before_stop(self) -> None:
         """Hook for drivers that must make the device safe on close(): called while the
         background thread still reads the link. Stopped first, a streaming device fills the
-        unread link, and a server may cut a client off that does not read (the emulated
-        Allegro's socketcand did, 2.5 s after the reads stopped, losing the servo-off)."""
+        unread link, and a server that cuts off a client that does not read loses what is sent
+        after."""
 
     def add_callback(self, callback: Callable[[SampleT], None]) -> None:
         """Call ``callback(sample)`` for every delivered sample (from the polling thread)."""

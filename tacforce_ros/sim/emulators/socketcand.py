@@ -55,13 +55,12 @@ def parse_send(command: str) -> can.Message:
 class _Client:
     """One TCP client. Its own thread writes to it, blocking while the client does not read (as
     socketcand's process for it does); the bus's frames queue for it meanwhile, up to
-    CLIENT_QUEUE_FRAMES, and the rest are dropped (`dropped`)."""
+    CLIENT_QUEUE_FRAMES, and the rest are dropped (the server counts them)."""
 
     def __init__(self, sock: socket.socket, on_gone: Callable[[_Client], None]) -> None:
         self.sock = sock
         self.joined_at = float('inf')     # monotonic time from which it receives bus frames
         self.rawmode_at: float | None = None
-        self.dropped = 0
         self._on_gone = on_gone
         self._queue: deque[tuple[bytes, int]] = deque()    # (payload, bus frames in it)
         self._queued_frames = 0
@@ -78,7 +77,6 @@ class _Client:
         """Bus frames for the client; returns how many were dropped (its queue full)."""
         with self._ready:
             if self._queued_frames + frames > CLIENT_QUEUE_FRAMES:
-                self.dropped += frames
                 return frames
         self._put(payload, frames)
         return 0

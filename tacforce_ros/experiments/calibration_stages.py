@@ -133,51 +133,75 @@ def benchmark_stage(ctx: Context, layout: dict) -> tuple[dict, dict]:
     return {a: {label: cv[a][label] for label in s.models} for a in ARRAYS}, models
 
 
-def whole_hand_stage(ctx: Context, cv: dict, table_i_layout: dict
-                     ) -> tuple[dict, dict[str, str], dict[str, str]]:
-    """The whole-hand campaign: every array not in Table I, one session per training plate of
-    `whole_hand_seconds`, M3-lambda leave-one-plate-out; the Table I arrays keep their rows. The
-    fingertips a grasp needs (GRASP_ARRAYS) have Table I's sessions instead, and keep the model
-    fitted on all five plates.
-    Returns ({array: {'type', 'sessions', 'seconds', 'cv'}} in hand order, {array: model path}
-    of those fingertips, {array: training set path} of every array, Table I's from
-    `table_i_layout`)."""
-    s = ctx.settings
-    hand, _ = worker_hand()
-    others = [a.name for a in hand.arrays if a.name not in ARRAYS]
+def _whole_hand_units(ctx: Context, arrays: list[str], sessions: int, seconds: float
+                      ) -> tuple[dict[str, list[str]], list]:
+    """({array: session paths}, job units not cached) of `sessions` per training plate."""
     jobs, layout = [], {}
-    for array in others:
-        # A grasp's fingertip is calibrated as the Table I arrays are (its model then stands
-        # beside the index fingertip's in the grasp): the whole-hand quarter of that data left
-        # the thumb's M3-lambda reading a pinched ball at 2-7x its force on the magnetic skin
-        # (held-out e_hat 0.32 N against 0.27 N with the full data).
-        sessions, seconds = (s.sessions_per_plate, s.session_seconds) if array in GRASP_ARRAYS \
-            else (1, s.whole_hand_seconds)
+    for array in arrays:
         for plate in PLATES:
             for session in range(sessions):
                 path, job = calibration_unit(ctx, array, plate, session, seconds)
                 layout.setdefault(array, []).append(path)
                 jobs += [job] if job is not None else []
+    return layout, jobs
+
+
+def grasp_arrays_stage(ctx: Context) -> tuple[dict[str, dict], dict[str, str], dict[str, str]]:
+    """The fingertips a grasp needs beyond Table I's (GRASP_ARRAYS), calibrated as the Table I
+    arrays are, WHOLE_HAND_MODEL 5-fold leave-one-plate-out and fitted on all five plates (its
+    model then stands beside the index fingertip's in the grasp): the whole-hand quarter of that
+    data left the thumb's M3-lambda reading a pinched ball at 2-7x its force on the magnetic
+    skin (held-out e_hat 0.32 N against 0.27 N with the full data).
+    Returns ({array: cv summary}, {array: model path}, {array: training set path})."""
+    s = ctx.settings
+    layout, jobs = _whole_hand_units(ctx, list(GRASP_ARRAYS), s.sessions_per_plate,
+                                     s.session_seconds)
+    ctx.log(f'stage grasp fingertips: {len(GRASP_ARRAYS)} arrays x {len(PLATES)} plates, '
+            f'{len(jobs)} sessions to simulate')
+    run_units(ctx, 'grasp fingertip sessions', jobs)
+    sets = training_sets(ctx, 'grasp fingertip training sets', layout)
+    kind, hyper = model_hyper(WHOLE_HAND_MODEL, s)
+    results, jobs, keys, final = {}, [], {}, {}
+    for array, paths in layout.items():
+        keys[array] = _training_key(paths, WHOLE_HAND_MODEL, s)
+        target = ctx.cache.path('models', keys[array], '.npz')
+        final[array] = str(target)
+        cached = ctx.cache.load_json('cross_validation', keys[array])
+        if cached is not None and ctx.cache.lookup('models', keys[array], '.npz') is not None:
+            results[array] = cached
+            continue
+        target.parent.mkdir(parents=True, exist_ok=True)
+        provenance = {'dataset': f'reproduce cache {keys[array][:24]}', 'date':
+                      time.strftime('%Y-%m-%dT%H:%M:%S%z'), 'seed': s.seed,
+                      'code_version': source_digest(fit_bundles)[:12]}
+        jobs.append((array, job_benchmark, (array, kind, hyper, sets[array], provenance,
+                                            str(target))))
+    for array, value in run_units(ctx, 'grasp fingertip fits', jobs).items():
+        ctx.cache.store_json('cross_validation', keys[array], value)
+        results[array] = value
+    return results, final, sets
+
+
+def whole_hand_stage(ctx: Context, cv: dict, table_i_layout: dict, grasp_cv: dict[str, dict],
+                     grasp_sets: dict[str, str]) -> tuple[dict, dict[str, str]]:
+    """The whole-hand campaign: every array not in Table I nor a grasp's fingertip, one session
+    per training plate of `whole_hand_seconds`, WHOLE_HAND_MODEL leave-one-plate-out; the Table I
+    arrays and the grasp's fingertips (grasp_arrays_stage) keep their rows.
+    Returns ({array: {'type', 'sessions', 'seconds', 'cv'}} in hand order, {array: training set
+    path} of every array, Table I's from `table_i_layout`)."""
+    s = ctx.settings
+    hand, _ = worker_hand()
+    others = [a.name for a in hand.arrays if a.name not in ARRAYS and a.name not in GRASP_ARRAYS]
+    layout, jobs = _whole_hand_units(ctx, others, 1, s.whole_hand_seconds)
     ctx.log(f'stage whole hand: {len(others)} arrays x {len(PLATES)} plates, {len(jobs)} '
             'sessions to simulate')
     run_units(ctx, 'whole-hand sessions', jobs)
     sets = training_sets(ctx, 'whole-hand training sets', layout)
     kind, hyper = model_hyper(WHOLE_HAND_MODEL, s)
-    results, cv_jobs, keys, final = {}, [], {}, {}
+    results, cv_jobs, keys = dict(grasp_cv), [], {}
     for array, paths in layout.items():
         keys[array] = _training_key(paths, WHOLE_HAND_MODEL, s)
         cached = ctx.cache.load_json('cross_validation', keys[array])
-        if array in GRASP_ARRAYS:
-            target = ctx.cache.path('models', keys[array], '.npz')
-            final[array] = str(target)
-            if cached is None or ctx.cache.lookup('models', keys[array], '.npz') is None:
-                target.parent.mkdir(parents=True, exist_ok=True)
-                provenance = {'dataset': f'reproduce cache {keys[array][:24]}', 'date':
-                              time.strftime('%Y-%m-%dT%H:%M:%S%z'), 'seed': s.seed,
-                              'code_version': source_digest(fit_bundles)[:12]}
-                cv_jobs.append((array, job_benchmark, (array, kind, hyper, sets[array],
-                                                       provenance, str(target))))
-                continue
         if cached is None:
             cv_jobs.append((array, job_cross_validation, (array, kind, hyper, sets[array])))
         else:
@@ -185,6 +209,7 @@ def whole_hand_stage(ctx: Context, cv: dict, table_i_layout: dict
     for array, value in run_units(ctx, 'whole-hand cross-validations', cv_jobs).items():
         ctx.cache.store_json('cross_validation', keys[array], value)
         results[array] = value
+    sets.update(grasp_sets)
     sets.update(training_sets(ctx, 'training sets', {
         array: [p for plate in PLATES for p in table_i_layout[array][plate]]
         for array in ARRAYS}))
@@ -200,7 +225,7 @@ def whole_hand_stage(ctx: Context, cv: dict, table_i_layout: dict
         else:
             rows[array.name] = {'type': array.kind, 'sessions': 1,
                                 'seconds': s.whole_hand_seconds, 'cv': results[array.name]}
-    return rows, final, sets
+    return rows, sets
 
 
 def cross_array_stage(ctx: Context, sets: dict[str, str], whole_hand: dict) -> dict:

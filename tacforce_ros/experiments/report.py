@@ -12,7 +12,7 @@ from typing import Any
 
 from tacforce_ros.bringup.processes import unclean_exits
 from tacforce_ros.experiments import paper_reference as paper
-from tacforce_ros.experiments.settings import GRASP_ARRAYS
+from tacforce_ros.experiments.settings import EXTENDED_STAGES, GRASP_ARRAYS
 from tacforce_ros.experiments.skin_targets import (LOOP_REDUCTION, LOOP_TRACK, loop_reason,
                                                   targets)
 from tacforce_ros.hand.description import ARRAY_KIND_TITLES
@@ -344,7 +344,9 @@ def shipped_models_section(rows: list[dict] | None) -> list[str]:
     return lines + ['']
 
 
-def whole_hand_section(rows: dict, settings: dict) -> list[str]:
+def whole_hand_section(rows: dict | None, settings: dict) -> list[str]:
+    if not rows:
+        return []
     lines = ['## Whole hand — M3λ on every array, 5-fold leave-one-plate-out', '',
              f"Every array pressed on the five training plates: the Table I arrays and the "
              f"grasp's ({', '.join(GRASP_ARRAYS)}) at the sizes above, the others "
@@ -597,7 +599,8 @@ def markdown(doc: dict) -> str:
              f"(paper: 5 objects, 5 runs); metrics over t = 16..70 s; control and estimation "
              f"at {s['control_rate']:g} Hz",
              f"* skin: {SKIN_TITLES[s['skin']]}",
-             f"* cache: {run['cache']['hits']} hits, {run['cache']['misses']} misses", '']
+             f"* cache: {run['cache']['hits']} hits, {run['cache']['misses']} misses",
+             *extensions_lines(s.get('extended', ())), '']
     lines += ['## Which path produced which result', '']
     lines += [f'* {item}' for item in doc['paths']] + ['']
 
@@ -689,6 +692,47 @@ def markdown(doc: dict) -> str:
     lines += skin_targets_section(doc['skin_targets'])
     lines += node_path_section(doc['node_path'], doc['node_tolerance_reason'])
     lines += ['## Figures', ''] + [f'* [{name}]({name})' for name in doc['figures']] + ['']
-    lines += ['## Stage wall times [s]', '', '| stage | s |', '|---|---|']
-    lines += [f'| {k} | {v:.1f} |' for k, v in run['stage_seconds'].items()] + ['']
+    lines += skin_sensitivity_section(doc.get('skin_sensitivity'))
+    lines += stage_times_section(run)
     return '\n'.join(lines)
+
+
+def extensions_lines(extended) -> list[str]:
+    """Which of the longer extensions this run added, and how to add the others."""
+    left = [name for name in EXTENDED_STAGES if name not in extended]
+    lines = [f"* extensions: {', '.join(extended) if extended else 'none'}"]
+    if left:
+        lines.append(f"* not run: {', '.join(left)} (`reproduce --extended` adds them all, "
+                     '`--stages NAME ...` those named)')
+    return lines
+
+
+def skin_sensitivity_section(result: dict | None) -> list[str]:
+    if not result:
+        return []
+    met = sum(t['met'] == len(t['values']) for t in result['targets'])
+    return ["## The magnetic skin's sensitivity to its estimated parameters", '',
+            f"The skin_sensitivity tool's tables: [{result['files'][0]}]({result['files'][0]}) "
+            f"(JSON beside it); {met} of {len(result['targets'])} targets met at the values in "
+            'every seed.', '']
+
+
+def stage_times_section(run: dict) -> list[str]:
+    """Each stage's wall time; for the stages run in the worker pool their units' count, summed
+    and longest time (the stage's critical path), and the run's predicted wall time by workers."""
+    units = run.get('stage_units', {})
+    lines = ['## Stage wall times [s]', '',
+             'Pool stages: units, their summed time (work) and the longest unit (the critical '
+             'path, which more cores cannot shorten); the other stages run in the main process.',
+             '', '| stage | wall [s] | units | work [s] | longest unit [s] |',
+             '|---|---|---|---|---|']
+    for name, wall in run['stage_seconds'].items():
+        u = units.get(name)
+        lines.append(f'| {name} | {wall:.1f} | ' + (
+            f"{u['units']} | {u['work_s']:.1f} | {u['longest_s']:.1f} |" if u else '– | – | – |'))
+    predicted = run.get('predicted_seconds')
+    if predicted:
+        lines += ['', 'Predicted wall time with N workers (one a core; each pool stage takes its '
+                  'work over N or its longest unit, the rest as measured): '
+                  + ', '.join(f'{n}: {v:.0f} s' for n, v in predicted.items()) + '.']
+    return lines + ['']

@@ -36,15 +36,17 @@ from tacforce_ros.experiments import grasp_stages as grasp
 from tacforce_ros.experiments import estimation_stages as estimation
 from tacforce_ros.experiments import loop_stages as loop
 from tacforce_ros.experiments import report
-from tacforce_ros.experiments.settings import (CONTROLLERS, GRASP_MODEL, PLATES, SKINS,
-                                             WHOLE_HAND_MODEL, Context, Settings)
-from tacforce_ros.experiments.workers import init_worker, load_trace
+from tacforce_ros.experiments.settings import (CONTROLLERS, EXTENDED_STAGES, GRASP_MODEL, PLATES,
+                                               SKINS, WHOLE_HAND_MODEL, Context, Settings,
+                                               with_needs)
+from tacforce_ros.experiments.workers import init_worker, load_trace, predicted_seconds
 from tacforce_ros.rig import HELD_OUT_PLATE
 from tacforce_ros.experiments.cache import StageCache
 from tacforce_ros.experiments.node_path import AGREEMENT_N, AGREEMENT_REASON
 from tacforce_ros.paths import output_folder
 
 DEFAULT_OUT = Path(__file__).resolve().parents[2] / 'out'
+PREDICTED_WORKERS = (1, 2, 4, 8, 16)     # the report's wall-time predictions, by worker count
 
 PATHS = [
     'Direct path (core objects composed in-process, faster than real time): every calibration '
@@ -66,18 +68,21 @@ NODE_TOLERANCE_REASON = (
 
 
 def figures(out: Path, cv: dict, table_i: dict, end_to_end: dict, traces: dict,
-            whole_hand: dict, learning: list[dict]) -> list[str]:
+            whole_hand: dict | None, learning: list[dict]) -> list[str]:
     from tacforce_ros.experiments import plots
     from tacforce_ros.hand.description import load_hand
     from tacforce_ros.hand.figure import hand_errors
     from tacforce_ros.estimation.learning_curve import plot_curves
-    names = [plots.accuracy_vs_time(table_i, end_to_end, out / 'accuracy_vs_time.png').name,
-             plot_curves(learning, out / 'learning_curve.png',
-                         'SIMULATION: held-out e_hat against labelled seconds').name,
-             plots.per_plate_errors(cv, out / 'per_plate_errors.png').name,
-             hand_errors(load_hand(), {a: row['cv']['e_hat_mean'] for a, row in whole_hand.items()},
-                         f'SIMULATION, {WHOLE_HAND_MODEL}: held-out e_hat [N]',
-                         out / 'whole_hand.png').name]
+    names = [plots.accuracy_vs_time(table_i, end_to_end, out / 'accuracy_vs_time.png').name]
+    if learning:
+        names.append(plot_curves(learning, out / 'learning_curve.png',
+                                 'SIMULATION: held-out e_hat against labelled seconds').name)
+    names.append(plots.per_plate_errors(cv, out / 'per_plate_errors.png').name)
+    if whole_hand:
+        names.append(hand_errors(load_hand(),
+                                 {a: row['cv']['e_hat_mean'] for a, row in whole_hand.items()},
+                                 f'SIMULATION, {WHOLE_HAND_MODEL}: held-out e_hat [N]',
+                                 out / 'whole_hand.png').name)
     by_object: dict[str, dict] = {}
     for (obj, controller), paths in traces.items():
         by_object.setdefault(obj, {})[controller] = [load_trace(p) for p in paths]
@@ -130,22 +135,55 @@ def physics_step_us(steps: int = 2000, repeats: int = 3) -> float:
     return 1e6 * best / steps
 
 
+def skin_sensitivity_stage(ctx: Context, jobs: int) -> dict:
+    """The skin_sensitivity tool on the run's session length, epochs and seed into
+    <out>/skin_sensitivity/ (without sensitivity_variants: the values alone, no closed loop);
+    returns the targets it judged and where its tables are."""
+    from tacforce_ros.experiments import skin_sensitivity
+    s = ctx.settings
+    folder = ctx.out / 'skin_sensitivity'
+    folder.mkdir(parents=True, exist_ok=True)
+    args = ['--out', str(folder), '--jobs', str(jobs), '--seeds', str(s.seed),
+            '--seconds', f'{s.whole_hand_seconds:g}', '--epochs', str(s.epochs)]
+    if not s.sensitivity_variants:
+        args += ['--params', '--closed-loop']
+    ctx.log('stage skin sensitivity: ' + ' '.join(args))
+    started = time.perf_counter()
+    with contextlib.redirect_stdout(sys.stderr):
+        skin_sensitivity.main(args)
+    ctx.timings['skin sensitivity'] = time.perf_counter() - started
+    result = json.loads((folder / 'skin_sensitivity.json').read_text())
+    return {'files': ['skin_sensitivity/skin_sensitivity.md',
+                      'skin_sensitivity/skin_sensitivity.json'],
+            'targets': result['targets']}
+
+
 def run(settings: Settings, out: Path, jobs: int) -> dict:
     from tacforce_ros.experiments.closed_loop import trace_metrics
     started = time.perf_counter()
     load_before = os.getloadavg()
     step_before = physics_step_us()
     cache = StageCache(out / 'cache')
+    extended = set(settings.extended)
+    whole_hand = cross_array = budget_campaign = sensitivity = None
+    learning: list[dict] = []
     with workers(jobs) as pool:
         ctx = Context(settings=settings, out=out, cache=cache, pool=pool,
                                log=lambda line: print(line, file=sys.stderr, flush=True))
         layout = calibration.calibration_stage(ctx)
         cv, models = calibration.benchmark_stage(ctx, layout)
-        learning = calibration.learning_curve_stage(ctx, layout)
-        whole_hand, whole_hand_models, sets = calibration.whole_hand_stage(ctx, cv, layout)
-        cross_array = calibration.cross_array_stage(ctx, sets, whole_hand)
-        learning += calibration.shared_curve_stage(ctx, layout, sets)
-        budget_campaign = budget.budget_stage(ctx)
+        grasp_cv, grasp_arrays, grasp_sets = calibration.grasp_arrays_stage(ctx)
+        if 'learning_curve' in extended:
+            learning = calibration.learning_curve_stage(ctx, layout)
+        if 'whole_hand' in extended:
+            whole_hand, sets = calibration.whole_hand_stage(ctx, cv, layout, grasp_cv,
+                                                            grasp_sets)
+            if 'cross_array' in extended:
+                cross_array = calibration.cross_array_stage(ctx, sets, whole_hand)
+            if 'learning_curve' in extended:
+                learning += calibration.shared_curve_stage(ctx, layout, sets)
+        if 'budget' in extended:
+            budget_campaign = budget.budget_stage(ctx)
         timing = estimation.timing_stage(ctx, models)
         online = estimation.online_stage(ctx, layout, models)
         end_to_end = estimation.end_to_end_stage(ctx, layout, models, timing,
@@ -154,9 +192,11 @@ def run(settings: Settings, out: Path, jobs: int) -> dict:
         plain = traces.get((HELD_OUT_PLATE, 'M3-lambda'))
         filtered = None if plain is None else \
             loop.filtered_closed_loop_stage(ctx, models, end_to_end)
-        grasp_models = grasp.grasp_model_config(ctx, models, whole_hand_models)
+        grasp_models = grasp.grasp_model_config(ctx, models, grasp_arrays)
         grasp_traces = grasp.grasp_stage(ctx, grasp_models)
     node = loop.node_path_stage(ctx, models, grasp_models)
+    if 'skin_sensitivity' in extended:
+        sensitivity = skin_sensitivity_stage(ctx, jobs)
     closed = {key: trace_metrics([load_trace(p) for p in paths])
               for key, paths in traces.items()}
     filter_effect = None if filtered is None else report.filter_closed_loop(
@@ -181,16 +221,20 @@ def run(settings: Settings, out: Path, jobs: int) -> dict:
         'node_tolerance_reason': NODE_TOLERANCE_REASON,
         'grasp': {'rows': grasp_rows, 'must_show': grasp.grasp_must_show(grasp_rows),
                   'hand_over_s': grasp.hand_over_after_goal(settings.grasp_objects[0])},
-        'learning_curve': {'rows': learning},
+        'learning_curve': {'rows': learning} if learning else None,
         'shipped_models': shipped_models(out / 'models'),
         'cross_array': cross_array,
         'budget_campaign': budget_campaign,
+        'skin_sensitivity': sensitivity,
         'figures': (figures(out, cv, table_i, end_to_end, traces, whole_hand, learning)
                     + grasp.grasp_figures(grasp_traces, out)),
     }
     # What differs between two runs of the same inputs lives under 'run' only.
+    wall = time.perf_counter() - started
     doc['run'] = {'date': time.strftime('%Y-%m-%dT%H:%M:%S%z'), 'code_version': results.commit(),
-                  'wall_seconds': time.perf_counter() - started, 'stage_seconds': ctx.timings,
+                  'wall_seconds': wall, 'stage_seconds': ctx.timings, 'stage_units': ctx.units,
+                  'predicted_seconds': {str(n): predicted_seconds(ctx.timings, ctx.units, wall, n)
+                                        for n in PREDICTED_WORKERS},
                   'cache': {'hits': cache.hits, 'misses': cache.misses},
                   'machine': {'cpus': os.cpu_count(), 'jobs': jobs, 'load_before': load_before,
                               'load_after': os.getloadavg(),
@@ -210,8 +254,15 @@ def main(argv: list[str] | None = None) -> int:
                         help='skip the node-graph session and run (the report says so)')
     parser.add_argument('--node-path', action='store_true',
                         help='run the node-graph session and run even with --quick')
-    parser.add_argument('--jobs', type=int, default=min(2, os.cpu_count() or 1),
-                        help='worker processes (default: 2)')
+    parser.add_argument('--extended', action='store_true',
+                        help='add every longer extension: ' + ', '.join(EXTENDED_STAGES))
+    parser.add_argument('--stages', nargs='+', default=[], metavar='STAGE',
+                        choices=list(EXTENDED_STAGES),
+                        help='add these extensions (and those they need): '
+                             + '; '.join(f'{k}: {v}' for k, v in EXTENDED_STAGES.items()))
+    parser.add_argument('--workers', '--jobs', dest='jobs', type=int,
+                        default=os.cpu_count() or 1,
+                        help=f'worker processes (default: the cores, {os.cpu_count()} here)')
     parser.add_argument('--seed', type=int, default=0, help='base seed of sessions and runs')
     parser.add_argument('--skin', choices=SKINS, default=Settings.skin,
                         help='the simulated skin of every scene: magnetic (default), computed '
@@ -224,7 +275,9 @@ def main(argv: list[str] | None = None) -> int:
     settings = Settings.quick() if args.quick else Settings()
     settings = dataclasses.replace(settings, seed=args.seed, skin=args.skin,
                                    node_path=(settings.node_path or args.node_path)
-                                   and not args.no_node_path)
+                                   and not args.no_node_path,
+                                   extended=with_needs(EXTENDED_STAGES if args.extended
+                                                       else args.stages))
     doc = run(settings, args.out, args.jobs)
     (args.out / 'report.json').write_text(json.dumps(doc, indent=1, default=str))
     text = report.markdown(doc)

@@ -53,6 +53,33 @@ FILTER_CUTOFFS_HZ = (None, 20.0, 10.0, 5.0)
 NODE_LATENCY_SECONDS = 10.0      # bench_ros's latency test, frames at 100 Hz
 
 
+# The main job's longer extensions, run on request (`reproduce --extended`, or named with
+# `--stages`); the default run is the paper's experiments, the grasp and the node graph's check.
+EXTENDED_STAGES = {
+    'whole_hand': 'every other array pressed on the five training plates, M3-lambda '
+                  'leave-one-plate-out per array (the whole-hand table, whole_hand.png)',
+    'cross_array': "each array's M3-lambda on every other array of its kind, unadapted "
+                   '(needs whole_hand)',
+    'learning_curve': 'held-out e_hat against labelled seconds, own and shared models '
+                      '(needs whole_hand)',
+    'budget': 'a 60-minute campaign with the mirror hand pooled, against the full plan',
+    'skin_sensitivity': "Table I with each of the magnetic skin's estimated parameters varied "
+                        '(the skin_sensitivity tool)',
+}
+STAGE_NEEDS = {'cross_array': ('whole_hand',), 'learning_curve': ('whole_hand',)}
+
+
+def with_needs(stages) -> tuple[str, ...]:
+    """The stages and those they need, in EXTENDED_STAGES' order."""
+    wanted = set(stages)
+    for stage in stages:
+        wanted.update(STAGE_NEEDS.get(stage, ()))
+    unknown = sorted(wanted - set(EXTENDED_STAGES))
+    if unknown:
+        raise ValueError(f'unknown stage(s) {unknown}: one of {list(EXTENDED_STAGES)}')
+    return tuple(s for s in EXTENDED_STAGES if s in wanted)
+
+
 @dataclass(frozen=True)
 class Settings:
     """Data sizes and choices of one run (the defaults are the full run)."""
@@ -96,6 +123,10 @@ class Settings:
     budget_minutes: float = 60.0
     budget_min_session_s: float = MIN_SESSION_S
     budget_kinds: tuple[str, ...] = KINDS
+    # The extensions this run adds (EXTENDED_STAGES); none by default. skin_sensitivity's
+    # sessions are whole_hand_seconds long; sensitivity_variants False: its values alone.
+    extended: tuple[str, ...] = ()
+    sensitivity_variants: bool = True
 
     @classmethod
     def quick(cls) -> Settings:
@@ -105,7 +136,8 @@ class Settings:
                    whole_hand_seconds=20.0, grasp_objects=('golf_ball',), grasp_grips=(1.0,),
                    grasp_repeats=1, learning_seconds=(25.0, 100.0), full_plan_sessions=1,
                    budget_seconds=(50.0, 100.0), budget_minutes=5.5,
-                   budget_min_session_s=20.0, budget_kinds=('palm',))
+                   budget_min_session_s=20.0, budget_kinds=('palm',),
+                   sensitivity_variants=False)
 
 
 # The simulated skin: the empirical response (sim/taxel_response.py) or the one computed from
@@ -123,6 +155,9 @@ class Context:
     pool: ProcessPoolExecutor
     log: Callable[[str], None] = print
     timings: dict[str, float] = field(default_factory=dict)
+    # Per pool stage (run_units' title): its units' count, their summed and their longest wall
+    # time, each measured in its worker: what the stage would take on more cores.
+    units: dict[str, dict] = field(default_factory=dict)
 
 
 def scene_for(ctx: Context, name: str) -> str:

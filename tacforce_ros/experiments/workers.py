@@ -192,20 +192,42 @@ def job_closed_loop(scene: str, seed: int, controller: str, model_config: str | 
     return target
 
 
+def _timed(job: Callable, *args) -> tuple[Any, float]:
+    """The job's result and its wall time in the worker."""
+    started = time.perf_counter()
+    return job(*args), time.perf_counter() - started
+
+
 def run_units(ctx: Context, title: str, units: list[tuple[str, Callable, tuple]]
               ) -> dict[str, Any]:
-    """Submit (name, job, args) units to the pool; tqdm over completions; results by name."""
+    """Submit (name, job, args) units to the pool; tqdm over completions; results by name. The
+    stage's wall time goes to ctx.timings, its units' times to ctx.units."""
     results: dict[str, Any] = {}
     if not units:
         return results
     started = time.perf_counter()
-    futures = {ctx.pool.submit(job, *args): name for name, job, args in units}
+    futures = {ctx.pool.submit(_timed, job, *args): name for name, job, args in units}
+    seconds = []
     with tqdm(total=len(futures), desc=title, unit='job', file=sys.stderr) as bar:
         for future in as_completed(futures):
-            results[futures[future]] = future.result()
+            results[futures[future]], took = future.result()
+            seconds.append(took)
             bar.update(1)
     ctx.timings[title] = ctx.timings.get(title, 0.0) + time.perf_counter() - started
+    stage = ctx.units.setdefault(title, {'units': 0, 'work_s': 0.0, 'longest_s': 0.0})
+    stage.update(units=stage['units'] + len(seconds), work_s=stage['work_s'] + sum(seconds),
+                 longest_s=max(stage['longest_s'], max(seconds)))
     return results
+
+
+def predicted_seconds(timings: dict[str, float], units: dict[str, dict], wall: float,
+                      workers: int) -> float:
+    """The run's wall time predicted on `workers` worker processes (one a core): each pool stage
+    takes its units' summed time over the workers, or its longest unit if that is longer (its
+    critical path); the rest (stages in the main process, the report) as long as it took. An
+    estimate: a unit's time measured on a loaded machine stays what it was."""
+    pooled = sum(max(u['work_s'] / workers, u['longest_s']) for u in units.values())
+    return wall - sum(timings[t] for t in units) + pooled
 
 
 def load_trace(path: str):

@@ -1,5 +1,7 @@
-"""reproduce --quick end to end: the Markdown tables say what the JSON says, the figures are
-images, and a second run comes entirely from the cache with the same results."""
+"""reproduce --quick end to end, with the extensions but skin_sensitivity (its tool has its own
+tests): the Markdown tables say what the JSON says, the figures are images, a second run comes
+entirely from the cache with the same results, and the default run, without the extensions,
+has the same paper tables and says what it left out."""
 import json
 import re
 
@@ -17,15 +19,76 @@ NUMBER = re.compile(r'-?\d+(?:\.\d+)?')
 LABELS = {v: k for k, v in MODEL_NAMES.items()}
 
 
+EXTENSIONS = ['whole_hand', 'cross_array', 'learning_curve', 'budget']
+
+
 @pytest.fixture(scope='module')
 def runs(tmp_path_factory):
     out = tmp_path_factory.mktemp('reproduce')
-    assert reproduce.main(['--quick', '--out', str(out)]) == 0
+    assert reproduce.main(['--quick', '--out', str(out), '--stages', *EXTENSIONS]) == 0
     first = json.loads((out / 'report.json').read_text())
     first_md = (out / 'report.md').read_text()
-    assert reproduce.main(['--quick', '--out', str(out)]) == 0
+    assert reproduce.main(['--quick', '--out', str(out), '--stages', *EXTENSIONS]) == 0
     second = json.loads((out / 'report.json').read_text())
     return out, first, first_md, second
+
+
+def test_the_default_run_has_the_paper_s_tables_and_says_which_extensions_it_left_out(runs):
+    out, extended, _, _ = runs
+    assert reproduce.main(['--quick', '--out', str(out)]) == 0     # every unit from the cache
+    doc = json.loads((out / 'report.json').read_text())
+    md = (out / 'report.md').read_text()
+    assert doc['run']['cache']['misses'] == 0
+    assert doc['settings']['extended'] == [] and extended['settings']['extended'] == EXTENSIONS
+    for key in ('table_I', 'table_II', 'table_III', 'end_to_end', 'grasp', 'online',
+                'must_show', 'filter_closed_loop', 'skin_targets'):
+        assert doc[key] == extended[key], key
+    for key in ('whole_hand', 'cross_array', 'learning_curve', 'budget_campaign',
+                'skin_sensitivity'):
+        assert doc[key] is None, key
+    for heading in ('## Whole hand', '## Across arrays', '## Learning curves',
+                    '## A campaign with a budget'):
+        assert heading not in md
+    assert ('* not run: whole_hand, cross_array, learning_curve, budget, skin_sensitivity '
+            '(`reproduce --extended`') in md
+    assert 'whole_hand.png' not in doc['figures'] and 'learning_curve.png' not in doc['figures']
+
+
+def test_the_extensions_bring_the_stages_they_need(monkeypatch, tmp_path):
+    from tacforce_ros.experiments.settings import EXTENDED_STAGES, with_needs
+    assert with_needs(['cross_array']) == ('whole_hand', 'cross_array')
+    assert with_needs(['learning_curve', 'budget']) == ('whole_hand', 'learning_curve', 'budget')
+    with pytest.raises(ValueError, match='nosuch'):
+        with_needs(['nosuch'])
+    seen = []
+    monkeypatch.setattr(reproduce, 'run', lambda settings, out, jobs: seen.append(
+        (settings, jobs)) or (_ for _ in ()).throw(SystemExit(0)))
+    with pytest.raises(SystemExit):
+        reproduce.main(['--extended', '--workers', '3', '--out', str(tmp_path)])
+    settings, jobs = seen[0]
+    assert settings.extended == tuple(EXTENDED_STAGES) and jobs == 3
+    with pytest.raises(SystemExit) as refused:
+        reproduce.main(['--stages', 'nosuch'])
+    assert refused.value.code == 2
+
+
+def test_the_stage_times_give_each_pool_stage_s_critical_path(runs):
+    from tacforce_ros.experiments.workers import predicted_seconds
+    _, doc, md, _ = runs
+    run = doc['run']
+    units = run['stage_units']
+    assert units and set(units) <= set(run['stage_seconds'])
+    for name, u in units.items():
+        assert u['units'] >= 1 and 0 < u['longest_s'] <= u['work_s'], name
+    # One worker does all the work; more cannot beat the longest unit of each stage.
+    serial = run['wall_seconds'] - sum(run['stage_seconds'][n] for n in units)
+    assert predicted_seconds(run['stage_seconds'], units, run['wall_seconds'], 1) == \
+        pytest.approx(serial + sum(u['work_s'] for u in units.values()))
+    floor = serial + sum(u['longest_s'] for u in units.values())
+    assert run['predicted_seconds']['16'] >= floor - 1e-9
+    assert [run['predicted_seconds'][n] for n in ('1', '2', '4', '8', '16')] == sorted(
+        run['predicted_seconds'].values(), reverse=True)
+    assert 'Predicted wall time with N workers' in md
 
 
 def tables(markdown: str) -> dict[str, list[list[str]]]:

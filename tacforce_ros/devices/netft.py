@@ -29,8 +29,11 @@ CMD_START_BUFFERED = 0x0003
 CMD_RESET_LATCH = 0x0041
 CMD_SET_BIAS = 0x0042
 STATUS_MONITOR_WARNING = 0x80010000
-# A start request refused (ICMP port unreachable: no box there yet) is sent again this often, s.
+# A start request refused (ICMP port unreachable: no box there yet) is sent again this often, s;
+# one that nothing answered (the datagram lost, or its refusal never reported: the kernel may
+# withhold ICMP) after SILENT_RETRY_S. The box streams from the first request it gets.
 REFUSED_RETRY_S = 0.1
+SILENT_RETRY_S = 0.5
 
 REQUEST = struct.Struct('>HHI')
 RECORD = struct.Struct('>III6i')
@@ -153,6 +156,8 @@ class NetFtClient(PollingDriver[WrenchSample]):
         self._sock.connect((config.host, config.port))
         self._requested = time.monotonic()      # when the start request last went out
         self._refused = False                   # ... and was refused
+        self._answered = False                  # a datagram came since the first request
+        self.start_requests = 1
         self._send(CMD_START_REALTIME)
 
     def _send(self, command: int, sample_count: int = 0) -> None:
@@ -173,9 +178,12 @@ class NetFtClient(PollingDriver[WrenchSample]):
         self._host_bias = np.zeros(6, dtype=np.float64)
 
     def _receive(self, timeout: float) -> list[WrenchSample]:
-        if self._refused and time.monotonic() - self._requested >= REFUSED_RETRY_S:
+        waited = time.monotonic() - self._requested
+        if not self._answered and waited >= (REFUSED_RETRY_S if self._refused
+                                             else SILENT_RETRY_S):
             self._refused = False
             self._requested = time.monotonic()
+            self.start_requests += 1
             try:
                 self._send(CMD_START_REALTIME)
             except OSError:
@@ -195,6 +203,7 @@ class NetFtClient(PollingDriver[WrenchSample]):
                 self._refused = True
                 return samples
             stamp = ArrivalStamp.now()
+            self._answered = True
             self.diagnostics.note_received(stamp.monotonic)
             try:
                 records = decode_records(payload)

@@ -11,7 +11,8 @@ from hypothesis import strategies as st
 from tacforce_ros.devices.diagnostics import sequence_delta
 from tacforce_ros.devices.netft import (CMD_START_REALTIME, CMD_STOP, STATUS_MONITOR_WARNING,
                                         NetFtClient, NetFtConfig, RdtError, decode_records,
-                                        decode_request, encode_records, encode_request)
+                                        SILENT_RETRY_S, decode_request, encode_records,
+                                        encode_request)
 from tacforce_ros.sim.emulators.netft import NetFtEmulator
 
 
@@ -207,16 +208,16 @@ def test_stale_when_the_box_stops_sending():
 
 
 def test_a_box_that_comes_up_after_the_request_streams_without_a_restart():
-    """The start request went to a port nobody listened on (ICMP port unreachable): the client
-    asks again, so a box that comes up later streams (launch starts the simulator and the bridge
+    """The start request went to a port nobody listened on: the client asks again, whether the
+    kernel reported the refusal (ICMP port unreachable, 'refused' in the diagnostics) or withheld
+    it, so a box that comes up later streams (launch starts the simulator and the bridge
     together)."""
     with NetFtEmulator(CountingSource(), rate_hz=500) as gone:
         host, port = gone.address
     client = NetFtClient(NetFtConfig(host=host, port=port))
     client.start()
     try:
-        assert wait_until(lambda: 'refused' in (client.diagnostics.last_error or ''),
-                          EVENT_TIMEOUT)
+        assert wait_until(lambda: client.start_requests >= 3, EVENT_TIMEOUT)
         with NetFtEmulator(CountingSource(), port=port, rate_hz=500):
             assert client.wait_for_samples(5, timeout=EVENT_TIMEOUT)
     finally:
@@ -236,3 +237,29 @@ def test_poll_from_the_callers_own_thread_without_a_background_thread():
     assert client.latest() is samples[-1]
     assert [s.rdt_sequence for s in samples] == list(range(samples[0].rdt_sequence,
                                                          samples[0].rdt_sequence + len(samples)))
+
+
+def test_a_start_request_nothing_answers_is_sent_again():
+    """UDP may lose the request, and a kernel may withhold the refusal: a box that missed the
+    first request gets another SILENT_RETRY_S later, and none once it streams."""
+    import socket
+    import time
+    box = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    box.bind(('127.0.0.1', 0))
+    box.settimeout(EVENT_TIMEOUT)
+    client = NetFtClient(NetFtConfig(host='127.0.0.1', port=box.getsockname()[1]))
+    client.start()
+    try:
+        first, peer = box.recvfrom(64)
+        asked = time.monotonic()
+        second, _ = box.recvfrom(64)          # the first went unanswered
+        assert time.monotonic() - asked >= 0.8 * SILENT_RETRY_S
+        assert decode_request(first) == decode_request(second) == (CMD_START_REALTIME, 0)
+        box.sendto(bytes(36), peer)           # one record (all zero) answers the request
+        assert wait_until(lambda: client.diagnostics.received >= 1, EVENT_TIMEOUT)
+        sent = client.start_requests
+        time.sleep(3 * SILENT_RETRY_S)
+        assert client.start_requests == sent
+    finally:
+        client.close()
+        box.close()

@@ -221,3 +221,34 @@ def test_a_skin_setting_takes_the_parameters_shape():
     # a variant of a parameter set scales the value set, not the default
     rows = variants([0.5], ['layer_thickness'], [0], {'layer_thickness': 0.004})
     assert rows[1]['skin'] == {'layer_thickness': 0.002}
+
+
+def test_bench_sim_has_a_target_for_every_kind_of_shipped_scene_on_both_skins():
+    """With no scene list bench_sim runs every scene file on both skins: each kind has a target
+    (a grasp scene once stopped it with KeyError: 'grasp'), and NAME@magnetic is the scene on
+    the magnetic skin, with the effects it supersedes removed."""
+    from tacforce_ros.sim import list_scenes, load_scene
+    from tacforce_ros.sim.effects.magnetic_skin import MagneticSkin
+    kinds = {load_scene(name).kind for name in list_scenes()}
+    assert {'calibration', 'closed_loop', 'grasp'} <= kinds <= set(bench_sim.TARGETS)
+    for name in ('calibration_index_tip_flat', 'closed_loop_spherical', 'grasp_golf_ball'):
+        empirical, magnetic = (bench_sim.bench_scene(name),
+                               bench_sim.bench_scene(name + bench_sim.MAGNETIC))
+        assert 'magnetic_skin' not in empirical.effects and 'magnetic_skin' in magnetic.effects
+        assert not set(MagneticSkin.supersedes) & set(magnetic.effects)
+        assert magnetic.kind == empirical.kind
+
+
+def test_bench_sim_times_the_magnetic_skin_against_the_empirical_one(tmp_path, monkeypatch):
+    monkeypatch.setattr(bench_sim, 'EFFECTS', {'taxel_noise': None})
+    out = tmp_path / 'bench.json'
+    assert bench_sim.main(['--out', str(out), '--seconds', '0.2', '--repeats', '1',
+                           '--loop-seconds', '0', '--scenes', 'grasp_golf_ball',
+                           'calibration_index_tip_flat', 'calibration_index_tip_flat@magnetic'
+                           ]) == 0
+    result = json.loads(out.read_text())
+    assert result['scenes']['grasp_golf_ball']['target'] == bench_sim.TARGETS['grasp']
+    (row,) = result['skin_cost'].values()
+    assert row['cost'] == pytest.approx(row['empirical_realtime_factor']
+                                        / row['magnetic_realtime_factor'])
+    assert row['meets_target'] == (row['cost'] <= bench_sim.SKIN_COST_TARGET)

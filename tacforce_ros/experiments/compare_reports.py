@@ -9,6 +9,11 @@ computes from its seeds (Table I-III, the whole hand, the low-passed loop, the f
 delay) must be equal; what a run measures on the machine (times, latencies, load, the node
 graph's run over DDS) is listed apart and never judged. Writes <out>/compare.json and
 <out>/compare.md; exits 1 when a computed figure differs by more than --tolerance.
+
+The networks' training (M4, M5) repeats to the bit for its seeds on one kind of processor, but
+torch's CPU kernels differ between processor models (vector widths, and so the order of float
+sums), which moves those models' figures by up to a few mN. --trained-tolerance judges the
+figures that name M4 or M5 against a tolerance of their own, for reports from two machines.
 """
 from __future__ import annotations
 
@@ -25,6 +30,8 @@ from tacforce_ros.results import header, provenance, write
 # What a run measures rather than computes: its time, its machine, the node graph over DDS.
 MEASURED = re.compile(r'(^|/)(run|node_path|node_latency|timing_us|figures|paths|label'
                       r'|work_dir)(/|$)|seconds|(?<!group_delay)_ms(/|$)|_us(/|$)|load|date')
+# Figures of the torch-trained models: their rows, and the targets that name them.
+TRAINED = re.compile(r'\bM[45]\b')
 # Names that identify a row in a list of rows, in the order tried.
 ROW_KEYS = ('object', 'controller', 'model', 'cutoff_hz', 'test_plate', 'array', 'target')
 
@@ -61,12 +68,14 @@ def _difference(before: Any, after: Any) -> float | None:
     return abs(float(after) - float(before))
 
 
-def compare(before: dict, after: dict, tolerance: float = 0.0) -> dict[str, Any]:
-    """The figures of two reports paired by path: computed ones that differ (over `tolerance`),
-    the count of equal ones, those only one report has, and how many measured figures and texts
-    (labels, explanations) were set aside."""
+def compare(before: dict, after: dict, tolerance: float = 0.0,
+            trained_tolerance: float | None = None) -> dict[str, Any]:
+    """The figures of two reports paired by path: computed ones that differ (over `tolerance`;
+    the trained models' figures, TRAINED, over `trained_tolerance` where given), the count of
+    equal ones (and of those equal only within `trained_tolerance`), those only one report
+    has, and how many measured figures and texts (labels, explanations) were set aside."""
     old, new = dict(leaves(before)), dict(leaves(after))
-    differ, equal, measured, text = [], 0, 0, 0
+    differ, equal, measured, text, trained_within = [], 0, 0, 0, 0
     for path in sorted(old.keys() & new.keys()):
         a, b = old[path], new[path]
         if MEASURED.search(path):
@@ -76,17 +85,20 @@ def compare(before: dict, after: dict, tolerance: float = 0.0) -> dict[str, Any]
             text += 1
             continue
         delta = _difference(a, b)
+        trained = trained_tolerance is not None and TRAINED.search(path) is not None
         if delta is None:
             same = a == b
         else:
-            same = delta <= tolerance
+            same = delta <= (max(tolerance, trained_tolerance) if trained else tolerance)
+            trained_within += same and trained and delta > tolerance
         if same:
             equal += 1
         else:
             differ.append({'figure': path, 'before': a, 'after': b, 'difference': delta})
     only = {'before': sorted(p for p in old.keys() - new.keys() if not MEASURED.search(p)),
             'after': sorted(p for p in new.keys() - old.keys() if not MEASURED.search(p))}
-    return {'tolerance': tolerance, 'equal': equal, 'differ': differ, 'only': only,
+    return {'tolerance': tolerance, 'trained_tolerance': trained_tolerance, 'equal': equal,
+            'equal_within_trained_tolerance': trained_within, 'differ': differ, 'only': only,
             'measured_set_aside': measured, 'text_set_aside': text}
 
 
@@ -101,6 +113,10 @@ def markdown(result: dict[str, Any]) -> str:
              f'not compared: {c["measured_set_aside"]}; texts not compared: '
              f'{c["text_set_aside"]}; only before: {len(c["only"]["before"])}; only after: '
              f'{len(c["only"]["after"])}.', '']
+    if c.get('trained_tolerance') is not None:
+        lines += [f'Figures of M4 and M5 judged within {c["trained_tolerance"]:g} (trained on '
+                  f'another processor model, torch\'s kernels sum in another order): '
+                  f'{c["equal_within_trained_tolerance"]} equal only within it.', '']
     if c['differ']:
         lines += ['| figure | before | after | difference |', '|---|---|---|---|']
         lines += [f'| `{d["figure"]}` | {d["before"]} | {d["after"]} | '
@@ -126,9 +142,15 @@ def main(argv: list[str] | None = None) -> int:
                         help='folder for compare.json and compare.md')
     parser.add_argument('--tolerance', type=float, default=0.0,
                         help='largest absolute difference counted as equal (default 0: equal)')
+    parser.add_argument('--trained-tolerance', type=float, default=None,
+                        help='largest absolute difference counted as equal in the figures of '
+                             'M4 and M5 (trained with torch) alone: for reports of two '
+                             'processor models (default: --tolerance)')
     args = parser.parse_args(argv)
-    if not (args.tolerance >= 0.0 and math.isfinite(args.tolerance)):
-        parser.error(f'--tolerance {args.tolerance}: a finite number >= 0')
+    for name in ('tolerance', 'trained_tolerance'):
+        value = getattr(args, name)
+        if value is not None and not (value >= 0.0 and math.isfinite(value)):
+            parser.error(f'--{name.replace("_", "-")} {value}: a finite number >= 0')
     reports = {}
     for side in ('before', 'after'):
         path = getattr(args, side)
@@ -142,7 +164,8 @@ def main(argv: list[str] | None = None) -> int:
               'command': 'compare_reports ' + ' '.join(argv if argv is not None else sys.argv[1:]),
               'before': _about(args.before, reports['before']),
               'after': _about(args.after, reports['after']),
-              'comparison': compare(reports['before'], reports['after'], args.tolerance)}
+              'comparison': compare(reports['before'], reports['after'], args.tolerance,
+                                    args.trained_tolerance)}
     json_path, md_path = write(args.out, 'compare', result, markdown)
     c = result['comparison']
     print(f'{c["equal"]} computed figures equal, {len(c["differ"])} differ '

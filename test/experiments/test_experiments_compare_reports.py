@@ -88,3 +88,28 @@ def test_a_file_that_is_not_a_report_is_refused_with_why(tmp_path, capsys, text,
     with pytest.raises(SystemExit) as ended:
         main([str(bad), str(good), '--out', str(tmp_path)])
     assert ended.value.code == 2 and why in capsys.readouterr().err
+
+
+def test_the_trained_models_figures_may_have_a_tolerance_of_their_own(tmp_path, capsys):
+    """Reports of two processor models: M4's and M5's figures within --trained-tolerance are
+    equal, every other figure still to --tolerance."""
+    before = report()
+    after = report(**{'table_I.index_tip.M5.sim.e_hat': 0.193,             # M5, 3 mN
+                      'table_III.0.sim.e_tilde': 0.152,                   # M4's row, 2 mN
+                      'table_III.1.sim.e_tilde': 0.2001})                 # M3-lambda's, 0.1 mN
+    result = compare(before, after, trained_tolerance=0.005)
+    assert [d['figure'] for d in result['differ']] == [
+        'table_III[object=spherical,controller=M3-lambda]/sim/e_tilde']
+    assert result['equal_within_trained_tolerance'] == 2
+    assert len(compare(before, after, trained_tolerance=0.001)['differ']) == 3
+    assert len(compare(before, after)['differ']) == 3       # no trained tolerance: all judged
+    paths = []
+    for name, doc in (('before', before), ('after', after)):
+        paths.append(tmp_path / f'{name}.json')
+        paths[-1].write_text(json.dumps(doc))
+    assert main([*map(str, paths), '--out', str(tmp_path / 'c'), '--tolerance', '0.001',
+                 '--trained-tolerance', '0.005']) == 0
+    assert '2 equal only within it' in (tmp_path / 'c' / 'compare.md').read_text()
+    with pytest.raises(SystemExit) as refused:
+        main([*map(str, paths), '--out', str(tmp_path / 'c'), '--trained-tolerance', '-1'])
+    assert refused.value.code == 2 and '--trained-tolerance -1' in capsys.readouterr().err

@@ -416,6 +416,14 @@ def plan(args: SessionArgs) -> list[NodeLaunch]:
             if unmodelled:
                 raise PlanError(f'model: {grasp_models[0]} has no model of {unmodelled}\'s '
                                 f'fingertip, which scene {scene.name!r} grasps with')
+            from tacforce_ros.control.force_controller import ForceControllerConfig
+            from tacforce_ros.control.grasp import scene_grip_top
+            top = scene_grip_top(scene, description, ForceControllerConfig())
+            if args.grip > top:
+                raise PlanError(
+                    f'grip {args.grip:g} N: at most {top:.2f} N at scene {scene.name!r}\'s '
+                    'start pose, where a joint of the grasp would need more than its torque '
+                    'limit above it (the grasp controller refuses such a goal)')
         if args.mode != 'grasp' and scene.array not in {a.name for a in description.arrays}:
             raise PlanError(f'scene {scene.name!r} presses {scene.array!r}, not an array of the '
                             f'{description.side} hand')

@@ -218,6 +218,27 @@ def max_grip(kinematics: Kinematics, q16: np.ndarray, fingers: Iterable[str],
     return float(max(best, 0.0))
 
 
+def scene_grip_top(scene, hand, base: ForceControllerConfig) -> float:
+    """The largest grip (N) a goal of the grasp scene `scene` may ask at the scene's start pose
+    (its hand pose with each finger at its own), as GraspController.check judges it there: the
+    scene's object mass and gravity, `base` on each of its fingers. The hand's driver holds that
+    pose until the goal, so a launch can refuse a grip above it before anything starts."""
+    from tacforce_ros.hand.kinematics import HandKinematics
+    from tacforce_ros.hand.pinch import pad
+    from tacforce_ros.sim.operator import FINGER_JOINTS
+    gravity = np.asarray(scene.grasp['gravity'], np.float64)
+    kinematics = HandKinematics.for_hand(hand, gravity=tuple(gravity))
+    fingers = tuple(scene.grasp['fingers'])
+    q16 = np.asarray(scene.grasp['hand_pose'], np.float64).copy()
+    for finger, pose in scene.grasp['fingers'].items():
+        q16[FINGER_JOINTS[finger]] = pose['pose']
+    configs = finger_configs(base, hand, fingers)
+    directions = grip_directions(lambda q, f: pad(hand, kinematics, q, f)[0], fingers, q16)
+    share = -scene.grasp_object.mass * gravity / len(fingers)
+    return max_grip(kinematics, q16, fingers, directions, share,
+                    min(configs[f].torque_cap for f in fingers))
+
+
 class GraspController:
     """The grasp's fingers under force control. `start(goal, ...)` begins a grasp, `update(...)`
     runs one tick of every finger and returns the 16 joint torques (zeros on joints no finger

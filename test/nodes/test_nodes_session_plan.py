@@ -1,6 +1,7 @@
 """The session plan (shared by the launch files and `session`): every executable and parameter
 file it names exists, overrides are quoted so YAML cannot retype them, bad choices are refused."""
 import ast
+import dataclasses
 import sys
 from pathlib import Path
 
@@ -327,7 +328,11 @@ def test_a_campaign_session_after_a_poor_one_takes_the_next_seed_and_a_complete_
     (dict(mode='grasp', grasp_object='egg'), 'scene: .*grasp_egg'),
     (dict(mode='grasp', scene='closed_loop_spherical'),
      "scene 'closed_loop_spherical' is a closed_loop scene, not grasp"),
-    (dict(mode='grasp', grip=0.2), 'the grip must be at least 0.3 N')])
+    (dict(mode='grasp', grip=0.2), 'the grip must be at least 0.3 N'),
+    (dict(mode='grasp', grip=50.0),
+     r"grip 50 N: at most 2\.\d\d N at scene 'grasp_golf_ball'\'s start pose"),
+    (dict(mode='grasp', grasp_object='tennis_ball', grip=2.5),
+     r"grip 2\.5 N: at most 2\.\d\d N at scene 'grasp_tennis_ball'")])
 def test_an_argument_the_session_would_ignore_or_cannot_use_is_refused(args, message):
     """In both modes, simulated or not: what the session would silently ignore (another mode's,
     or simulation's, on the hardware) or could not use is refused before any node starts."""
@@ -414,3 +419,38 @@ def test_a_namespaced_grasp_client_finds_the_server_of_its_own_hand():
     assert 'action' not in client.overrides
     shipped = shipped_parameters('grasp_client')['action']
     assert not shipped.startswith('/') and shipped == 'grasp_controller/grasp'
+
+
+def test_the_grip_bound_is_the_controller_s_own_check_at_the_scene_s_pose():
+    """The plan's upper bound is where GraspController.check starts refusing a goal at the
+    scene's start pose: just below it a goal passes the check, just above it is refused."""
+    import numpy as np
+    from tacforce_ros.control.force_controller import ForceControllerConfig
+    from tacforce_ros.control.grasp import (GraspConfig, GraspController, GraspGoal,
+                                            GraspGoalError, finger_configs, scene_grip_top)
+    from tacforce_ros.hand.description import load_hand
+    from tacforce_ros.hand.kinematics import HandKinematics
+    from tacforce_ros.hand.pinch import pad
+    from tacforce_ros.sim import load_scene
+    from tacforce_ros.sim.operator import FINGER_JOINTS
+    hand = load_hand()
+    scene = load_scene('grasp_golf_ball')
+    top = scene_grip_top(scene, hand, ForceControllerConfig())
+    assert GraspConfig.grip_min < top < 5.0
+    plan(SessionArgs('grasp', grip=round(top - 0.01, 2)))          # below it: planned
+    gravity = tuple(scene.grasp['gravity'])
+    kinematics = HandKinematics.for_hand(hand, gravity=gravity)
+    fingers = tuple(scene.grasp['fingers'])
+    controller = GraspController(finger_configs(ForceControllerConfig(), hand, fingers),
+                                 kinematics, lambda q, f: pad(hand, kinematics, q, f)[0],
+                                 GraspConfig(gravity=gravity))
+    q16 = np.asarray(scene.grasp['hand_pose'], np.float64).copy()
+    targets = {}
+    for finger, pose in scene.grasp['fingers'].items():
+        q16[FINGER_JOINTS[finger]] = pose['pose']
+        targets[finger] = tuple(pose['contact_pose'])
+    goal = GraspGoal(fingers=fingers, grip=top - 0.01, targets=targets,
+                     mass=scene.grasp_object.mass)
+    controller.check(goal, q16)
+    with pytest.raises(GraspGoalError, match='outside the safe range'):
+        controller.check(dataclasses.replace(goal, grip=top + 0.01), q16)

@@ -39,6 +39,7 @@ from tacforce_ros.sim.operator import FINGER_JOINTS
 from tacforce_ros.sim.sample import SimSample, StepState, checked_torques
 from tacforce_ros.sim.scene import GraspObject, Scene, SceneError
 from tacforce_ros.sim.sensors import TactileSensor
+from tacforce_ros.sim.vector import cross
 
 # The contact poses are solved for a tip sphere of the scene's tip_radius (hand/pinch.py); the
 # mounted skin's extra thickness (kinematic_mismatch) is what a real hand adds to its nominal
@@ -334,9 +335,9 @@ class GraspSimulator:
             force, point, normal, active = self._contact(finger)
             tip_com = data.xipos[finger.tip]
             data.xfrc_applied[finger.tip, :3] += force
-            data.xfrc_applied[finger.tip, 3:] += np.cross(point - tip_com, force)
+            data.xfrc_applied[finger.tip, 3:] += cross(point - tip_com, force)
             data.xfrc_applied[self.body, :3] -= force
-            data.xfrc_applied[self.body, 3:] -= np.cross(point - object_com, force)
+            data.xfrc_applied[self.body, 3:] -= cross(point - object_com, force)
             contacts.append((force, point, normal, active))
         push = self.disturbances.get('push')
         if push and push['at'] <= t < push['at'] + push['duration']:

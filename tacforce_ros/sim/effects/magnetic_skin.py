@@ -306,16 +306,27 @@ class MagneticSkin(Effect):
                                                                         1.0 / len(points)))
             return
         line = 0 if curved[1] else 1
-        along = np.arange(low[line] + 0.5 * step, high[line], step)
+        self._line_along = np.arange(low[line] + 0.5 * step, high[line], step)
+        self._line = line
         self._line_across = np.arange(-LINE_REACH, LINE_REACH + 1e-12, LINE_TABLE_STEP)
-        table = []
-        for offset in self._line_across:
-            points = np.zeros((len(along), 2))
-            points[:, line], points[:, 1 - line] = along, offset
-            table.append(self._unit_influence(points, np.full(len(along), 1.0 / len(along))))
-        self._line_table = np.stack(table, axis=1)                  # (n, offsets, 3, 3)
+        # The table's rows are filled as the contact's width reaches them: a press held at one
+        # place fills a few, and a contact that moves every frame (a grasp, the closed loop)
+        # computes the 16 it reads, not all 121.
+        self._line_table = {}                       # offset index -> (n, 3, 3)
         self._line_length = high[line] - low[line]
         self._line_curvature = self._curvatures[1 - line]
+
+    def _line_rows(self, indices: np.ndarray) -> np.ndarray:
+        """(n, len(indices), 3, 3): the line contact's table at these offsets across the line,
+        each row a line of loads at that offset (computed once per location)."""
+        along, line = self._line_along, self._line
+        for index in dict.fromkeys(indices.tolist()):
+            if index not in self._line_table:
+                points = np.zeros((len(along), 2))
+                points[:, line], points[:, 1 - line] = along, self._line_across[index]
+                self._line_table[index] = self._unit_influence(
+                    points, np.full(len(along), 1.0 / len(along)))
+        return np.stack([self._line_table[index] for index in indices.tolist()], axis=1)
 
     def _unit_displacement(self, normal_force: float) -> np.ndarray:
         """(n, 3, 3) for this frame's force: Hertz ellipse, line contact or flat punch."""
@@ -337,7 +348,7 @@ class MagneticSkin(Effect):
         position = np.interp(across, self._line_across, np.arange(len(self._line_across)))
         below = np.minimum(position.astype(np.int64), len(self._line_across) - 2)
         frac = (position - below)[None, :, None, None]
-        rows = (1.0 - frac) * self._line_table[:, below] + frac * self._line_table[:, below + 1]
+        rows = (1.0 - frac) * self._line_rows(below) + frac * self._line_rows(below + 1)
         return np.einsum('j,njfd->nfd', shares, rows)
 
     def displacement(self, contact, plate) -> np.ndarray:

@@ -92,6 +92,26 @@ def training_sets(ctx: Context, title: str, sessions: dict[str, list[str]],
     return sets
 
 
+def _benchmark_unit(ctx: Context, name: str, array: str, label: str, paths: list[str],
+                    training_set: str) -> tuple[str, str, dict | None, tuple | None]:
+    """(cache key, model path, cached cross-validation or None, job unit or None) of one
+    leave-one-plate-out benchmark of `label` on `array`'s sessions, with its model on all the
+    plates fitted in the same job (job_benchmark)."""
+    s = ctx.settings
+    key = _training_key(paths, label, s)
+    target = ctx.cache.path('models', key, '.npz')
+    cached = ctx.cache.load_json('cross_validation', key)
+    if cached is not None and ctx.cache.lookup('models', key, '.npz') is not None:
+        return key, str(target), cached, None
+    target.parent.mkdir(parents=True, exist_ok=True)
+    kind, hyper = model_hyper(label, s)
+    provenance = {'dataset': f'reproduce cache {key[:24]}', 'date':
+                  time.strftime('%Y-%m-%dT%H:%M:%S%z'), 'seed': s.seed,
+                  'code_version': source_digest(fit_bundles)[:12]}
+    return key, str(target), None, (name, job_benchmark, (array, kind, hyper, training_set,
+                                                          provenance, str(target)))
+
+
 def benchmark_stage(ctx: Context, layout: dict) -> tuple[dict, dict]:
     """Table I: leave-one-plate-out CV per array and model; final models on all five plates.
 
@@ -104,22 +124,12 @@ def benchmark_stage(ctx: Context, layout: dict) -> tuple[dict, dict]:
     for array in ARRAYS:
         paths = [p for plate in PLATES for p in layout[array][plate]]
         for label in s.models:
-            kind, hyper = model_hyper(label, s)
-            key = _training_key(paths, label, s)
             name = f'{array}/{label}'
-            keys[name] = key
-            target = ctx.cache.path('models', key, '.npz')
-            models.setdefault(array, {})[label] = str(target)
-            cached = ctx.cache.load_json('cross_validation', key)
-            if cached is not None and ctx.cache.lookup('models', key, '.npz') is not None:
+            keys[name], models.setdefault(array, {})[label], cached, job = _benchmark_unit(
+                ctx, name, array, label, paths, sets[array])
+            if cached is not None:
                 cv.setdefault(array, {})[label] = cached
-                continue
-            target.parent.mkdir(parents=True, exist_ok=True)
-            provenance = {'dataset': f'reproduce cache {key[:24]}', 'date':
-                          time.strftime('%Y-%m-%dT%H:%M:%S%z'), 'seed': s.seed,
-                          'code_version': source_digest(fit_bundles)[:12]}
-            jobs.append((name, job_benchmark, (array, kind, hyper, sets[array], provenance,
-                                               str(target))))
+            jobs += [job] if job is not None else []
     ctx.log(f'stage benchmark: {len(jobs)} of {len(ARRAYS) * len(s.models)} cross-validations, '
             f'each with its final model in the same fit, to run')
     # Slow (torch) units first, so the pool does not end on one long job.
@@ -160,22 +170,13 @@ def grasp_arrays_stage(ctx: Context) -> tuple[dict[str, dict], dict[str, str], d
             f'{len(jobs)} sessions to simulate')
     run_units(ctx, 'grasp fingertip sessions', jobs)
     sets = training_sets(ctx, 'grasp fingertip training sets', layout)
-    kind, hyper = model_hyper(WHOLE_HAND_MODEL, s)
     results, jobs, keys, final = {}, [], {}, {}
     for array, paths in layout.items():
-        keys[array] = _training_key(paths, WHOLE_HAND_MODEL, s)
-        target = ctx.cache.path('models', keys[array], '.npz')
-        final[array] = str(target)
-        cached = ctx.cache.load_json('cross_validation', keys[array])
-        if cached is not None and ctx.cache.lookup('models', keys[array], '.npz') is not None:
+        keys[array], final[array], cached, job = _benchmark_unit(
+            ctx, array, array, WHOLE_HAND_MODEL, paths, sets[array])
+        if cached is not None:
             results[array] = cached
-            continue
-        target.parent.mkdir(parents=True, exist_ok=True)
-        provenance = {'dataset': f'reproduce cache {keys[array][:24]}', 'date':
-                      time.strftime('%Y-%m-%dT%H:%M:%S%z'), 'seed': s.seed,
-                      'code_version': source_digest(fit_bundles)[:12]}
-        jobs.append((array, job_benchmark, (array, kind, hyper, sets[array], provenance,
-                                            str(target))))
+        jobs += [job] if job is not None else []
     for array, value in run_units(ctx, 'grasp fingertip fits', jobs).items():
         ctx.cache.store_json('cross_validation', keys[array], value)
         results[array] = value

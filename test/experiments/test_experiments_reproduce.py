@@ -61,8 +61,12 @@ def test_the_extensions_bring_the_stages_they_need(monkeypatch, tmp_path):
     with pytest.raises(ValueError, match='nosuch'):
         with_needs(['nosuch'])
     seen = []
-    monkeypatch.setattr(reproduce, 'run', lambda settings, out, jobs: seen.append(
-        (settings, jobs)) or (_ for _ in ()).throw(SystemExit(0)))
+
+    def stop_before_running(settings, out, jobs):     # the parsed settings are what is checked
+        seen.append((settings, jobs))
+        raise SystemExit(0)
+
+    monkeypatch.setattr(reproduce, 'run', stop_before_running)
     with pytest.raises(SystemExit):
         reproduce.main(['--extended', '--workers', '3', '--out', str(tmp_path)])
     settings, jobs = seen[0]

@@ -147,6 +147,11 @@ def graph(tmp_path_factory):
             hand = Hand(node)
             client = ActionClient(node, Grasp, '/grasp_controller/grasp')
             assert spin_until(node, client.server_is_ready, WAIT_S), proc.text()[-2000:]
+            # The action server can be found before the node has the joint stream: a goal
+            # then is refused for 'no joint states yet', which no test here asks about.
+            assert spin_until(node, lambda: hand.joints.get_subscription_count() > 0
+                              and hand.estimates.get_subscription_count() > 0, WAIT_S)
+            spin_until(node, lambda: False, 0.2)       # a few dozen joint frames delivered
             yield node, client, hand, proc
     finally:
         output = proc.stop()
